@@ -1,0 +1,83 @@
+// api_guard.hpp: the one place where C++ exceptions become vibid_status codes.
+//
+// Every extern "C" entry point runs its body through vibid::guard (status-returning
+// functions) or vibid::guard_create (constructors returning a handle or NULL). Inside,
+// code reports bad input by throwing vibid::Error with a status and a message; the
+// guard records "function: message" in the thread-local last-error buffer and returns
+// the status. Nothing escapes: std::bad_alloc becomes VIBID_E_NO_MEMORY, anything else
+// VIBID_E_INTERNAL.
+//
+// Real-time paths must not throw (an exception allocates): per-sample functions check
+// their arguments with vibid::fail(), which formats into the fixed buffer and returns
+// the status without throwing.
+#pragma once
+
+#include <vibid/common.h>
+
+#include <cmath>
+#include <cstddef>
+#include <exception>
+#include <new>
+#include <stdexcept>
+#include <string>
+
+namespace vibid {
+
+class Error : public std::runtime_error {
+public:
+    Error(vibid_status status, const std::string &message) : std::runtime_error(message), status_(status) {}
+    vibid_status status() const noexcept { return status_; }
+
+private:
+    vibid_status status_;
+};
+
+// Records "function: message" (printf-style) as the thread's last error. Never allocates.
+void set_last_error(const char *function, const char *format, ...) noexcept __attribute__((format(printf, 2, 3)));
+
+// Records the error and returns status: for non-throwing (real-time) paths.
+#define VIBID_FAIL(status, ...) (::vibid::set_last_error(__func__, __VA_ARGS__), (status))
+
+// Throws Error with a printf-style message (for create/solve paths, not real time).
+[[noreturn]] void throw_error(vibid_status status, const char *format, ...) __attribute__((format(printf, 2, 3)));
+
+template <class F>
+vibid_status guard(const char *function, F &&body) noexcept {
+    try {
+        return body();
+    } catch (const Error &e) {
+        set_last_error(function, "%s", e.what());
+        return e.status();
+    } catch (const std::bad_alloc &) {
+        set_last_error(function, "out of memory");
+        return VIBID_E_NO_MEMORY;
+    } catch (const std::exception &e) {
+        set_last_error(function, "internal error: %s", e.what());
+        return VIBID_E_INTERNAL;
+    } catch (...) {
+        set_last_error(function, "internal error: unknown exception");
+        return VIBID_E_INTERNAL;
+    }
+}
+
+template <class T, class F>
+T *guard_create(const char *function, F &&body) noexcept {
+    T *result = nullptr;
+    vibid_status s = guard(function, [&]() -> vibid_status {
+        result = body();
+        return VIBID_OK;
+    });
+    return s == VIBID_OK ? result : nullptr;
+}
+
+// True if all n values are finite.
+inline bool all_finite(const double *v, std::size_t n) noexcept {
+    for (std::size_t i = 0; i < n; ++i)
+        if (!std::isfinite(v[i])) return false;
+    return true;
+}
+
+}  // namespace vibid
+
+// Entry-point helpers: VIBID_GUARD(body) inside a function returning vibid_status.
+#define VIBID_GUARD(...) return ::vibid::guard(__func__, [&]() -> vibid_status { __VA_ARGS__ })

@@ -1,0 +1,39 @@
+#!/usr/bin/env bash
+# Installs the Debian (bookworm) packages vibid needs, only those missing.
+# Usage: scripts/install-deps.sh [--test]   (--test adds what only the tests need)
+# Needs root (or sudo) when something is missing; does nothing when all is there.
+set -euo pipefail
+
+# Build: compilers, CMake, and the libraries of every part.
+packages=(build-essential cmake pkg-config libeigen3-dev libcmocka-dev
+          libsundials-dev libmodbus-dev libconfig-dev)
+# Demo plots.
+packages+=(gnuplot-nox)
+if [[ "${1:-}" == "--test" ]]; then
+  # Independent peers and tools for tests: can-utils (candump/cangen/canplayer),
+  # qemu + busybox + cpio for the SocketCAN VM test, python3-venv for cantools/pymodbus.
+  packages+=(can-utils qemu-system-x86 busybox-static cpio python3-venv)
+fi
+
+missing=()
+for p in "${packages[@]}"; do
+  if ! dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed"; then
+    missing+=("$p")
+  fi
+done
+if (( ${#missing[@]} == 0 )); then
+  echo "install-deps: all ${#packages[@]} packages present"
+  exit 0
+fi
+
+echo "install-deps: installing ${missing[*]}"
+SUDO=""
+if [[ $(id -u) -ne 0 ]]; then
+  if command -v sudo >/dev/null; then SUDO=sudo; else
+    echo "install-deps: not root and no sudo; please install: ${missing[*]}" >&2
+    exit 1
+  fi
+fi
+export DEBIAN_FRONTEND=noninteractive
+$SUDO apt-get update -qq
+$SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}"

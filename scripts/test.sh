@@ -1,0 +1,25 @@
+#!/usr/bin/env bash
+# The whole test suite, from a fresh clone: installs what is missing, builds with
+# -Wall -Wextra -Werror and runs every test through ctest, then builds again with
+# AddressSanitizer + UndefinedBehaviorSanitizer and runs the same tests.
+# Build trees: build/werror and build/sanitize (override with VIBID_BUILD_ROOT).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+scripts/install-deps.sh --test
+
+root=${VIBID_BUILD_ROOT:-build}
+jobs=$(nproc)
+
+run_suite() {
+  local name=$1; shift
+  echo "==== test suite: $name ===="
+  cmake -S . -B "$root/$name" -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DVIBID_WERROR=ON "$@"
+  cmake --build "$root/$name" -j "$jobs"
+  ctest --test-dir "$root/$name" --output-on-failure -j "$jobs" --timeout 900
+}
+
+run_suite werror
+# Sanitized build: -O1 keeps it fast enough; leaks are errors too.
+ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 \
+  run_suite sanitize -DVIBID_SANITIZE=ON -DCMAKE_BUILD_TYPE=Debug -DCMAKE_CXX_FLAGS=-O1 -DCMAKE_C_FLAGS=-O1 -DVIBID_BUILD_BENCH=OFF
+echo "==== all test suites passed ===="
