@@ -5,7 +5,7 @@
 set -euo pipefail
 
 # Build: compilers, CMake, and the libraries of every part.
-packages=(build-essential cmake pkg-config libeigen3-dev libcmocka-dev
+packages=(build-essential cmake ninja-build pkg-config libeigen3-dev libcmocka-dev
           libsundials-dev libmodbus-dev libconfig-dev)
 # Demo plots.
 packages+=(gnuplot-nox)

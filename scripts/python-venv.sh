@@ -1,0 +1,43 @@
+#!/usr/bin/env bash
+# Creates (or checks) the Python virtual environment that the drivers' tests use for
+# independent reference implementations: cantools (DBC decoding), pymodbus (a Modbus
+# TCP server nobody here wrote) and python-can (its candump-format logger).
+#
+# Usage: scripts/python-venv.sh            -> venv at ${VIBID_BUILD_ROOT:-build}/venv
+#        scripts/python-venv.sh --print    -> also print the venv's python path (last line)
+# Idempotent: when the venv exists and holds exactly the pinned versions it only checks
+# them (well under a second) and installs nothing. Versions are pinned so that test
+# results do not change under our feet when upstream releases.
+# The tests find the interpreter through the CMake cache variable VIBID_PYTHON or the
+# environment variable VIBID_PYTHON (e.g. VIBID_PYTHON=build/venv/bin/python).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+root=${VIBID_BUILD_ROOT:-build}
+venv="$root/venv"
+pins=(cantools==40.7.1 pymodbus==3.6.9 python-can==4.4.2)
+stamp="$venv/.vibid-pins"
+want="${pins[*]}"
+
+if [[ -x "$venv/bin/python" && -f "$stamp" && "$(cat "$stamp")" == "$want" ]]; then
+  if "$venv/bin/python" -c 'import cantools, pymodbus, can' 2>/dev/null; then
+    echo "python-venv: $venv ready (${pins[*]})"
+    [[ "${1:-}" == "--print" ]] && echo "$(cd "$venv" && pwd)/bin/python"
+    exit 0
+  fi
+fi
+
+py=${PYTHON:-python3}
+if ! "$py" -c 'import venv, ensurepip' 2>/dev/null; then
+  echo "python-venv: $py lacks the venv/ensurepip modules (Debian: apt-get install python3-venv)" >&2
+  exit 1
+fi
+echo "python-venv: creating $venv with ${pins[*]}"
+mkdir -p "$root"
+"$py" -m venv "$venv"
+"$venv/bin/python" -m pip install --quiet --disable-pip-version-check "${pins[@]}"
+"$venv/bin/python" -c 'import cantools, pymodbus, can'
+echo "$want" > "$stamp"
+echo "python-venv: $venv ready"
+[[ "${1:-}" == "--print" ]] && echo "$(cd "$venv" && pwd)/bin/python"
+exit 0
