@@ -11,8 +11,9 @@ packages=(build-essential cmake ninja-build pkg-config libeigen3-dev libcmocka-d
 packages+=(gnuplot-nox)
 if [[ "${1:-}" == "--test" ]]; then
   # Independent peers and tools for tests: can-utils (candump/cangen/canplayer),
-  # qemu + busybox + cpio for the SocketCAN VM test, python3-venv for cantools/pymodbus.
-  packages+=(can-utils qemu-system-x86 busybox-static cpio python3-venv)
+  # qemu + busybox + cpio for the SocketCAN VM test, python3-venv for cantools/pymodbus,
+  # clang + its runtime for the libFuzzer targets of the parsers.
+  packages+=(can-utils qemu-system-x86 busybox-static cpio python3-venv clang libclang-rt-14-dev)
 fi
 
 missing=()

@@ -9,6 +9,8 @@ scripts/install-deps.sh --test
 
 root=${VIBID_BUILD_ROOT:-build}
 jobs=$(nproc)
+# Independent reference tools from PyPI (cantools, pymodbus, python-can) for the tests.
+VIBID_BUILD_ROOT="$root" scripts/python-venv.sh
 
 run_suite() {
   local name=$1; shift

@@ -1,0 +1,56 @@
+/* vibid_drivers/sample.h: what every source delivers: samples (t_k, u_k, y_k) and
+ * explicit gap / fault records, so that nothing is invented or dropped silently.
+ * Fixed size (no pointers) so that records can be copied through a lock-free ring. */
+#ifndef VIBID_DRIVERS_SAMPLE_H
+#define VIBID_DRIVERS_SAMPLE_H
+
+#include <stdint.h>
+
+#include <vibid_drivers/channel_map.h>
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+typedef enum vibid_record_kind {
+    VIBID_REC_SAMPLE = 0, /* values[] holds one complete sample */
+    VIBID_REC_GAP = 1,    /* samples index .. index+count-1 are missing (not invented) */
+    VIBID_REC_FAULT = 2   /* something went wrong; text says what and where; no sample */
+} vibid_record_kind;
+
+typedef enum vibid_fault_code {
+    VIBID_FAULT_NONE = 0,
+    VIBID_FAULT_BAD_LINE,     /* malformed capture line/row */
+    VIBID_FAULT_UNKNOWN_ID,   /* frame id not in the DBC (reported once per id, all counted) */
+    VIBID_FAULT_SHORT_FRAME,  /* payload shorter than a signal needs */
+    VIBID_FAULT_NONFINITE,    /* NaN/Inf value */
+    VIBID_FAULT_DUPLICATE,    /* second frame for a sample already holding it */
+    VIBID_FAULT_LATE,         /* frame for a sample already emitted or declared missing */
+    VIBID_FAULT_BUS_ERROR,    /* CAN error frame */
+    VIBID_FAULT_DROPPED,      /* frames dropped by the kernel/logger (count in `count`) */
+    VIBID_FAULT_POLL,         /* failed Modbus poll */
+    VIBID_FAULT_LINK          /* connection lost / re-established */
+} vibid_fault_code;
+
+typedef struct vibid_record {
+    vibid_record_kind kind;
+    vibid_fault_code fault;   /* FAULT only */
+    uint64_t index;           /* SAMPLE: k; GAP: first missing k; FAULT: sample k it concerns (or 0) */
+    uint64_t count;           /* GAP: missing samples; FAULT DROPPED: frames dropped */
+    int64_t t_ns;             /* SAMPLE: sample time, ns (device time if available, else receive time) */
+    uint32_t n_values;        /* SAMPLE: = channel count */
+    double values[VIBID_DRV_MAX_CHANNELS]; /* in channel-map order, physical units */
+    char text[160];           /* GAP/FAULT: reason, with file:line when from a file */
+} vibid_record;
+
+/* Jitter statistics of the intervals between consecutive emitted samples. */
+typedef struct vibid_jitter_stats {
+    uint64_t n;               /* intervals seen */
+    double mean_s, std_s;     /* mean and standard deviation of the interval, s */
+    double min_s, max_s;
+} vibid_jitter_stats;
+
+#ifdef __cplusplus
+}
+#endif
+#endif

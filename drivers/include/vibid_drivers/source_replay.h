@@ -1,0 +1,57 @@
+/* vibid_drivers/source_replay.h: the replay source: a capture file read back as if it
+ * came from the bus, through the same decoding as the live sources.
+ *
+ * - candump .log (candump.h): frames go through the DBC and the CAN sample assembler
+ *   (can_assembler.h) exactly as live SocketCAN frames do; DROPCOUNT lines become
+ *   DROPPED faults; bad lines become BAD_LINE faults with file:line.
+ * - CSV with a header row (csv_capture.h): every channel of the channel map names a
+ *   `column`; the optional `time_column` gives the sample time in seconds. Each data
+ *   row is one sample k = 0, 1, ...; a bad row is a BAD_LINE fault plus a one-sample
+ *   GAP (the row is not used). With a time column and sample_period_s > 0, a time step
+ *   of more than 1.5 periods gives a GAP of round(dt/h) - 1 samples, and time that does
+ *   not increase is a BAD_LINE fault (row not used).
+ * - A file whose last line has no newline was cut while being written: that line is a
+ *   BAD_LINE fault "truncated capture" with file:line and is never turned into a value,
+ *   even if it happens to parse.
+ *
+ * Pace: as fast as possible, or at the recorded pace (times speed): sample k is
+ * released at start + (t_k - t_0) / speed on CLOCK_MONOTONIC, slept to with
+ * clock_nanosleep(TIMER_ABSTIME), so pacing errors do not accumulate.
+ */
+#ifndef VIBID_DRIVERS_SOURCE_REPLAY_H
+#define VIBID_DRIVERS_SOURCE_REPLAY_H
+
+#include <stdbool.h>
+
+#include <vibid_drivers/channel_map.h>
+#include <vibid_drivers/dbc.h>
+#include <vibid_drivers/source.h>
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+typedef enum vibid_replay_format {
+    VIBID_REPLAY_AUTO = 0,   /* ".csv" (any case) -> CSV, anything else -> candump */
+    VIBID_REPLAY_CANDUMP = 1,
+    VIBID_REPLAY_CSV = 2
+} vibid_replay_format;
+
+typedef struct vibid_source_replay_config {
+    const char *path;            /* capture file (copied) */
+    vibid_replay_format format;
+    const vibid_dbc *dbc;        /* candump only; must outlive the source */
+    vibid_chanmap chanmap;       /* candump: signal channels (+ counter/trigger);
+                                    CSV: column channels (+ time_column) */
+    bool paced;                  /* false: as fast as possible */
+    double speed;                /* paced: 1.0 = recorded pace, 2.0 = twice as fast; > 0 */
+    double sample_period_s;      /* CSV: h; required without time_column (t_k = k h);
+                                    with it optional (gap detection); 0 = unknown */
+} vibid_source_replay_config;
+
+extern const vibid_source_ops vibid_source_replay_ops;
+
+#ifdef __cplusplus
+}
+#endif
+#endif

@@ -1,0 +1,443 @@
+/* CAN frames -> samples, with every gap and fault made explicit; see can_assembler.h. */
+#include <vibid_drivers/can_assembler.h>
+
+#include <math.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#define MAX_MSGS 32      /* messages carrying channels */
+#define QUEUE_LEN 16     /* records one frame can produce is at most 3 */
+#define MAX_UNKNOWN 64   /* distinct unknown ids reported individually */
+
+typedef struct involved {
+    const vibid_dbc_message *msg;
+    int counter_sig;                       /* index in msg->signals, -1 in trigger mode */
+    size_t n_ch;
+    uint8_t ch_index[VIBID_DRV_MAX_CHANNELS];   /* channel map index */
+    uint8_t sig_index[VIBID_DRV_MAX_CHANNELS];  /* signal index in msg */
+} involved;
+
+struct vibid_can_assembler {
+    const vibid_chanmap *map;
+    involved inv[MAX_MSGS];
+    size_t n_inv;
+    int trigger; /* index into inv of the trigger message, or -1 */
+    const vibid_dbc_message *trigger_msg;
+    bool counter_mode;
+    unsigned counter_bits;
+    /* open sample */
+    bool have_current, current_done;
+    uint64_t k, cur_raw;
+    uint32_t filled; /* bit per involved message */
+    uint32_t all_mask;
+    int64_t t_ns;
+    double values[VIBID_DRV_MAX_CHANNELS];
+    /* output queue */
+    vibid_record q[QUEUE_LEN];
+    size_t q_head, q_len;
+    /* unknown ids reported */
+    uint32_t unknown[MAX_UNKNOWN];
+    size_t n_unknown;
+    /* stats */
+    vibid_can_assembler_stats st;
+    int64_t last_sample_t;
+    bool have_last_t;
+    double jm, jm2; /* Welford */
+};
+
+static vibid_record *push_rec(vibid_can_assembler *a, vibid_record_kind kind)
+{
+    if (a->q_len == QUEUE_LEN) { /* cannot happen when the caller pops after every push */
+        a->q_head = (a->q_head + 1) % QUEUE_LEN;
+        a->q_len--;
+    }
+    vibid_record *r = &a->q[(a->q_head + a->q_len++) % QUEUE_LEN];
+    r->kind = kind;
+    r->fault = VIBID_FAULT_NONE;
+    r->index = r->count = 0;
+    r->t_ns = 0;
+    r->n_values = 0;
+    r->text[0] = '\0';
+    return r;
+}
+
+static void fault(vibid_can_assembler *a, vibid_fault_code code, uint64_t index, const char *fmt, ...)
+    __attribute__((format(printf, 4, 5)));
+static void fault(vibid_can_assembler *a, vibid_fault_code code, uint64_t index, const char *fmt, ...)
+{
+    vibid_record *r = push_rec(a, VIBID_REC_FAULT);
+    r->fault = code;
+    r->index = index;
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(r->text, sizeof r->text, fmt, ap);
+    va_end(ap);
+}
+
+static void gap(vibid_can_assembler *a, uint64_t first, uint64_t count, const char *why)
+{
+    vibid_record *r = push_rec(a, VIBID_REC_GAP);
+    r->index = first;
+    r->count = count;
+    snprintf(r->text, sizeof r->text, "%s", why);
+    a->st.gaps++;
+    a->st.missing_samples += count;
+}
+
+static int find_inv(vibid_can_assembler *a, const vibid_dbc_message *m)
+{
+    for (size_t i = 0; i < a->n_inv; i++)
+        if (a->inv[i].msg == m)
+            return (int)i;
+    return -1;
+}
+
+vibid_can_assembler *vibid_can_assembler_create(const vibid_dbc *dbc, const vibid_chanmap *map,
+                                                vibid_drv_error *err)
+{
+    if (!dbc || !map || map->n == 0) {
+        vibid_drv_fail(err, VIBID_DRV_E_ARG, "can assembler: DBC and a non-empty channel map are needed");
+        return NULL;
+    }
+    vibid_can_assembler *a = calloc(1, sizeof *a);
+    if (!a) {
+        vibid_drv_fail(err, VIBID_DRV_E_NOMEM, "can assembler: out of memory");
+        return NULL;
+    }
+    a->map = map;
+    a->trigger = -1;
+    for (size_t c = 0; c < map->n; c++) {
+        const vibid_channel *ch = &map->ch[c];
+        if (ch->source != VIBID_CHAN_SIGNAL) {
+            vibid_drv_fail(err, VIBID_DRV_E_ARG, "channel '%s' (line %u): a CAN source needs signal = \"...\"",
+                           ch->name, ch->line);
+            goto fail;
+        }
+        const vibid_dbc_message *found = NULL;
+        const vibid_dbc_signal *sig = NULL;
+        for (size_t i = 0; i < vibid_dbc_message_count(dbc); i++) {
+            const vibid_dbc_message *m = vibid_dbc_message_at(dbc, i);
+            if (ch->message[0] && strcmp(m->name, ch->message) != 0)
+                continue;
+            const vibid_dbc_signal *s = vibid_dbc_find_signal(m, ch->ref);
+            if (!s)
+                continue;
+            if (found) {
+                vibid_drv_fail(err, VIBID_DRV_E_ARG,
+                               "channel '%s' (line %u): signal '%s' is in messages %s and %s; add message = \"...\"",
+                               ch->name, ch->line, ch->ref, found->name, m->name);
+                goto fail;
+            }
+            found = m;
+            sig = s;
+        }
+        if (!found) {
+            vibid_drv_fail(err, VIBID_DRV_E_NOT_FOUND, "channel '%s' (line %u): no signal '%s'%s%s in the DBC",
+                           ch->name, ch->line, ch->ref, ch->message[0] ? " in message " : "", ch->message);
+            goto fail;
+        }
+        if (sig->mux_role == VIBID_DBC_MULTIPLEXED) {
+            vibid_drv_fail(err, VIBID_DRV_E_UNSUPPORTED, "channel '%s': multiplexed signal '%s' cannot be a channel",
+                           ch->name, sig->name);
+            goto fail;
+        }
+        int ii = find_inv(a, found);
+        if (ii < 0) {
+            if (a->n_inv == MAX_MSGS) {
+                vibid_drv_fail(err, VIBID_DRV_E_RANGE, "channels spread over more than %d messages", MAX_MSGS);
+                goto fail;
+            }
+            ii = (int)a->n_inv++;
+            a->inv[ii].msg = found;
+            a->inv[ii].counter_sig = -1;
+        }
+        involved *v = &a->inv[ii];
+        v->ch_index[v->n_ch] = (uint8_t)c;
+        v->sig_index[v->n_ch] = (uint8_t)(sig - found->signals);
+        v->n_ch++;
+    }
+    a->all_mask = a->n_inv == 32 ? 0xFFFFFFFFu : ((1u << a->n_inv) - 1u);
+    if (map->counter[0]) {
+        a->counter_mode = true;
+        for (size_t i = 0; i < a->n_inv; i++) {
+            const vibid_dbc_signal *s = vibid_dbc_find_signal(a->inv[i].msg, map->counter);
+            if (!s || s->is_signed || s->value_type != VIBID_DBC_INTEGER || s->length > 63) {
+                vibid_drv_fail(err, VIBID_DRV_E_NOT_FOUND,
+                               "counter '%s': message %s carries channels but no unsigned integer counter of that name",
+                               map->counter, a->inv[i].msg->name);
+                goto fail;
+            }
+            if (i > 0 && s->length != a->counter_bits) {
+                vibid_drv_fail(err, VIBID_DRV_E_ARG, "counter '%s' has different lengths in different messages",
+                               map->counter);
+                goto fail;
+            }
+            a->counter_bits = s->length;
+            a->inv[i].counter_sig = (int)(s - a->inv[i].msg->signals);
+        }
+    } else if (map->trigger[0]) {
+        a->trigger_msg = vibid_dbc_find_message_by_name(dbc, map->trigger);
+        if (!a->trigger_msg) {
+            vibid_drv_fail(err, VIBID_DRV_E_NOT_FOUND, "trigger message '%s' is not in the DBC", map->trigger);
+            goto fail;
+        }
+        a->trigger = find_inv(a, a->trigger_msg);
+    } else if (a->n_inv == 1) {
+        /* One message carries everything: each frame is one sample. */
+        a->trigger_msg = a->inv[0].msg;
+        a->trigger = 0;
+    } else {
+        vibid_drv_fail(err, VIBID_DRV_E_ARG,
+                       "channels come from %zu messages: set counter = \"<signal>\" or trigger = \"<message>\"",
+                       a->n_inv);
+        goto fail;
+    }
+    return a;
+fail:
+    free(a);
+    return NULL;
+}
+
+void vibid_can_assembler_destroy(vibid_can_assembler *a) { free(a); }
+
+static void emit_sample(vibid_can_assembler *a)
+{
+    vibid_record *r = push_rec(a, VIBID_REC_SAMPLE);
+    r->index = a->k;
+    r->t_ns = a->t_ns;
+    r->n_values = (uint32_t)a->map->n;
+    memcpy(r->values, a->values, a->map->n * sizeof(double));
+    a->st.samples++;
+    a->current_done = true;
+    if (a->have_last_t) {
+        double dt = (double)(a->t_ns - a->last_sample_t) * 1e-9;
+        vibid_jitter_stats *j = &a->st.jitter;
+        j->n++;
+        double d = dt - a->jm;
+        a->jm += d / (double)j->n;
+        a->jm2 += d * (dt - a->jm);
+        if (j->n == 1 || dt < j->min_s)
+            j->min_s = dt;
+        if (j->n == 1 || dt > j->max_s)
+            j->max_s = dt;
+        j->mean_s = a->jm;
+        j->std_s = j->n > 1 ? sqrt(a->jm2 / (double)(j->n - 1)) : 0.0;
+    }
+    a->last_sample_t = a->t_ns;
+    a->have_last_t = true;
+}
+
+/* Closes the open sample: nothing if it was emitted, else a one-sample GAP. */
+static void close_current(vibid_can_assembler *a)
+{
+    if (!a->have_current || a->current_done)
+        return;
+    char why[160];
+    int n = snprintf(why, sizeof why, "incomplete sample: missing");
+    for (size_t i = 0; i < a->n_inv && n > 0 && (size_t)n < sizeof why; i++)
+        if (!(a->filled & (1u << i)))
+            n += snprintf(why + n, sizeof why - (size_t)n, " %s", a->inv[i].msg->name);
+    a->st.incomplete_samples++;
+    gap(a, a->k, 1, why);
+    a->current_done = true;
+}
+
+static void open_sample(vibid_can_assembler *a, uint64_t k, uint64_t raw, int64_t t)
+{
+    a->have_current = true;
+    a->current_done = false;
+    a->k = k;
+    a->cur_raw = raw;
+    a->filled = 0;
+    a->t_ns = t;
+}
+
+/* Decodes the channels of one frame into a scratch array; false (with a fault) if
+ * any value cannot be used. */
+static bool decode_channels(vibid_can_assembler *a, const involved *v, const vibid_can_frame *f,
+                            double *out)
+{
+    for (size_t i = 0; i < v->n_ch; i++) {
+        const vibid_dbc_signal *s = &v->msg->signals[v->sig_index[i]];
+        if (vibid_dbc_signal_decode(s, f->data, f->len, &out[i]) != VIBID_DRV_OK) {
+            a->st.short_frames++;
+            fault(a, VIBID_FAULT_SHORT_FRAME, a->k, "%s: %u bytes, signal %s needs %u", v->msg->name,
+                  f->len, s->name, s->min_bytes);
+            return false;
+        }
+        if (!isfinite(out[i])) {
+            a->st.nonfinite++;
+            fault(a, VIBID_FAULT_NONFINITE, a->k, "%s.%s: non-finite value", v->msg->name, s->name);
+            return false;
+        }
+    }
+    return true;
+}
+
+static void fill(vibid_can_assembler *a, int ii, const double *vals)
+{
+    const involved *v = &a->inv[ii];
+    if (a->filled & (1u << ii)) {
+        a->st.duplicates++;
+        fault(a, VIBID_FAULT_DUPLICATE, a->k, "duplicate %s for sample %llu (first value kept)", v->msg->name,
+              (unsigned long long)a->k);
+        return;
+    }
+    if (a->current_done) {
+        a->st.late++;
+        fault(a, VIBID_FAULT_LATE, a->k, "%s for sample %llu arrived after the sample was closed",
+              v->msg->name, (unsigned long long)a->k);
+        return;
+    }
+    for (size_t i = 0; i < v->n_ch; i++)
+        a->values[v->ch_index[i]] = vals[i];
+    a->filled |= 1u << ii;
+    if (a->filled == a->all_mask)
+        emit_sample(a);
+}
+
+static void error_frame(vibid_can_assembler *a, const vibid_can_frame *f)
+{
+    a->st.error_frames++;
+    /* Classes from linux/can/error.h: CRTL 0x04 (data[1]: RX/TX overflow 0x01/0x02),
+     * BUSOFF 0x40, RESTARTED 0x100. */
+    if (f->id & 0x40u)
+        a->st.bus_off++;
+    if ((f->id & 0x04u) && f->len > 1 && (f->data[1] & 0x03u))
+        a->st.ctrl_overflow++;
+    if (f->id & 0x100u)
+        a->st.restarts++;
+    fault(a, VIBID_FAULT_BUS_ERROR, a->k, "CAN error frame class 0x%X%s%s%s on %s", (unsigned)f->id,
+          (f->id & 0x40u) ? " bus-off" : "", (f->id & 0x04u) ? " controller" : "",
+          (f->id & 0x100u) ? " restarted" : "", f->iface[0] ? f->iface : "bus");
+}
+
+void vibid_can_assembler_push(vibid_can_assembler *a, const vibid_can_frame *f)
+{
+    if (!a || !f)
+        return;
+    a->st.frames++;
+    if (f->flags & VIBID_CAN_F_ERR) {
+        error_frame(a, f);
+        return;
+    }
+    if (f->flags & VIBID_CAN_F_RTR)
+        return; /* remote requests carry no data; not a fault */
+    bool ext = (f->flags & VIBID_CAN_F_EXT) != 0;
+    int ii = -1;
+    for (size_t i = 0; i < a->n_inv; i++)
+        if (a->inv[i].msg->id == f->id && a->inv[i].msg->extended == ext)
+            ii = (int)i;
+    bool is_trigger = a->trigger_msg && a->trigger_msg->id == f->id && a->trigger_msg->extended == ext;
+    if (ii < 0 && !is_trigger) {
+        a->st.unknown_ids++;
+        uint32_t key = f->id | (ext ? 0x80000000u : 0);
+        for (size_t i = 0; i < a->n_unknown; i++)
+            if (a->unknown[i] == key)
+                return;
+        if (a->n_unknown < MAX_UNKNOWN)
+            a->unknown[a->n_unknown++] = key;
+        fault(a, VIBID_FAULT_UNKNOWN_ID, a->k, "frame id 0x%X%s is not a channel message (reported once)",
+              (unsigned)f->id, ext ? " (29-bit)" : "");
+        return;
+    }
+    double vals[VIBID_DRV_MAX_CHANNELS];
+    if (a->counter_mode) {
+        const involved *v = &a->inv[ii];
+        uint64_t raw;
+        if (vibid_dbc_signal_raw(&v->msg->signals[v->counter_sig], f->data, f->len, &raw) != VIBID_DRV_OK) {
+            a->st.short_frames++;
+            fault(a, VIBID_FAULT_SHORT_FRAME, a->k, "%s: %u bytes, too short for the counter", v->msg->name, f->len);
+            return;
+        }
+        if (!decode_channels(a, v, f, vals))
+            return;
+        if (!a->have_current) {
+            open_sample(a, raw, raw, f->t_ns);
+        } else {
+            uint64_t mod_mask = (UINT64_C(1) << a->counter_bits) - 1u;
+            uint64_t delta = (raw - a->cur_raw) & mod_mask;
+            uint64_t half = UINT64_C(1) << (a->counter_bits - 1);
+            if (delta != 0 && delta < half) {
+                close_current(a);
+                if (delta > 1)
+                    gap(a, a->k + 1, delta - 1, "counter jump: samples missing");
+                open_sample(a, a->k + delta, raw, f->t_ns);
+            } else if (delta != 0) {
+                a->st.late++;
+                fault(a, VIBID_FAULT_LATE, a->k, "%s with counter %llu is older than sample %llu: ignored",
+                      v->msg->name, (unsigned long long)raw, (unsigned long long)a->k);
+                return;
+            }
+        }
+        fill(a, ii, vals);
+        return;
+    }
+    /* trigger mode */
+    if (ii >= 0 && !decode_channels(a, &a->inv[ii], f, vals))
+        return;
+    if (is_trigger) {
+        close_current(a);
+        open_sample(a, a->have_current ? a->k + 1 : 0, 0, f->t_ns);
+    } else if (!a->have_current) {
+        fault(a, VIBID_FAULT_LATE, 0, "%s before the first trigger %s: ignored", a->inv[ii].msg->name,
+              a->trigger_msg->name);
+        a->st.late++;
+        return;
+    }
+    if (ii >= 0)
+        fill(a, ii, vals);
+}
+
+void vibid_can_assembler_note_drops(vibid_can_assembler *a, uint64_t dropped, const char *where)
+{
+    if (!a || dropped == 0)
+        return;
+    a->st.dropped += dropped;
+    vibid_record *r = push_rec(a, VIBID_REC_FAULT);
+    r->fault = VIBID_FAULT_DROPPED;
+    r->index = a->k;
+    r->count = dropped;
+    snprintf(r->text, sizeof r->text, "%llu frame(s) dropped before reaching us (%s)",
+             (unsigned long long)dropped, where ? where : "kernel");
+}
+
+void vibid_can_assembler_finish(vibid_can_assembler *a)
+{
+    if (a)
+        close_current(a);
+}
+
+bool vibid_can_assembler_pop(vibid_can_assembler *a, vibid_record *rec)
+{
+    if (!a || !rec || a->q_len == 0)
+        return false;
+    *rec = a->q[a->q_head];
+    a->q_head = (a->q_head + 1) % QUEUE_LEN;
+    a->q_len--;
+    return true;
+}
+
+size_t vibid_can_assembler_ids(const vibid_can_assembler *a, uint32_t *ids, size_t cap)
+{
+    if (!a)
+        return 0;
+    size_t n = 0;
+    for (size_t i = 0; i < a->n_inv; i++, n++)
+        if (ids && n < cap)
+            ids[n] = a->inv[i].msg->id | (a->inv[i].msg->extended ? 0x80000000u : 0);
+    if (a->trigger_msg && a->trigger < 0) {
+        if (ids && n < cap)
+            ids[n] = a->trigger_msg->id | (a->trigger_msg->extended ? 0x80000000u : 0);
+        n++;
+    }
+    return n;
+}
+
+void vibid_can_assembler_stats_get(const vibid_can_assembler *a, vibid_can_assembler_stats *s)
+{
+    if (a && s)
+        *s = a->st;
+}

@@ -1,0 +1,359 @@
+/* candump .log reader: the line grammar of can-utils (lib.c parse_canframe and
+ * candump.c's log output), plus the variants newer can-utils and python-can write.
+ * Every malformed line becomes a BAD_LINE entry with a reason; nothing is fatal. */
+#include <vibid_drivers/candump.h>
+
+#include <errno.h>
+#include <stdarg.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "file_util.h"
+
+#define CAN_ERR_FLAG_BIT 0x20000000u
+#define CAN_ERR_MASK_BITS 0x1FFFFFFFu
+
+struct vibid_candump_reader {
+    FILE *fp;
+    char name[256];
+    vibid_line_reader lr;
+    vibid_candump_stats stats;
+};
+
+static vibid_candump_kind bad(vibid_candump_entry *e, const char *fmt, ...)
+    __attribute__((format(printf, 2, 3)));
+static vibid_candump_kind bad(vibid_candump_entry *e, const char *fmt, ...)
+{
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(e->text, sizeof e->text, fmt, ap);
+    va_end(ap);
+    e->kind = VIBID_CANDUMP_BAD_LINE;
+    return e->kind;
+}
+
+static int hexval(char c)
+{
+    if (c >= '0' && c <= '9')
+        return c - '0';
+    if (c >= 'A' && c <= 'F')
+        return c - 'A' + 10;
+    if (c >= 'a' && c <= 'f')
+        return c - 'a' + 10;
+    return -1;
+}
+
+static bool is_space(char c) { return c == ' ' || c == '\t'; }
+
+/* "DROPCOUNT: dropped N CAN frame[s] on 'IFACE' socket (total drops M)" */
+static vibid_candump_kind parse_dropcount(const char *s, const char *end, vibid_candump_entry *e)
+{
+    static const char head[] = "DROPCOUNT: dropped ";
+    const char *p = s + sizeof head - 1;
+    unsigned long long n = 0, total = 0;
+    const char *d = p;
+    while (p < end && *p >= '0' && *p <= '9' && n <= UINT32_MAX)
+        n = n * 10 + (unsigned)(*p++ - '0');
+    if (p == d || n > UINT32_MAX)
+        return bad(e, "DROPCOUNT line without a valid frame count");
+    /* The total is the last number in parentheses; the interface name between may
+     * hold anything, so search from the end. */
+    const char *t = end;
+    while (t > p && t[-1] != '(')
+        t--;
+    static const char tot[] = "total drops ";
+    if (t == p || (size_t)(end - t) < sizeof tot || memcmp(t, tot, sizeof tot - 1) != 0) {
+        e->dropped = (uint32_t)n;
+        e->total_drops = 0; /* older formats omit the total: the count alone is enough */
+    } else {
+        t += sizeof tot - 1;
+        d = t;
+        while (t < end && *t >= '0' && *t <= '9' && total <= UINT32_MAX)
+            total = total * 10 + (unsigned)(*t++ - '0');
+        if (t == d || total > UINT32_MAX || t >= end || *t != ')')
+            return bad(e, "DROPCOUNT line with a malformed total");
+        e->dropped = (uint32_t)n;
+        e->total_drops = (uint32_t)total;
+    }
+    e->kind = VIBID_CANDUMP_DROPCOUNT;
+    return e->kind;
+}
+
+/* Parses "ID#..." between s and end into f. */
+static vibid_candump_kind parse_frame(const char *s, const char *end, vibid_candump_entry *e)
+{
+    vibid_can_frame *f = &e->frame;
+    size_t idlen = 0;
+    while (s + idlen < end && s[idlen] != '#')
+        idlen++;
+    if (s + idlen >= end)
+        return bad(e, "frame without '#' after the identifier");
+    if (idlen != 3 && idlen != 8)
+        return bad(e, "identifier must have 3 (11-bit) or 8 (29-bit) hex digits, has %zu", idlen);
+    uint32_t id = 0;
+    for (size_t i = 0; i < idlen; i++) {
+        int h = hexval(s[i]);
+        if (h < 0)
+            return bad(e, "identifier has a non-hex character");
+        id = (id << 4) | (uint32_t)h;
+    }
+    if (idlen == 3) {
+        if (id > 0x7FF)
+            return bad(e, "11-bit identifier 0x%03X above 0x7FF", (unsigned)id);
+        f->id = id;
+    } else if (id & CAN_ERR_FLAG_BIT) {
+        f->flags |= VIBID_CAN_F_ERR;
+        f->id = id & CAN_ERR_MASK_BITS;
+    } else if (id > CAN_ERR_MASK_BITS) {
+        return bad(e, "29-bit identifier 0x%08X has flag bits set", (unsigned)id);
+    } else {
+        f->flags |= VIBID_CAN_F_EXT;
+        f->id = id;
+    }
+    const char *p = s + idlen + 1;
+    size_t maxlen = VIBID_CAN_MAX_DLEN;
+    if (p < end && (*p == 'R' || *p == 'r')) {
+        if (f->flags & VIBID_CAN_F_ERR)
+            return bad(e, "error frame cannot be a remote request");
+        f->flags |= VIBID_CAN_F_RTR;
+        p++;
+        if (p < end) {
+            int h = hexval(*p);
+            if (h < 0 || h > 8 || p + 1 != end)
+                return bad(e, "remote request length must be one digit 0..8");
+            f->len = (uint8_t)h;
+        }
+        return e->kind = VIBID_CANDUMP_FRAME;
+    }
+    if (p < end && *p == '#') {
+        if (f->flags & VIBID_CAN_F_ERR)
+            return bad(e, "error frame cannot be a CAN FD frame");
+        p++;
+        int h = p < end ? hexval(*p) : -1;
+        if (h < 0)
+            return bad(e, "CAN FD frame needs a flags nibble after '##'");
+        f->flags |= VIBID_CAN_F_FD;
+        f->fd_flags = (uint8_t)h;
+        p++;
+        maxlen = VIBID_CANFD_MAX_DLEN;
+    }
+    size_t n = 0;
+    while (p < end) {
+        if (*p == '.') {
+            p++;
+            continue;
+        }
+        if (*p == '_') /* classic len8_dlc suffix "_<dlc>" (9..F): payload stays 8 bytes */
+            break;
+        if (n == maxlen)
+            return bad(e, "more than %zu data bytes", maxlen);
+        int hi = hexval(*p), lo = p + 1 < end ? hexval(p[1]) : -1;
+        if (hi < 0 || lo < 0)
+            return bad(e, "data byte %zu is not two hex digits", n);
+        f->data[n++] = (uint8_t)(hi << 4 | lo);
+        p += 2;
+    }
+    if (p < end) { /* "_X" */
+        int d = p + 1 < end ? hexval(p[1]) : -1;
+        if ((f->flags & VIBID_CAN_F_FD) || n != 8 || d < 9 || p + 2 != end)
+            return bad(e, "malformed len8_dlc suffix (only '_9'.. '_F' after 8 classic bytes)");
+    }
+    if ((f->flags & VIBID_CAN_F_FD) && n > 8) {
+        /* CAN FD lengths above 8 come in DLC steps. */
+        static const uint8_t ok[] = {12, 16, 20, 24, 32, 48, 64};
+        bool valid = false;
+        for (size_t i = 0; i < sizeof ok; i++)
+            valid |= n == ok[i];
+        if (!valid)
+            return bad(e, "CAN FD payload of %zu bytes is not a valid FD length", n);
+    }
+    f->len = (uint8_t)n;
+    return e->kind = VIBID_CANDUMP_FRAME;
+}
+
+vibid_candump_kind vibid_candump_parse_line(const char *line, size_t len, vibid_candump_entry *e)
+{
+    unsigned long keep_line = e->line;
+    memset(e, 0, sizeof *e);
+    e->line = keep_line;
+    const char *p = line, *end = line + len;
+    if (memchr(line, '\0', len))
+        return bad(e, "NUL byte in line");
+    while (end > p && (end[-1] == ' ' || end[-1] == '\t' || end[-1] == '\r'))
+        end--;
+    while (p < end && is_space(*p))
+        p++;
+    if (p == end)
+        return e->kind = VIBID_CANDUMP_EMPTY;
+    if ((size_t)(end - p) >= 19 && memcmp(p, "DROPCOUNT: dropped ", 19) == 0)
+        return parse_dropcount(p, end, e);
+    if (*p != '(')
+        return bad(e, "expected '(' starting a timestamp");
+    p++;
+    uint64_t sec = 0;
+    const char *d = p;
+    while (p < end && *p >= '0' && *p <= '9') {
+        if (sec > 9223372035u) /* keeps sec * 1e9 + ns inside int64 */
+            return bad(e, "timestamp seconds too large");
+        sec = sec * 10 + (unsigned)(*p++ - '0');
+    }
+    if (p == d || p >= end || *p != '.')
+        return bad(e, "timestamp must be (SECONDS.FRACTION)");
+    p++;
+    d = p;
+    uint64_t frac = 0;
+    while (p < end && *p >= '0' && *p <= '9' && p - d < 10)
+        frac = frac * 10 + (unsigned)(*p++ - '0');
+    size_t nd = (size_t)(p - d);
+    if (p >= end || *p != ')')
+        return bad(e, "timestamp fraction must be digits followed by ')'");
+    if (nd != 6 && nd != 9)
+        return bad(e, "timestamp fraction has %zu digits, expected 6 (us) or 9 (ns)", nd);
+    if (sec > 9223372035u)
+        return bad(e, "timestamp seconds too large");
+    e->frame.t_ns = (int64_t)(sec * 1000000000u + (nd == 6 ? frac * 1000u : frac));
+    p++;
+    if (p >= end || !is_space(*p))
+        return bad(e, "expected a space after the timestamp");
+    while (p < end && is_space(*p))
+        p++;
+    const char *ifs = p;
+    while (p < end && !is_space(*p))
+        p++;
+    size_t iflen = (size_t)(p - ifs);
+    if (iflen == 0 || p == end)
+        return bad(e, "expected an interface name and a frame after the timestamp");
+    if (iflen >= VIBID_CAN_IFNAMSIZ)
+        return bad(e, "interface name longer than %d characters", VIBID_CAN_IFNAMSIZ - 1);
+    memcpy(e->frame.iface, ifs, iflen);
+    e->frame.iface[iflen] = '\0';
+    while (p < end && is_space(*p))
+        p++;
+    const char *fs = p;
+    while (p < end && !is_space(*p))
+        p++;
+    const char *fe = p;
+    while (p < end && is_space(*p))
+        p++;
+    if (p < end) {
+        /* candump -x appends the direction; nothing else may follow the frame. */
+        if (p + 1 == end && (*p == 'R' || *p == 'T')) {
+            if (*p == 'T')
+                e->frame.flags |= VIBID_CAN_F_TX;
+        } else {
+            return bad(e, "unexpected text after the frame (only ' R' or ' T' may follow)");
+        }
+    }
+    return parse_frame(fs, fe, e);
+}
+
+static vibid_candump_reader *reader_new(const char *name, vibid_drv_error *err)
+{
+    vibid_candump_reader *r = calloc(1, sizeof *r);
+    if (!r) {
+        vibid_drv_fail(err, VIBID_DRV_E_NOMEM, "%s: out of memory", name);
+        return NULL;
+    }
+    snprintf(r->name, sizeof r->name, "%s", name);
+    return r;
+}
+
+vibid_candump_reader *vibid_candump_reader_open(const char *path, vibid_drv_error *err)
+{
+    if (!path) {
+        vibid_drv_fail(err, VIBID_DRV_E_ARG, "vibid_candump_reader_open: path is NULL");
+        return NULL;
+    }
+    FILE *fp = fopen(path, "rb");
+    if (!fp) {
+        vibid_drv_fail(err, VIBID_DRV_E_IO, "%s: cannot open: %s", path, strerror(errno));
+        return NULL;
+    }
+    vibid_candump_reader *r = reader_new(path, err);
+    if (!r) {
+        fclose(fp);
+        return NULL;
+    }
+    r->fp = fp;
+    vibid_line_reader_init_file(&r->lr, fp);
+    return r;
+}
+
+vibid_candump_reader *vibid_candump_reader_open_mem(const char *data, size_t len, const char *name,
+                                                    vibid_drv_error *err)
+{
+    if (!data && len) {
+        vibid_drv_fail(err, VIBID_DRV_E_ARG, "vibid_candump_reader_open_mem: data is NULL");
+        return NULL;
+    }
+    vibid_candump_reader *r = reader_new(name ? name : "<memory>", err);
+    if (r)
+        vibid_line_reader_init_mem(&r->lr, data, len);
+    return r;
+}
+
+vibid_drv_status vibid_candump_reader_next(vibid_candump_reader *r, vibid_candump_entry *e)
+{
+    if (!r || !e)
+        return VIBID_DRV_E_ARG;
+    for (;;) {
+        const char *line;
+        size_t len;
+        bool too_long;
+        int rc = vibid_line_reader_next(&r->lr, &line, &len, &too_long);
+        if (rc == 0)
+            return VIBID_DRV_E_EOF;
+        if (rc < 0) {
+            memset(e, 0, sizeof *e);
+            snprintf(e->text, sizeof e->text, "%.100s:%lu: read error: %.60s", r->name, r->lr.line + 1,
+                     strerror(errno));
+            return VIBID_DRV_E_IO;
+        }
+        r->stats.lines++;
+        e->line = r->lr.line;
+        vibid_candump_kind k;
+        if (too_long) {
+            memset(e, 0, sizeof *e);
+            e->line = r->lr.line;
+            k = bad(e, "line longer than %d characters", VIBID_LINE_MAX);
+        } else {
+            k = vibid_candump_parse_line(line, len, e);
+        }
+        switch (k) {
+        case VIBID_CANDUMP_EMPTY:
+            continue;
+        case VIBID_CANDUMP_FRAME:
+            r->stats.frames++;
+            if (e->frame.flags & VIBID_CAN_F_ERR)
+                r->stats.error_frames++;
+            return VIBID_DRV_OK;
+        case VIBID_CANDUMP_DROPCOUNT:
+            r->stats.drop_lines++;
+            r->stats.dropped += e->dropped;
+            return VIBID_DRV_OK;
+        case VIBID_CANDUMP_BAD_LINE: {
+            char reason[sizeof e->text];
+            memcpy(reason, e->text, sizeof reason);
+            /* The reason is at most ~100 chars, so name + line + reason fit. */
+            snprintf(e->text, sizeof e->text, "%.80s:%lu: %.100s", r->name, e->line, reason);
+            r->stats.bad_lines++;
+            return VIBID_DRV_OK;
+        }
+        }
+    }
+}
+
+void vibid_candump_reader_stats(const vibid_candump_reader *r, vibid_candump_stats *stats)
+{
+    if (r && stats)
+        *stats = r->stats;
+}
+
+void vibid_candump_reader_close(vibid_candump_reader *r)
+{
+    if (!r)
+        return;
+    if (r->fp)
+        fclose(r->fp);
+    free(r);
+}

@@ -1,0 +1,348 @@
+/* Modbus source against an independent server (pymodbus, modbus_fifo_server.py, which
+ * implements drivers/modbus_fifo_layout.md on its own) on 127.0.0.1:
+ *  - FIFO mode at 1 kHz across a server stop/restart: every sample of each server
+ *    session arrives exactly once, in order, with the exact values of the known signal;
+ *    the outage is LINK faults + one GAP whose (estimated) length matches the pause;
+ *  - snapshot mode at 100 Hz: consistent samples on an absolute-deadline clock;
+ *  - a server that accepts but never answers: timeouts counted, link declared lost,
+ *    reconnects with backoff, every failed poll counted, no sample invented.
+ * Needs the venv's Python (VIBID_PYTHON); its absence FAILS the test. */
+#include <arpa/inet.h>
+#include <math.h>
+#include <netinet/in.h>
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/socket.h>
+#include <time.h>
+#include <unistd.h>
+
+#include <cmocka.h>
+#include <vibid_drivers/source_modbus.h>
+
+#include "support/drv_test_util.h"
+
+static const char regmap_text[] =
+    "registers = (\n"
+    "  { name = \"a\"; address = 0;  register = \"holding\"; type = \"FLOAT32\"; byte_order = \"ABCD\"; },\n"
+    "  { name = \"b\"; address = 2;  register = \"holding\"; type = \"INT16\";   scale = 0.001; },\n"
+    "  { name = \"c\"; address = 10; register = \"holding\"; type = \"FLOAT32\"; byte_order = \"CDAB\"; }\n"
+    ");\n";
+
+static int64_t mono(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (int64_t)ts.tv_sec * 1000000000 + ts.tv_nsec;
+}
+
+static int free_port(void)
+{
+    int fd = socket(AF_INET, SOCK_STREAM, 0);
+    struct sockaddr_in a = {.sin_family = AF_INET, .sin_addr.s_addr = htonl(INADDR_LOOPBACK)};
+    bind(fd, (struct sockaddr *)&a, sizeof a);
+    socklen_t l = sizeof a;
+    getsockname(fd, (struct sockaddr *)&a, &l);
+    close(fd);
+    return ntohs(a.sin_port);
+}
+
+/* Starts the pymodbus server; returns its stdout after it printed READY. */
+static FILE *start_server(int port, const char *schedule)
+{
+    const char *py = getenv("VIBID_PYTHON");
+    if (!py || access(py, X_OK) != 0)
+        fail_msg("FAIL: VIBID_PYTHON='%s' is not an executable venv interpreter (scripts/python-venv.sh)",
+                 py ? py : "");
+    char cmd[1024];
+    snprintf(cmd, sizeof cmd, "'%s' '%s' --port %d --schedule %s --max-time 20", py, VIBID_DRV_SERVER_PY, port,
+             schedule);
+    FILE *p = popen(cmd, "r");
+    assert_non_null(p);
+    char line[128];
+    if (!fgets(line, sizeof line, p) || strncmp(line, "READY", 5) != 0)
+        fail_msg("pymodbus server did not start (%s)", cmd);
+    return p;
+}
+
+static vibid_regmap *load_regmap(void)
+{
+    char path[512];
+    assert_non_null(drv_write_tmp("regs.cfg", regmap_text, sizeof regmap_text - 1, path, sizeof path));
+    vibid_drv_error err = {0};
+    vibid_regmap *rm = vibid_regmap_load(path, &err);
+    if (!rm)
+        fail_msg("%s", err.text);
+    unlink(path);
+    return rm;
+}
+
+static vibid_source_modbus_config base_cfg(const vibid_regmap *rm, int port)
+{
+    vibid_source_modbus_config c;
+    memset(&c, 0, sizeof c);
+    c.transport = VIBID_MODBUS_TCP;
+    c.host = "127.0.0.1";
+    c.port = port;
+    c.regmap = rm;
+    c.chanmap.n = 3;
+    const char *names[] = {"a", "b", "c"};
+    for (int i = 0; i < 3; i++) {
+        strcpy(c.chanmap.ch[i].name, names[i]);
+        strcpy(c.chanmap.ch[i].ref, names[i]);
+        c.chanmap.ch[i].source = VIBID_CHAN_REGISTER;
+    }
+    c.response_timeout_s = 0.2;
+    c.backoff_initial_s = 0.05;
+    c.backoff_max_s = 0.4;
+    return c;
+}
+
+/* The server's signal: sample s has c = 0.5 s (exact in float32 below 2^24), a = sin(0.01 s)
+ * rounded to float32, b = ((s mod 1000) - 500) * 0.001. Returns s, or fails. */
+static long check_values(const vibid_record *r)
+{
+    double s = r->values[2] * 2.0;
+    if (s < 0 || s != floor(s))
+        fail_msg("sample %llu: c = %.9g is not 0.5 * integer", (unsigned long long)r->index, r->values[2]);
+    long si = (long)s;
+    double a = (double)(float)sin(0.01 * s);
+    double b = (double)((si % 1000) - 500) * 0.001;
+    /* a: float32 bit-exact; b: raw integer * 0.001 computed identically -> exact */
+    if (r->values[0] != a || r->values[1] != b)
+        fail_msg("sample %llu (s = %ld): a = %.9g (want %.9g), b = %.9g (want %.9g)", (unsigned long long)r->index,
+                 si, r->values[0], a, r->values[1], b);
+    return si;
+}
+
+static void test_fifo_restart(void **state)
+{
+    (void)state;
+    int port = free_port();
+    vibid_regmap *rm = load_regmap();
+    FILE *srv = start_server(port, "1.2,0.8,1.2"); /* serve, stop 0.8 s, serve (new session) */
+    vibid_source_modbus_config cfg = base_cfg(rm, port);
+    cfg.mode = VIBID_MODBUS_FIFO;
+    cfg.sample_period_s = 1e-3;
+    cfg.poll_period_s = 0.02;
+    vibid_drv_error err = {0};
+    vibid_source *s = vibid_source_open(&vibid_source_modbus_ops, &cfg, &err);
+    if (!s)
+        fail_msg("%s", err.text);
+    static vibid_record r[256];
+    size_t n;
+    uint64_t next_k = 0;
+    long last_s = -1;
+    int session = 0;
+    uint64_t samples[2] = {0, 0}, gap_count = 0, gaps = 0, link_faults = 0;
+    int64_t end = mono() + (int64_t)3.4e9;
+    while (mono() < end) {
+        vibid_drv_status st = vibid_source_read(s, r, 256, &n, 50, &err);
+        if (st != VIBID_DRV_OK && st != VIBID_DRV_E_AGAIN)
+            fail_msg("read: %s", err.text);
+        for (size_t i = 0; i < n; i++) {
+            if (r[i].kind == VIBID_REC_FAULT) {
+                link_faults += r[i].fault == VIBID_FAULT_LINK;
+                continue;
+            }
+            assert_int_equal(r[i].index, next_k); /* every k exactly once */
+            if (r[i].kind == VIBID_REC_GAP) {
+                print_message("gap: k=%llu count=%llu: %s\n", (unsigned long long)r[i].index,
+                              (unsigned long long)r[i].count, r[i].text);
+                gaps++;
+                gap_count += r[i].count;
+                next_k += r[i].count;
+                continue;
+            }
+            long sv = check_values(&r[i]);
+            if (sv != last_s + 1) {
+                /* only allowed at the start of the second session, which restarts at s = 0 */
+                if (!(session == 0 && sv == 0 && last_s > 0))
+                    fail_msg("s jumped from %ld to %ld at k=%llu", last_s, sv, (unsigned long long)next_k);
+                session = 1;
+            }
+            samples[session]++;
+            last_s = sv;
+            next_k++;
+        }
+    }
+    vibid_source_stats st;
+    vibid_source_stats_get(s, &st);
+    print_message("FIFO: session samples %llu + %llu, %llu gap(s) of %llu samples, polls %llu, failed polls %llu, "
+                  "requests %llu, link losses %llu, connect failures %llu, reconnects %llu\n",
+                  (unsigned long long)samples[0], (unsigned long long)samples[1], (unsigned long long)gaps,
+                  (unsigned long long)gap_count, (unsigned long long)st.polls, (unsigned long long)st.failed_polls,
+                  (unsigned long long)st.requests, (unsigned long long)st.link_losses,
+                  (unsigned long long)st.connect_failures, (unsigned long long)st.reconnects);
+    vibid_source_close(s);
+    char line[128];
+    unsigned long served[2] = {0, 0};
+    int ph;
+    unsigned long cnt;
+    while (fgets(line, sizeof line, srv))
+        if (sscanf(line, "PHASE %d served %lu", &ph, &cnt) == 2)
+            served[ph == 0 ? 0 : 1] = cnt;
+    assert_int_equal(pclose(srv), 0);
+    /* Each session: every sample the server produced while we were connected; the
+     * server's final samples of a session (written after our last poll, < poll period
+     * + request time = 20 ms + margin -> at most 60) cannot be read once it stops. */
+    for (int i = 0; i < 2; i++)
+        if (served[i] < 1000 || samples[i] + 60 < served[i] || samples[i] > served[i])
+            fail_msg("session %d: %llu samples received, server wrote %lu", i, (unsigned long long)samples[i],
+                     served[i]);
+    /* The outage: one GAP (merged), its length estimated from elapsed time: the pause of
+     * 0.8 s plus the unread tail of session 1 (<= 60) -> 800 .. 1000 with +-100 slack for
+     * scheduling of the Python server. */
+    assert_int_equal(gaps, 1);
+    if (gap_count < 700 || gap_count > 1100)
+        fail_msg("outage gap %llu samples, expected about 800..1000", (unsigned long long)gap_count);
+    assert_true(st.link_losses >= 1 && st.reconnects >= 1 && st.connect_failures >= 1);
+    assert_true(st.failed_polls >= 1 && link_faults >= 3);
+    assert_int_equal(st.samples, samples[0] + samples[1]);
+    vibid_regmap_destroy(rm);
+}
+
+static void test_snapshot(void **state)
+{
+    (void)state;
+    int port = free_port();
+    vibid_regmap *rm = load_regmap();
+    FILE *srv = start_server(port, "1.5");
+    vibid_source_modbus_config cfg = base_cfg(rm, port);
+    cfg.mode = VIBID_MODBUS_SNAPSHOT;
+    cfg.sample_period_s = 0.01;
+    vibid_drv_error err = {0};
+    vibid_source *s = vibid_source_open(&vibid_source_modbus_ops, &cfg, &err);
+    if (!s)
+        fail_msg("%s", err.text);
+    vibid_record r[16];
+    size_t n, samples = 0;
+    int64_t end = mono() + (int64_t)0.8e9;
+    long last = -1;
+    while (mono() < end) {
+        vibid_drv_status st = vibid_source_read(s, r, 16, &n, 20, &err);
+        assert_true(st == VIBID_DRV_OK || st == VIBID_DRV_E_AGAIN);
+        for (size_t i = 0; i < n; i++) {
+            if (r[i].kind != VIBID_REC_SAMPLE)
+                fail_msg("unexpected record kind %d: %s", r[i].kind, r[i].text);
+            assert_int_equal(r[i].index, samples);
+            long sv = check_values(&r[i]); /* one snapshot = one consistent server sample */
+            assert_true(sv >= last);
+            last = sv;
+            samples++;
+        }
+    }
+    vibid_source_stats st;
+    vibid_source_stats_get(s, &st);
+    print_message("snapshot: %zu samples in 0.8 s, interval mean %.4f ms std %.4f ms max %.4f ms, blocks: %llu "
+                  "requests / %llu polls\n",
+                  samples, st.jitter.mean_s * 1e3, st.jitter.std_s * 1e3, st.jitter.max_s * 1e3,
+                  (unsigned long long)st.requests, (unsigned long long)st.polls);
+    /* 0.8 s / 10 ms = 80 ticks (+1 for the first); registers 0..2 and 10..11 fit in one
+     * request (1 request per poll); the mean interval is the period to 0.5 ms */
+    assert_true(samples >= 78 && samples <= 81);
+    assert_int_equal(st.requests, st.polls);
+    assert_true(fabs(st.jitter.mean_s - 0.01) < 5e-4);
+    vibid_source_close(s);
+    while (fgets((char[128]){0}, 128, srv)) {
+    }
+    pclose(srv);
+    vibid_regmap_destroy(rm);
+}
+
+/* A listener that completes TCP handshakes (kernel backlog) but never answers. */
+static void test_silent_server(void **state)
+{
+    (void)state;
+    int lfd = socket(AF_INET, SOCK_STREAM, 0);
+    struct sockaddr_in a = {.sin_family = AF_INET, .sin_addr.s_addr = htonl(INADDR_LOOPBACK)};
+    assert_int_equal(bind(lfd, (struct sockaddr *)&a, sizeof a), 0);
+    socklen_t l = sizeof a;
+    getsockname(lfd, (struct sockaddr *)&a, &l);
+    assert_int_equal(listen(lfd, 16), 0);
+    vibid_regmap *rm = load_regmap();
+    vibid_source_modbus_config cfg = base_cfg(rm, ntohs(a.sin_port));
+    cfg.mode = VIBID_MODBUS_SNAPSHOT;
+    cfg.sample_period_s = 0.01;
+    cfg.response_timeout_s = 0.05;
+    vibid_drv_error err = {0};
+    vibid_source *s = vibid_source_open(&vibid_source_modbus_ops, &cfg, &err);
+    if (!s)
+        fail_msg("%s", err.text);
+    vibid_record r[64];
+    size_t n, samples = 0, missing = 0, faults = 0;
+    int64_t end = mono() + (int64_t)0.7e9;
+    while (mono() < end) {
+        vibid_drv_status st = vibid_source_read(s, r, 64, &n, 50, &err);
+        assert_true(st == VIBID_DRV_OK || st == VIBID_DRV_E_AGAIN);
+        for (size_t i = 0; i < n; i++) {
+            samples += r[i].kind == VIBID_REC_SAMPLE;
+            missing += r[i].kind == VIBID_REC_GAP ? r[i].count : 0;
+            faults += r[i].kind == VIBID_REC_FAULT;
+        }
+    }
+    vibid_source_stats st;
+    vibid_source_stats_get(s, &st);
+    print_message("silent server: %llu timeouts, %llu failed polls, %llu link losses, %llu reconnects, %zu missing "
+                  "samples as GAP, %zu faults, 0 samples\n",
+                  (unsigned long long)st.timeouts, (unsigned long long)st.failed_polls,
+                  (unsigned long long)st.link_losses, (unsigned long long)st.reconnects, missing, faults);
+    assert_int_equal(samples, 0);
+    assert_true(st.timeouts >= 3 && st.failed_polls == st.timeouts && st.link_losses >= 1 && st.reconnects >= 1);
+    assert_true(missing >= 10); /* every elapsed tick accounted as missing */
+    vibid_source_close(s);
+    close(lfd);
+    /* nobody listening at all: open succeeds (device may come later), reads give LINK faults */
+    s = vibid_source_open(&vibid_source_modbus_ops, &cfg, &err);
+    assert_non_null(s);
+    assert_int_equal(vibid_source_read(s, r, 64, &n, 0, &err), VIBID_DRV_OK);
+    assert_int_equal(r[0].fault, VIBID_FAULT_LINK);
+    assert_non_null(strstr(r[0].text, "connect failed"));
+    vibid_source_close(s);
+    /* configuration errors */
+    strcpy(cfg.chanmap.ch[1].ref, "nope");
+    cfg.chanmap.ch[1].line = 4;
+    assert_null(vibid_source_open(&vibid_source_modbus_ops, &cfg, &err));
+    assert_non_null(strstr(err.text, "channel 'b' (line 4): register 'nope' is not in the register map"));
+    vibid_regmap_destroy(rm);
+}
+
+/* Wrong FIFO base: the header check names what it found. */
+static void test_fifo_wrong_base(void **state)
+{
+    (void)state;
+    int port = free_port();
+    vibid_regmap *rm = load_regmap();
+    FILE *srv = start_server(port, "0.6");
+    vibid_source_modbus_config cfg = base_cfg(rm, port);
+    cfg.mode = VIBID_MODBUS_FIFO;
+    cfg.fifo_base = 2000;
+    vibid_drv_error err = {0};
+    assert_null(vibid_source_open(&vibid_source_modbus_ops, &cfg, &err));
+    if (!strstr(err.text, "no vibid FIFO at holding register 2000: magic 0x"))
+        fail_msg("got '%s'", err.text);
+    cfg.fifo_base = 0;
+    cfg.sample_period_s = 0.002;
+    assert_null(vibid_source_open(&vibid_source_modbus_ops, &cfg, &err));
+    if (!strstr(err.text, "device samples every 1000000 ns, configured 0.002 s"))
+        fail_msg("got '%s'", err.text);
+    while (fgets((char[128]){0}, 128, srv)) {
+    }
+    pclose(srv);
+    vibid_regmap_destroy(rm);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_fifo_restart),
+        cmocka_unit_test(test_snapshot),
+        cmocka_unit_test(test_silent_server),
+        cmocka_unit_test(test_fifo_wrong_base),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}
