@@ -13,7 +13,7 @@ if [[ "${1:-}" == "--test" ]]; then
   # Independent peers and tools for tests: can-utils (candump/cangen/canplayer),
   # qemu + busybox + cpio for the SocketCAN VM test, python3-venv for cantools/pymodbus,
   # clang + its runtime for the libFuzzer targets of the parsers.
-  packages+=(can-utils qemu-system-x86 busybox-static cpio python3-venv clang libclang-rt-14-dev)
+  packages+=(can-utils qemu-system-x86 busybox-static cpio xz-utils python3-venv clang libclang-rt-14-dev)
 fi
 
 missing=()

@@ -18,7 +18,7 @@ LD_LIBRARY_PATH="$libdir" "$scratch/cmake-build/consumer_shared"
 "$scratch/cmake-build/consumer_static"
 
 echo "--- Makefile consumer (pkg-config)"
-make -s -C "$src" -f Makefile.pkgconfig OUT="$scratch/make" PKG_CONFIG_PATH="$libdir/pkgconfig"
+PKG_CONFIG_PATH="$libdir/pkgconfig" make -s -C "$src" -f Makefile.pkgconfig OUT="$scratch/make"
 LD_LIBRARY_PATH="$libdir" "$scratch/make/consumer_shared"
 "$scratch/make/consumer_static"
 echo "install check passed"
