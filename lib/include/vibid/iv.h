@@ -72,6 +72,9 @@ VIBID_API vibid_status vibid_riv_set_prior(vibid_riv *riv, const double *theta0,
  * non-finite input gives VIBID_E_NONFINITE and leaves the state unchanged. */
 VIBID_API vibid_status vibid_riv_update(vibid_riv *riv, const double *x, const double *w, const double *y);
 VIBID_API vibid_status vibid_riv_theta(const vibid_riv *riv, double *theta);
+/* Current P (p x p, column-major), the recursive counterpart of (W^T X)^-1: for
+ * monitoring wind-up and the trace bound. Allocates nothing. */
+VIBID_API vibid_status vibid_riv_covariance(const vibid_riv *riv, double *P);
 
 /* ---------------- ARX models and auxiliary-model instruments ---------------- */
 /* Single-output difference equation with n_inputs inputs:
@@ -109,7 +112,8 @@ VIBID_API vibid_status vibid_arx_iv(const vibid_arx_spec *spec, size_t n_samples
 
 /* Simulates the noise-free model output y_sim (N) from u with parameters theta, zero
  * initial conditions (y_k = 0 for k < start row). Useful for validation and for
- * building instruments by hand. */
+ * building instruments by hand. Returns VIBID_E_DIVERGED when the output overflows
+ * (unstable theta); y_sim then holds the samples before the overflow. */
 VIBID_API vibid_status vibid_arx_simulate(const vibid_arx_spec *spec, const double *theta,
                                           size_t n_samples, const double *u, double *y_sim);
 

@@ -92,10 +92,12 @@ VIBID_API vibid_status vibid_lsq_stderr(const vibid_lsq *lsq, double *stderr_out
 
 /* Directions in parameter space that the data cannot resolve: a basis of the
  * numerical null space of the regressor in the original, unscaled parameter
- * coordinates, each column of unit Euclidean norm, as the columns of basis (p x max_vectors, column-major). *n_vectors
- * receives p - rank (it may exceed max_vectors; only min(p - rank, max_vectors)
- * columns are written). A component of large magnitude names a parameter involved in
- * the dependency. basis may be NULL when max_vectors is 0. */
+ * coordinates, each column of unit Euclidean norm (sign: largest component positive),
+ * as the columns of basis (p x max_vectors, column-major). *n_vectors receives
+ * p - rank (it may exceed max_vectors; only min(p - rank, max_vectors) columns are
+ * written). A component of large magnitude names a parameter involved in the
+ * dependency. basis may be NULL when max_vectors is 0. VIBID_E_INSUFFICIENT_DATA
+ * before any row. */
 VIBID_API vibid_status vibid_lsq_null_space(const vibid_lsq *lsq, double *basis, size_t max_vectors,
                                             size_t *n_vectors);
 

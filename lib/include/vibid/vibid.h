@@ -6,4 +6,11 @@
 #include <vibid/lsq.h>
 #include <vibid/rls.h>
 #include <vibid/iv.h>
+#include <vibid/model.h>
+#include <vibid/regressor.h>
+#include <vibid/discretize.h>
+#include <vibid/modal.h>
+#include <vibid/identify.h>
+#include <vibid/io_form.h>
+#include <vibid/kf_rls.h>
 #endif

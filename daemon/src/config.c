@@ -1,0 +1,910 @@
+/* config.c: reading, checking and printing vibidd's configuration (config.h).
+ *
+ * Every directive is read through one of the typed getters below, each with an explicit
+ * range and default; unknown directives are errors (a typo must not silently leave a
+ * default in place). Messages: "file:line: field: what is wrong".
+ */
+#include "config.h"
+
+#include "log.h"
+
+#include <errno.h>
+#include <libconfig.h>
+#include <limits.h>
+#include <math.h>
+#include <stdarg.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include <vibid_drivers/source_replay.h>
+
+typedef struct ctx {
+    const char *file;
+    vd_config_error *err;
+    vd_config *cfg;
+} ctx;
+
+static int fail_at(ctx *c, const config_setting_t *s, const char *field, const char *fmt, ...)
+    __attribute__((format(printf, 4, 5)));
+
+static int fail_at(ctx *c, const config_setting_t *s, const char *field, const char *fmt, ...)
+{
+    vd_config_error *e = c->err;
+    const char *file = c->file;
+    int line = 0;
+    if (s) {
+        line = config_setting_source_line(s);
+        const char *sf = config_setting_source_file(s);
+        if (sf && *sf)
+            file = sf;
+    }
+    snprintf(e->file, sizeof e->file, "%s", file);
+    e->line = line;
+    snprintf(e->field, sizeof e->field, "%s", field ? field : "");
+    char msg[1400];
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(msg, sizeof msg, fmt, ap);
+    va_end(ap);
+    if (line > 0)
+        snprintf(e->text, sizeof e->text, "%s:%d: %s: %s", file, line, e->field, msg);
+    else
+        snprintf(e->text, sizeof e->text, "%s: %s: %s", file, e->field, msg);
+    return -1;
+}
+
+/* ---- typed getters with ranges ---- */
+
+static void field_name(char *buf, size_t cap, const char *section, const char *name)
+{
+    snprintf(buf, cap, "%s%s%s", section, *section ? "." : "", name);
+}
+
+static int check_known(ctx *c, const config_setting_t *group, const char *section, const char *const *known)
+{
+    if (!group)
+        return 0;
+    int n = config_setting_length(group);
+    for (int i = 0; i < n; i++) {
+        const config_setting_t *m = config_setting_get_elem(group, (unsigned)i);
+        const char *name = config_setting_name(m);
+        if (!name)
+            continue;
+        bool ok = false;
+        for (const char *const *k = known; *k; k++)
+            if (strcmp(*k, name) == 0)
+                ok = true;
+        if (!ok) {
+            char f[160], list[600] = "";
+            field_name(f, sizeof f, section, name);
+            for (const char *const *k = known; *k; k++) {
+                strncat(list, *k, sizeof list - strlen(list) - 1);
+                if (k[1])
+                    strncat(list, ", ", sizeof list - strlen(list) - 1);
+            }
+            return fail_at(c, m, f, "unknown directive '%s' (known here: %s)", name, list);
+        }
+    }
+    return 0;
+}
+
+static int get_double(ctx *c, const config_setting_t *g, const char *section, const char *name, double def, double lo,
+                      double hi, double *out)
+{
+    *out = def;
+    const config_setting_t *s = g ? config_setting_get_member(g, name) : NULL;
+    if (!s)
+        return 0;
+    char f[160];
+    field_name(f, sizeof f, section, name);
+    int t = config_setting_type(s);
+    double v;
+    if (t == CONFIG_TYPE_FLOAT)
+        v = config_setting_get_float(s);
+    else if (t == CONFIG_TYPE_INT || t == CONFIG_TYPE_INT64)
+        v = (double)config_setting_get_int64(s);
+    else
+        return fail_at(c, s, f, "must be a number");
+    if (!isfinite(v) || v < lo || v > hi)
+        return fail_at(c, s, f, "%g outside [%g, %g]", v, lo, hi);
+    *out = v;
+    return 0;
+}
+
+static int get_int(ctx *c, const config_setting_t *g, const char *section, const char *name, long long def,
+                   long long lo, long long hi, long long *out)
+{
+    *out = def;
+    const config_setting_t *s = g ? config_setting_get_member(g, name) : NULL;
+    if (!s)
+        return 0;
+    char f[160];
+    field_name(f, sizeof f, section, name);
+    int t = config_setting_type(s);
+    if (t != CONFIG_TYPE_INT && t != CONFIG_TYPE_INT64)
+        return fail_at(c, s, f, "must be an integer");
+    long long v = config_setting_get_int64(s);
+    if (v < lo || v > hi)
+        return fail_at(c, s, f, "%lld outside [%lld, %lld]", v, lo, hi);
+    *out = v;
+    return 0;
+}
+
+static int get_bool(ctx *c, const config_setting_t *g, const char *section, const char *name, bool def, bool *out)
+{
+    *out = def;
+    const config_setting_t *s = g ? config_setting_get_member(g, name) : NULL;
+    if (!s)
+        return 0;
+    char f[160];
+    field_name(f, sizeof f, section, name);
+    if (config_setting_type(s) != CONFIG_TYPE_BOOL)
+        return fail_at(c, s, f, "must be true or false");
+    *out = config_setting_get_bool(s) != 0;
+    return 0;
+}
+
+/* String of at most cap-1 characters. */
+static int get_string(ctx *c, const config_setting_t *g, const char *section, const char *name, const char *def,
+                      char *out, size_t cap)
+{
+    snprintf(out, cap, "%s", def);
+    const config_setting_t *s = g ? config_setting_get_member(g, name) : NULL;
+    if (!s)
+        return 0;
+    char f[160];
+    field_name(f, sizeof f, section, name);
+    if (config_setting_type(s) != CONFIG_TYPE_STRING)
+        return fail_at(c, s, f, "must be a string");
+    const char *v = config_setting_get_string(s);
+    if (strlen(v) >= cap)
+        return fail_at(c, s, f, "longer than %zu characters", cap - 1);
+    snprintf(out, cap, "%s", v);
+    return 0;
+}
+
+/* One of `names` (NULL-terminated); *out = its index. */
+static int get_enum(ctx *c, const config_setting_t *g, const char *section, const char *name, int def,
+                    const char *const *names, int *out)
+{
+    *out = def;
+    const config_setting_t *s = g ? config_setting_get_member(g, name) : NULL;
+    if (!s)
+        return 0;
+    char f[160], list[300] = "";
+    field_name(f, sizeof f, section, name);
+    for (const char *const *k = names; *k; k++) {
+        strncat(list, *k, sizeof list - strlen(list) - 1);
+        if (k[1])
+            strncat(list, ", ", sizeof list - strlen(list) - 1);
+    }
+    if (config_setting_type(s) != CONFIG_TYPE_STRING)
+        return fail_at(c, s, f, "must be one of the strings %s", list);
+    const char *v = config_setting_get_string(s);
+    for (int i = 0; names[i]; i++)
+        if (strcmp(names[i], v) == 0) {
+            *out = i;
+            return 0;
+        }
+    return fail_at(c, s, f, "'%s' is not one of %s", v, list);
+}
+
+/* Path relative to the configuration file's directory unless absolute. "" stays "". */
+static int resolve_path(ctx *c, const config_setting_t *s, const char *field, const char *in, char *out, size_t cap)
+{
+    int n;
+    if (!*in || in[0] == '/')
+        n = snprintf(out, cap, "%s", in);
+    else
+        n = snprintf(out, cap, "%s/%s", c->cfg->dir, in);
+    if (n < 0 || (size_t)n >= cap)
+        return fail_at(c, s, field, "path too long");
+    return 0;
+}
+
+static int get_path(ctx *c, const config_setting_t *g, const char *section, const char *name, char *out, size_t cap)
+{
+    char raw[VD_PATH_MAX];
+    if (get_string(c, g, section, name, "", raw, sizeof raw))
+        return -1;
+    char f[160];
+    field_name(f, sizeof f, section, name);
+    return resolve_path(c, g ? config_setting_get_member(g, name) : NULL, f, raw, out, cap);
+}
+
+/* ---- sections ---- */
+
+static int load_stand(ctx *c, config_t *cf)
+{
+    vd_config *cfg = c->cfg;
+    config_setting_t *s = config_lookup(cf, "stand");
+    if (!s)
+        return fail_at(c, config_root_setting(cf), "stand",
+                       "missing: give the stand file (stand = \"stand.cfg\";) or the stand group inline");
+    vibid_stand_error se;
+    memset(&se, 0, sizeof se);
+    if (config_setting_type(s) == CONFIG_TYPE_STRING) {
+        if (resolve_path(c, s, "stand", config_setting_get_string(s), cfg->stand_file, sizeof cfg->stand_file))
+            return -1;
+        cfg->stand = vibid_stand_load(cfg->stand_file, &se);
+        if (!cfg->stand) {
+            /* The loader's text names the stand file's own file:line:field. */
+            fail_at(c, s, "stand", "cannot load the stand file");
+            snprintf(c->err->text, sizeof c->err->text, "%s (stand file referenced at %s:%d)", se.text, c->file,
+                     config_setting_source_line(s));
+            return -1;
+        }
+    } else if (config_setting_is_group(s)) {
+        cfg->stand = vibid_stand_from_setting(s, c->file, &se);
+        if (!cfg->stand) {
+            snprintf(c->err->file, sizeof c->err->file, "%s", se.file[0] ? se.file : c->file);
+            c->err->line = se.line;
+            snprintf(c->err->field, sizeof c->err->field, "%s", se.field);
+            snprintf(c->err->text, sizeof c->err->text, "%s", se.text);
+            return -1;
+        }
+    } else {
+        return fail_at(c, s, "stand", "must be a file name (string) or a group");
+    }
+    const vibid_model *m = vibid_stand_model(cfg->stand);
+    vibid_model_dims d;
+    vibid_model_get_dims(m, &d);
+    cfg->sample_rate = vibid_stand_sample_rate(cfg->stand);
+    cfg->n_params = d.n_params;
+    cfg->n_channels = d.n_channels;
+    cfg->n_modes = d.n_dof;
+    if (d.n_params == 0)
+        return fail_at(c, s, "stand", "the stand has no unknown parameter: nothing to identify");
+    if (d.n_params > VD_MAX_PARAMS)
+        return fail_at(c, s, "stand", "%zu unknowns, vibidd handles at most %d", d.n_params, VD_MAX_PARAMS);
+    if (d.n_channels > VIBID_DRV_MAX_CHANNELS)
+        return fail_at(c, s, "stand", "%zu channels, the sources carry at most %d", d.n_channels,
+                       VIBID_DRV_MAX_CHANNELS);
+    return 0;
+}
+
+static const char *const src_kinds[] = {"socketcan", "modbus", "replay", NULL};
+static const char *const src_known[] = {
+    "kind", "channels", "channel_map", "counter", "trigger", "time_column",
+    /* socketcan */ "interface", "dbc", "rcvbuf", "hw_timestamps", "batch",
+    /* modbus */ "url", "baud", "parity", "unit_id", "mode", "registers", "register_map", "poll_period",
+    "fifo_base", "response_timeout", "backoff_initial", "backoff_max", "max_timeouts",
+    /* replay */ "file", "format", "paced", "speed", NULL};
+
+static int parse_url(ctx *c, const config_setting_t *src)
+{
+    vd_config *cfg = c->cfg;
+    const config_setting_t *s = config_setting_get_member(src, "url");
+    const char *u = cfg->url;
+    if (strncmp(u, "tcp://", 6) == 0) {
+        cfg->transport = VIBID_MODBUS_TCP;
+        const char *hp = u + 6;
+        const char *colon = strrchr(hp, ':');
+        size_t hl = colon ? (size_t)(colon - hp) : strlen(hp);
+        if (hl == 0 || hl >= sizeof cfg->host)
+            return fail_at(c, s, "source.url", "'%s': no host (tcp://HOST:PORT)", u);
+        memcpy(cfg->host, hp, hl);
+        cfg->host[hl] = '\0';
+        cfg->port = 502;
+        if (colon) {
+            char *end;
+            errno = 0;
+            long p = strtol(colon + 1, &end, 10);
+            if (*end || p < 1 || p > 65535 || errno)
+                return fail_at(c, s, "source.url", "'%s': port '%s' outside 1..65535", u, colon + 1);
+            cfg->port = (int)p;
+        }
+        return 0;
+    }
+    if (strncmp(u, "rtu://", 6) == 0) {
+        cfg->transport = VIBID_MODBUS_RTU;
+        if (u[6] != '/' || strlen(u + 6) >= sizeof cfg->device)
+            return fail_at(c, s, "source.url", "'%s': expected rtu:///dev/DEVICE", u);
+        snprintf(cfg->device, sizeof cfg->device, "%s", u + 6);
+        return 0;
+    }
+    return fail_at(c, s, "source.url", "'%s': expected tcp://HOST[:PORT] or rtu:///dev/DEVICE", u);
+}
+
+static int load_dbc(ctx *c, const config_setting_t *src)
+{
+    vd_config *cfg = c->cfg;
+    if (get_path(c, src, "source", "dbc", cfg->dbc_file, sizeof cfg->dbc_file))
+        return -1;
+    if (!cfg->dbc_file[0])
+        return fail_at(c, src, "source.dbc", "missing: CAN signals need a DBC file");
+    vibid_drv_error de = {0};
+    cfg->dbc = vibid_dbc_load(cfg->dbc_file, &de);
+    if (!cfg->dbc) {
+        fail_at(c, config_setting_get_member(src, "dbc"), "source.dbc", "%s", de.text);
+        return -1;
+    }
+    return 0;
+}
+
+static int load_chanmap(ctx *c, const config_setting_t *src)
+{
+    vd_config *cfg = c->cfg;
+    vibid_drv_error de = {0};
+    const config_setting_t *inl = config_setting_get_member(src, "channels");
+    if (get_path(c, src, "source", "channel_map", cfg->chanmap_file, sizeof cfg->chanmap_file))
+        return -1;
+    if (inl && cfg->chanmap_file[0])
+        return fail_at(c, inl, "source.channels", "give either channels (inline) or channel_map (a file), not both");
+    vibid_drv_status st;
+    if (cfg->chanmap_file[0])
+        st = vibid_chanmap_load(cfg->chanmap_file, &cfg->chanmap, &de);
+    else if (inl)
+        st = vibid_chanmap_from_setting(src, c->file, &cfg->chanmap, &de);
+    else
+        return fail_at(c, src, "source.channels",
+                       "missing: map the stand's channels to signals/registers/columns (channels = (...); or "
+                       "channel_map = \"file\";)");
+    if (st != VIBID_DRV_OK)
+        return fail_at(c, inl ? inl : config_setting_get_member(src, "channel_map"), "source.channels", "%s",
+                       de.text);
+    /* Embedded counter/trigger/time_column beside an external channel map override it. */
+    char tmp[VIBID_CHAN_NAME_LEN];
+    const char *const keys[] = {"counter", "trigger", "time_column"};
+    char *dst[] = {cfg->chanmap.counter, cfg->chanmap.trigger, cfg->chanmap.time_column};
+    for (int i = 0; i < 3; i++) {
+        if (!config_setting_get_member(src, keys[i]))
+            continue;
+        if (get_string(c, src, "source", keys[i], "", tmp, sizeof tmp))
+            return -1;
+        snprintf(dst[i], VIBID_CHAN_NAME_LEN, "%s", tmp);
+    }
+    /* Every model channel must come from the source: map by name. */
+    const vibid_model *m = vibid_stand_model(cfg->stand);
+    for (size_t i = 0; i < cfg->n_channels; i++) {
+        const char *want = vibid_stand_channel_name(cfg->stand, i);
+        size_t k;
+        for (k = 0; k < cfg->chanmap.n; k++)
+            if (strcmp(cfg->chanmap.ch[k].name, want) == 0)
+                break;
+        if (k == cfg->chanmap.n) {
+            vibid_channel_info ci;
+            vibid_model_channel_info(m, i, &ci);
+            return fail_at(c, inl ? inl : src, "source.channels",
+                           "the stand needs channel '%s' (%s) but the channel map has no channel of that name", want,
+                           ci.name);
+        }
+        cfg->model_to_chan[i] = k;
+    }
+    return 0;
+}
+
+static int load_source(ctx *c, config_t *cf)
+{
+    vd_config *cfg = c->cfg;
+    config_setting_t *src = config_lookup(cf, "source");
+    if (!src || !config_setting_is_group(src))
+        return fail_at(c, src ? src : config_root_setting(cf), "source", "missing: a group source = { kind = ...; }");
+    cfg->source_line = config_setting_source_line(src);
+    if (check_known(c, src, "source", src_known))
+        return -1;
+    int kind;
+    if (!config_setting_get_member(src, "kind"))
+        return fail_at(c, src, "source.kind", "missing: socketcan, modbus or replay");
+    if (get_enum(c, src, "source", "kind", 0, src_kinds, &kind))
+        return -1;
+    cfg->source_kind = (vd_source_kind)kind;
+    long long v;
+    if (load_chanmap(c, src))
+        return -1;
+    switch (cfg->source_kind) {
+    case VD_SRC_SOCKETCAN:
+        if (get_string(c, src, "source", "interface", "", cfg->iface, 16))
+            return -1;
+        if (!cfg->iface[0])
+            return fail_at(c, src, "source.interface", "missing: the CAN interface, e.g. \"can0\"");
+        if (load_dbc(c, src))
+            return -1;
+        if (get_int(c, src, "source", "rcvbuf", 0, 0, 64LL << 20, &v))
+            return -1;
+        cfg->rcvbuf_bytes = (int)v;
+        if (get_bool(c, src, "source", "hw_timestamps", false, &cfg->hw_timestamps))
+            return -1;
+        if (get_int(c, src, "source", "batch", 64, 1, 256, &v))
+            return -1;
+        cfg->can_batch = (unsigned)v;
+        if (!cfg->chanmap.counter[0] && !cfg->chanmap.trigger[0])
+            return fail_at(c, src, "source.counter", "CAN samples need a counter signal or a trigger message");
+        break;
+    case VD_SRC_MODBUS: {
+        if (get_string(c, src, "source", "url", "", cfg->url, sizeof cfg->url))
+            return -1;
+        if (!cfg->url[0])
+            return fail_at(c, src, "source.url", "missing: tcp://HOST:PORT or rtu:///dev/DEVICE");
+        if (parse_url(c, src))
+            return -1;
+        if (get_int(c, src, "source", "baud", 19200, 1200, 4000000, &v))
+            return -1;
+        cfg->baud = (int)v;
+        static const char *const par[] = {"N", "E", "O", NULL};
+        int pi;
+        if (get_enum(c, src, "source", "parity", 1, par, &pi))
+            return -1;
+        cfg->parity = par[pi][0];
+        if (get_int(c, src, "source", "unit_id", 1, 1, 247, &v))
+            return -1;
+        cfg->unit_id = (int)v;
+        static const char *const modes[] = {"fifo", "snapshot", NULL};
+        int mi;
+        if (get_enum(c, src, "source", "mode", 0, modes, &mi))
+            return -1;
+        cfg->modbus_mode = (vibid_modbus_mode)mi;
+        const config_setting_t *inl = config_setting_get_member(src, "registers");
+        if (get_path(c, src, "source", "register_map", cfg->regmap_file, sizeof cfg->regmap_file))
+            return -1;
+        vibid_drv_error de = {0};
+        if (inl && cfg->regmap_file[0])
+            return fail_at(c, inl, "source.registers", "give either registers (inline) or register_map, not both");
+        if (cfg->regmap_file[0])
+            cfg->regmap = vibid_regmap_load(cfg->regmap_file, &de);
+        else if (inl)
+            cfg->regmap = vibid_regmap_from_setting(inl, c->file, &de);
+        else
+            return fail_at(c, src, "source.registers",
+                           "missing: the register map (registers = (...); or register_map = \"file\";)");
+        if (!cfg->regmap)
+            return fail_at(c, inl ? inl : config_setting_get_member(src, "register_map"), "source.registers", "%s",
+                           de.text);
+        for (size_t i = 0; i < cfg->chanmap.n; i++)
+            if (cfg->chanmap.ch[i].source != VIBID_CHAN_REGISTER ||
+                !vibid_regmap_find(cfg->regmap, cfg->chanmap.ch[i].ref)) {
+                char f[64];
+                snprintf(f, sizeof f, "source.channels");
+                return fail_at(c, src, f, "channel '%s' (line %u) must name a register of the register map",
+                               cfg->chanmap.ch[i].name, cfg->chanmap.ch[i].line);
+            }
+        if (get_double(c, src, "source", "poll_period", 0.0, 0.0, 10.0, &cfg->poll_period_s) ||
+            get_int(c, src, "source", "fifo_base", 1000, 0, 65535, &v))
+            return -1;
+        cfg->fifo_base = (unsigned)v;
+        if (get_double(c, src, "source", "response_timeout", 0.5, 0.001, 60.0, &cfg->response_timeout_s) ||
+            get_double(c, src, "source", "backoff_initial", 0.1, 0.001, 60.0, &cfg->backoff_initial_s) ||
+            get_double(c, src, "source", "backoff_max", 5.0, 0.001, 3600.0, &cfg->backoff_max_s) ||
+            get_int(c, src, "source", "max_timeouts", 3, 1, 1000, &v))
+            return -1;
+        cfg->max_timeouts = (unsigned)v;
+        if (cfg->backoff_max_s < cfg->backoff_initial_s)
+            return fail_at(c, config_setting_get_member(src, "backoff_max"), "source.backoff_max",
+                           "%g s is below backoff_initial %g s", cfg->backoff_max_s, cfg->backoff_initial_s);
+        break;
+    }
+    case VD_SRC_REPLAY: {
+        if (get_path(c, src, "source", "file", cfg->replay_file, sizeof cfg->replay_file))
+            return -1;
+        if (!cfg->replay_file[0])
+            return fail_at(c, src, "source.file", "missing: the capture file (candump .log or .csv)");
+        static const char *const fmts[] = {"auto", "candump", "csv", NULL};
+        int fi;
+        if (get_enum(c, src, "source", "format", 0, fmts, &fi))
+            return -1;
+        cfg->replay_format = fi;
+        if (get_bool(c, src, "source", "paced", false, &cfg->paced) ||
+            get_double(c, src, "source", "speed", 1.0, 1e-3, 1e6, &cfg->speed))
+            return -1;
+        bool csv = fi == VIBID_REPLAY_CSV;
+        if (fi == VIBID_REPLAY_AUTO) {
+            size_t L = strlen(cfg->replay_file);
+            csv = L >= 4 && strcasecmp(cfg->replay_file + L - 4, ".csv") == 0;
+        }
+        if (!csv) {
+            if (load_dbc(c, src))
+                return -1;
+        } else if (config_setting_get_member(src, "dbc")) {
+            if (load_dbc(c, src)) /* allowed: lets --replay read a candump capture too */
+                return -1;
+        }
+        break;
+    }
+    }
+    return 0;
+}
+
+static const char *const acq_known[] = {"ring_size", "read_batch", "read_timeout", "realtime_priority",
+                                        "lock_memory", NULL};
+static const char *const est_known[] = {"method",  "forgetting", "prefilter_hz", "rls_alpha", "iv_lag",
+                                        "decimation", "warmup_samples", "start_values", NULL};
+static const char *const out_known[] = {"tracks", "influx", "record", "status", NULL};
+static const char *const alarm_known[] = {"enabled", "threshold", "min_relative", "hold", "learn_start",
+                                          "learn_duration", "parameters", NULL};
+static const char *const log_known[] = {"level", "status_interval", NULL};
+static const char *const top_known[] = {"stand", "source", "acquisition", "estimator", "outputs", "alarms", "log",
+                                        NULL};
+
+static int load_acquisition(ctx *c, config_t *cf)
+{
+    vd_config *cfg = c->cfg;
+    config_setting_t *g = config_lookup(cf, "acquisition");
+    if (check_known(c, g, "acquisition", acq_known))
+        return -1;
+    long long v;
+    if (get_int(c, g, "acquisition", "ring_size", 65536, 16, 1LL << 20, &v))
+        return -1;
+    if ((v & (v - 1)) != 0)
+        return fail_at(c, config_setting_get_member(g, "ring_size"), "acquisition.ring_size",
+                       "%lld is not a power of two", v);
+    cfg->ring_size = (unsigned)v;
+    if (get_int(c, g, "acquisition", "read_batch", 64, 1, 1024, &v))
+        return -1;
+    cfg->read_batch = (unsigned)v;
+    if (get_int(c, g, "acquisition", "read_timeout", 100, 1, 10000, &v))
+        return -1;
+    cfg->read_timeout_ms = (int)v;
+    if (get_int(c, g, "acquisition", "realtime_priority", 0, 0, 99, &v))
+        return -1;
+    cfg->rt_priority = (int)v;
+    return get_bool(c, g, "acquisition", "lock_memory", false, &cfg->lock_memory);
+}
+
+static int load_estimator(ctx *c, config_t *cf)
+{
+    vd_config *cfg = c->cfg;
+    config_setting_t *g = config_lookup(cf, "estimator");
+    if (check_known(c, g, "estimator", est_known))
+        return -1;
+    static const char *const methods[] = {"ls", "iv", "rls", NULL};
+    int mi;
+    if (get_enum(c, g, "estimator", "method", 2, methods, &mi))
+        return -1;
+    cfg->method = (vibid_estimator)mi;
+    double fa = cfg->sample_rate;
+    long long v;
+    if (get_double(c, g, "estimator", "forgetting", 1.0, 0.9, 1.0, &cfg->forgetting) ||
+        get_double(c, g, "estimator", "prefilter_hz", 0.0, 0.0, 0.45 * fa, &cfg->prefilter_hz) ||
+        get_double(c, g, "estimator", "rls_alpha", 1e-9, 1e-30, 1e30, &cfg->rls_alpha) ||
+        get_int(c, g, "estimator", "iv_lag", 3, 3, 4096, &v))
+        return -1;
+    cfg->iv_lag = (unsigned)v;
+    if (cfg->prefilter_hz > 0 && cfg->prefilter_hz < 1e-3 * fa)
+        return fail_at(c, config_setting_get_member(g, "prefilter_hz"), "estimator.prefilter_hz",
+                       "%g Hz is below f_a / 1000 = %g Hz (0 turns the pre-filter off)", cfg->prefilter_hz,
+                       1e-3 * fa);
+    if (get_int(c, g, "estimator", "decimation", (long long)fmax(1.0, round(fa / 10.0)), 1, 10000000, &v))
+        return -1;
+    cfg->decimation = (unsigned)v;
+    if (get_int(c, g, "estimator", "warmup_samples", 0, 0, 1000000000, &v))
+        return -1;
+    cfg->warmup_samples = (unsigned)v;
+    const config_setting_t *sv = g ? config_setting_get_member(g, "start_values") : NULL;
+    if (sv)
+        return fail_at(c, sv, "estimator.start_values",
+                       "not supported yet: libvibid's identify.h has no way to set the RLS start values "
+                       "(vibid_rls_set_prior is not reachable through vibid_ident); remove the directive");
+    return 0;
+}
+
+static int load_outputs(ctx *c, config_t *cf)
+{
+    vd_config *cfg = c->cfg;
+    config_setting_t *g = config_lookup(cf, "outputs");
+    if (check_known(c, g, "outputs", out_known))
+        return -1;
+    config_setting_t *t = g ? config_setting_get_member(g, "tracks") : NULL;
+    static const char *const tk[] = {"path", "flush_interval", "fsync", NULL};
+    if (check_known(c, t, "outputs.tracks", tk) ||
+        get_path(c, t, "outputs.tracks", "path", cfg->tracks_path, sizeof cfg->tracks_path) ||
+        get_double(c, t, "outputs.tracks", "flush_interval", 1.0, 0.01, 3600.0, &cfg->flush_interval_s) ||
+        get_bool(c, t, "outputs.tracks", "fsync", false, &cfg->fsync_on_flush))
+        return -1;
+    config_setting_t *i = g ? config_setting_get_member(g, "influx") : NULL;
+    static const char *const ik[] = {"path", "udp", "measurement", NULL};
+    if (check_known(c, i, "outputs.influx", ik) ||
+        get_path(c, i, "outputs.influx", "path", cfg->influx_path, sizeof cfg->influx_path) ||
+        get_string(c, i, "outputs.influx", "udp", "", cfg->influx_udp, sizeof cfg->influx_udp) ||
+        get_string(c, i, "outputs.influx", "measurement", "vibid", cfg->influx_measurement,
+                   sizeof cfg->influx_measurement))
+        return -1;
+    if (cfg->influx_udp[0]) {
+        const char *colon = strrchr(cfg->influx_udp, ':');
+        char *end = NULL;
+        long p = colon ? strtol(colon + 1, &end, 10) : 0;
+        if (!colon || colon == cfg->influx_udp || !end || *end || p < 1 || p > 65535)
+            return fail_at(c, config_setting_get_member(i, "udp"), "outputs.influx.udp",
+                           "'%s': expected IPV4:PORT, e.g. \"127.0.0.1:8089\"", cfg->influx_udp);
+    }
+    for (const char *p = cfg->influx_measurement; *p; p++)
+        if (*p == ',' || *p == ' ' || *p == '"' || *p == '\\')
+            return fail_at(c, config_setting_get_member(i, "measurement"), "outputs.influx.measurement",
+                           "must not contain comma, space, quote or backslash");
+    config_setting_t *r = g ? config_setting_get_member(g, "record") : NULL;
+    static const char *const rk[] = {"path", "format", NULL};
+    static const char *const rf[] = {"csv", "candump", NULL};
+    int fi;
+    if (check_known(c, r, "outputs.record", rk) ||
+        get_path(c, r, "outputs.record", "path", cfg->record_path, sizeof cfg->record_path) ||
+        get_enum(c, r, "outputs.record", "format", 0, rf, &fi))
+        return -1;
+    cfg->record_format = (vd_record_format)fi;
+    if (cfg->record_format == VD_REC_CANDUMP)
+        return fail_at(c, config_setting_get_member(r, "format"), "outputs.record.format",
+                       "candump recording is not implemented yet (needs a DBC encoder); use \"csv\", which "
+                       "--replay reads back bit for bit");
+    config_setting_t *s = g ? config_setting_get_member(g, "status") : NULL;
+    static const char *const sk[] = {"path", "interval", NULL};
+    return check_known(c, s, "outputs.status", sk) ||
+                   get_path(c, s, "outputs.status", "path", cfg->status_path, sizeof cfg->status_path) ||
+                   get_double(c, s, "outputs.status", "interval", 1.0, 0.05, 3600.0, &cfg->status_interval_s)
+               ? -1
+               : 0;
+}
+
+static int load_alarms(ctx *c, config_t *cf)
+{
+    vd_config *cfg = c->cfg;
+    config_setting_t *g = config_lookup(cf, "alarms");
+    if (check_known(c, g, "alarms", alarm_known))
+        return -1;
+    if (get_bool(c, g, "alarms", "enabled", g != NULL, &cfg->alarms_enabled) ||
+        get_double(c, g, "alarms", "threshold", 5.0, 0.1, 1e6, &cfg->alarm_threshold) ||
+        get_double(c, g, "alarms", "min_relative", 0.02, 0.0, 10.0, &cfg->alarm_min_relative) ||
+        get_double(c, g, "alarms", "hold", 2.0, 0.0, 86400.0, &cfg->alarm_hold_s) ||
+        get_double(c, g, "alarms", "learn_start", 5.0, 0.0, 1e9, &cfg->learn_start_s) ||
+        get_double(c, g, "alarms", "learn_duration", 10.0, 0.001, 1e9, &cfg->learn_duration_s))
+        return -1;
+    const vibid_model *m = vibid_stand_model(cfg->stand);
+    const config_setting_t *plist = g ? config_setting_get_member(g, "parameters") : NULL;
+    for (size_t k = 0; k < cfg->n_params; k++) {
+        vibid_param_info pi;
+        vibid_model_param_info(m, k, &pi);
+        snprintf(cfg->alarm_param[k].name, sizeof cfg->alarm_param[k].name, "%s", pi.name);
+        cfg->alarm_param[k].enabled = plist == NULL; /* no list: every parameter */
+    }
+    if (!plist)
+        return 0;
+    if (!config_setting_is_list(plist))
+        return fail_at(c, plist, "alarms.parameters", "must be a list ( { name = \"c1\"; baseline = ...; }, ... )");
+    int n = config_setting_length(plist);
+    for (int i = 0; i < n; i++) {
+        const config_setting_t *e = config_setting_get_elem(plist, (unsigned)i);
+        char sec[64];
+        snprintf(sec, sizeof sec, "alarms.parameters.[%d]", i);
+        static const char *const pk[] = {"name", "baseline", NULL};
+        if (!config_setting_is_group(e))
+            return fail_at(c, e, sec, "must be a group { name = \"...\"; }");
+        if (check_known(c, e, sec, pk))
+            return -1;
+        char name[64];
+        if (get_string(c, e, sec, "name", "", name, sizeof name))
+            return -1;
+        size_t k;
+        for (k = 0; k < cfg->n_params; k++)
+            if (strcmp(cfg->alarm_param[k].name, name) == 0)
+                break;
+        if (k == cfg->n_params) {
+            char f[96];
+            snprintf(f, sizeof f, "%s.name", sec);
+            return fail_at(c, e, f, "'%s' is not an unknown parameter of the stand", name);
+        }
+        cfg->alarm_param[k].enabled = true;
+        if (config_setting_get_member(e, "baseline")) {
+            if (get_double(c, e, sec, "baseline", 0.0, -1e300, 1e300, &cfg->alarm_param[k].baseline))
+                return -1;
+            cfg->alarm_param[k].has_baseline = true;
+        }
+    }
+    return 0;
+}
+
+static int load_log(ctx *c, config_t *cf)
+{
+    vd_config *cfg = c->cfg;
+    config_setting_t *g = config_lookup(cf, "log");
+    if (check_known(c, g, "log", log_known))
+        return -1;
+    static const char *const lv[] = {"error", "warning", "notice", "info", "debug", NULL};
+    int li;
+    if (get_enum(c, g, "log", "level", 3, lv, &li))
+        return -1;
+    cfg->log_level = VD_LOG_ERROR + li;
+    return get_double(c, g, "log", "status_interval", 0.0, 0.0, 86400.0, &cfg->log_status_interval_s);
+}
+
+int vd_config_load(const char *path, vd_config *cfg, vd_config_error *err)
+{
+    memset(cfg, 0, sizeof *cfg);
+    memset(err, 0, sizeof *err);
+    ctx c = {path, err, cfg};
+    snprintf(cfg->path, sizeof cfg->path, "%s", path);
+    const char *slash = strrchr(path, '/');
+    if (slash)
+        snprintf(cfg->dir, sizeof cfg->dir, "%.*s", (int)(slash - path) ? (int)(slash - path) : 1, path);
+    else
+        snprintf(cfg->dir, sizeof cfg->dir, ".");
+    config_t cf;
+    config_init(&cf);
+    config_set_include_dir(&cf, cfg->dir);
+    if (!config_read_file(&cf, path)) {
+        const char *ef = config_error_file(&cf);
+        snprintf(err->file, sizeof err->file, "%s", ef ? ef : path);
+        err->line = config_error_line(&cf);
+        if (config_error_type(&cf) == CONFIG_ERR_FILE_IO)
+            snprintf(err->text, sizeof err->text, "%s: cannot read: %s", path, strerror(errno ? errno : ENOENT));
+        else
+            snprintf(err->text, sizeof err->text, "%s:%d: syntax error: %s", err->file, err->line,
+                     config_error_text(&cf));
+        config_destroy(&cf);
+        return -1;
+    }
+    int rc = check_known(&c, config_root_setting(&cf), "", top_known);
+    if (!rc)
+        rc = load_stand(&c, &cf);
+    if (!rc)
+        rc = load_source(&c, &cf);
+    if (!rc)
+        rc = load_acquisition(&c, &cf);
+    if (!rc)
+        rc = load_estimator(&c, &cf);
+    if (!rc)
+        rc = load_outputs(&c, &cf);
+    if (!rc)
+        rc = load_alarms(&c, &cf);
+    if (!rc)
+        rc = load_log(&c, &cf);
+    config_destroy(&cf);
+    if (rc)
+        vd_config_free(cfg);
+    return rc;
+}
+
+void vd_config_free(vd_config *cfg)
+{
+    vibid_stand_destroy(cfg->stand);
+    cfg->stand = NULL;
+    vibid_dbc_destroy(cfg->dbc);
+    cfg->dbc = NULL;
+    vibid_regmap_destroy(cfg->regmap);
+    cfg->regmap = NULL;
+}
+
+const char *vd_source_kind_name(vd_source_kind k) { return (unsigned)k < 3 ? src_kinds[k] : "?"; }
+
+const char *vd_estimator_name(vibid_estimator e)
+{
+    static const char *const n[] = {"ls", "iv", "rls"};
+    return (unsigned)e < 3 ? n[e] : "?";
+}
+
+static const char *yes(bool b) { return b ? "true" : "false"; }
+
+/* Shortest of %.15g / %.17g that reads back to the same double, as a libconfig float
+ * (always with a '.' or exponent, so that it stays a float when read back). */
+static const char *num(double v)
+{
+    static char bufs[16][40];
+    static unsigned next;
+    char *b = bufs[next++ % 16];
+    snprintf(b, 40, "%.15g", v);
+    if (strtod(b, NULL) != v)
+        snprintf(b, 40, "%.17g", v);
+    if (!strpbrk(b, ".eEn"))
+        strncat(b, ".0", 39 - strlen(b));
+    return b;
+}
+
+void vd_config_print(const vd_config *cfg, FILE *o)
+{
+    const vibid_model *m = vibid_stand_model(cfg->stand);
+    fprintf(o, "# vibidd effective configuration of %s (every default filled in)\n", cfg->path);
+    if (cfg->stand_file[0])
+        fprintf(o, "stand = \"%s\";\n", cfg->stand_file);
+    else
+        fprintf(o, "# stand: inline group in %s\n", cfg->path);
+    fprintf(o, "# stand \"%s\": sample_rate %s Hz, %zu unknowns, %zu channels\n", vibid_stand_name(cfg->stand),
+            num(cfg->sample_rate), cfg->n_params, cfg->n_channels);
+    for (size_t k = 0; k < cfg->n_params; k++) {
+        vibid_param_info pi;
+        vibid_model_param_info(m, k, &pi);
+        static const char *const kinds[] = {"mass", "damping", "stiffness", "cubic", "gain"};
+        fprintf(o, "#   unknown %zu: %s (%s)\n", k, pi.name, (unsigned)pi.kind < 5 ? kinds[pi.kind] : "?");
+    }
+    for (size_t i = 0; i < cfg->n_channels; i++) {
+        vibid_channel_info ci;
+        vibid_model_channel_info(m, i, &ci);
+        fprintf(o, "#   channel %zu: %s <- source channel '%s'\n", i, ci.name,
+                cfg->chanmap.ch[cfg->model_to_chan[i]].name);
+    }
+    fprintf(o, "source = {\n  kind = \"%s\";\n", vd_source_kind_name(cfg->source_kind));
+    switch (cfg->source_kind) {
+    case VD_SRC_SOCKETCAN:
+        fprintf(o, "  interface = \"%s\";\n  dbc = \"%s\";\n  rcvbuf = %d;\n  hw_timestamps = %s;\n  batch = %u;\n",
+                cfg->iface, cfg->dbc_file, cfg->rcvbuf_bytes, yes(cfg->hw_timestamps), cfg->can_batch);
+        break;
+    case VD_SRC_MODBUS:
+        fprintf(o, "  url = \"%s\";\n", cfg->url);
+        if (cfg->transport == VIBID_MODBUS_RTU)
+            fprintf(o, "  baud = %d;\n  parity = \"%c\";\n", cfg->baud, cfg->parity);
+        fprintf(o, "  unit_id = %d;\n  mode = \"%s\";\n", cfg->unit_id,
+                cfg->modbus_mode == VIBID_MODBUS_FIFO ? "fifo" : "snapshot");
+        if (cfg->regmap_file[0])
+            fprintf(o, "  register_map = \"%s\";\n", cfg->regmap_file);
+        else {
+            fprintf(o, "  registers = (\n");
+            static const char *const tn[] = {"INT16", "UINT16", "INT32", "UINT32", "FLOAT32", "FLOAT64"};
+            static const char *const on[] = {"ABCD", "DCBA", "BADC", "CDAB"};
+            for (size_t i = 0; i < cfg->regmap->n; i++) {
+                const vibid_reg_entry *e = &cfg->regmap->entries[i];
+                fprintf(o,
+                        "    { name = \"%s\"; address = %u; register = \"%s\"; type = \"%s\"; byte_order = \"%s\"; "
+                        "scale = %s; offset = %s; }%s\n",
+                        e->name, e->address, e->kind == VIBID_REG_HOLDING ? "holding" : "input", tn[e->type],
+                        on[e->order], num(e->scale), num(e->offset), i + 1 < cfg->regmap->n ? "," : "");
+            }
+            fprintf(o, "  );\n");
+        }
+        fprintf(o,
+                "  poll_period = %s;  # 0 = min(K h / 4, 0.05 s)\n  fifo_base = %u;\n  response_timeout = %s;\n"
+                "  backoff_initial = %s;\n  backoff_max = %s;\n  max_timeouts = %u;\n",
+                num(cfg->poll_period_s), cfg->fifo_base, num(cfg->response_timeout_s), num(cfg->backoff_initial_s),
+                num(cfg->backoff_max_s), cfg->max_timeouts);
+        break;
+    case VD_SRC_REPLAY: {
+        static const char *const fmts[] = {"auto", "candump", "csv"};
+        fprintf(o, "  file = \"%s\";\n  format = \"%s\";\n  paced = %s;\n  speed = %s;\n", cfg->replay_file,
+                fmts[cfg->replay_format], yes(cfg->paced), num(cfg->speed));
+        if (cfg->dbc_file[0])
+            fprintf(o, "  dbc = \"%s\";\n", cfg->dbc_file);
+        break;
+    }
+    }
+    if (cfg->chanmap_file[0])
+        fprintf(o, "  channel_map = \"%s\";\n", cfg->chanmap_file);
+    else {
+        fprintf(o, "  channels = (\n");
+        static const char *const srcn[] = {"signal", "register", "column"};
+        for (size_t i = 0; i < cfg->chanmap.n; i++) {
+            const vibid_channel *ch = &cfg->chanmap.ch[i];
+            fprintf(o, "    { name = \"%s\"; quantity = \"%s\"; node = %d; unit = \"%s\"; %s = \"%s\";", ch->name,
+                    vibid_quantity_name(ch->quantity), ch->node, ch->unit, srcn[ch->source], ch->ref);
+            if (ch->message[0])
+                fprintf(o, " message = \"%s\";", ch->message);
+            fprintf(o, " }%s\n", i + 1 < cfg->chanmap.n ? "," : "");
+        }
+        fprintf(o, "  );\n");
+    }
+    if (cfg->chanmap.counter[0])
+        fprintf(o, "  counter = \"%s\";\n", cfg->chanmap.counter);
+    if (cfg->chanmap.trigger[0])
+        fprintf(o, "  trigger = \"%s\";\n", cfg->chanmap.trigger);
+    if (cfg->chanmap.time_column[0])
+        fprintf(o, "  time_column = \"%s\";\n", cfg->chanmap.time_column);
+    fprintf(o, "};\n");
+    fprintf(o,
+            "acquisition = {\n  ring_size = %u;\n  read_batch = %u;\n  read_timeout = %d;  # ms\n"
+            "  realtime_priority = %d;  # 0 = SCHED_OTHER\n  lock_memory = %s;\n};\n",
+            cfg->ring_size, cfg->read_batch, cfg->read_timeout_ms, cfg->rt_priority, yes(cfg->lock_memory));
+    fprintf(o,
+            "estimator = {\n  method = \"%s\";\n  forgetting = %s;\n  prefilter_hz = %s;\n  rls_alpha = %s;\n"
+            "  iv_lag = %u;\n  decimation = %u;\n  warmup_samples = %u;\n};\n",
+            vd_estimator_name(cfg->method), num(cfg->forgetting), num(cfg->prefilter_hz), num(cfg->rls_alpha), cfg->iv_lag,
+            cfg->decimation, cfg->warmup_samples);
+    fprintf(o,
+            "outputs = {\n  tracks = { path = \"%s\"; flush_interval = %s; fsync = %s; };\n"
+            "  influx = { path = \"%s\"; udp = \"%s\"; measurement = \"%s\"; };\n"
+            "  record = { path = \"%s\"; format = \"%s\"; };\n  status = { path = \"%s\"; interval = %s; };\n};\n",
+            cfg->tracks_path, num(cfg->flush_interval_s), yes(cfg->fsync_on_flush), cfg->influx_path, cfg->influx_udp,
+            cfg->influx_measurement, cfg->record_path, cfg->record_format == VD_REC_CSV ? "csv" : "candump",
+            cfg->status_path, num(cfg->status_interval_s));
+    fprintf(o,
+            "alarms = {\n  enabled = %s;\n  threshold = %s;\n  min_relative = %s;\n  hold = %s;\n"
+            "  learn_start = %s;\n  learn_duration = %s;\n  parameters = (",
+            yes(cfg->alarms_enabled), num(cfg->alarm_threshold), num(cfg->alarm_min_relative), num(cfg->alarm_hold_s),
+            num(cfg->learn_start_s), num(cfg->learn_duration_s));
+    bool first = true;
+    for (size_t k = 0; k < cfg->n_params; k++) {
+        const vd_alarm_param *a = &cfg->alarm_param[k];
+        if (!a->enabled)
+            continue;
+        fprintf(o, "%s\n    { name = \"%s\";", first ? "" : ",", a->name);
+        if (a->has_baseline)
+            fprintf(o, " baseline = %s;", num(a->baseline));
+        fprintf(o, " }");
+        first = false;
+    }
+    fprintf(o, "\n  );\n};\n");
+    fprintf(o, "log = {\n  level = \"%s\";\n  status_interval = %s;\n};\n",
+            vd_log_level_name((vd_log_level)cfg->log_level), num(cfg->log_status_interval_s));
+}

@@ -1,0 +1,137 @@
+/* config.h: vibidd's configuration: one libconfig file, read once, checked against
+ * explicit ranges, read afterwards only through this struct (chrony's discipline).
+ *
+ * Every error names file, line and field, e.g.
+ *   vibidd.cfg:23: estimator.forgetting: 1.5 outside [0.9, 1]
+ * The reference of every directive (type, range, default) is the table in config.c
+ * and docs/vibidd.md; `vibidd -c FILE --check` prints the effective configuration
+ * with every default filled in (vd_config_print), in the file's own syntax, so that
+ * the printout is itself a valid configuration.
+ */
+#ifndef VIBIDD_CONFIG_H
+#define VIBIDD_CONFIG_H
+
+#include <stdbool.h>
+#include <stddef.h>
+#include <stdio.h>
+
+#include <vibid/identify.h>
+#include <vibid/stand_file.h>
+#include <vibid_drivers/channel_map.h>
+#include <vibid_drivers/dbc.h>
+#include <vibid_drivers/register_map.h>
+#include <vibid_drivers/source_modbus.h>
+
+#define VD_PATH_MAX 1024
+#define VD_MAX_PARAMS 64
+
+typedef struct vd_config_error {
+    char file[VD_PATH_MAX];
+    int line;            /* 0 if not known */
+    char field[160];     /* setting path, "" for syntax errors */
+    char text[2048];     /* "file:line: field: message", ready to print */
+} vd_config_error;
+
+typedef enum vd_source_kind { VD_SRC_SOCKETCAN = 0, VD_SRC_MODBUS = 1, VD_SRC_REPLAY = 2 } vd_source_kind;
+typedef enum vd_record_format { VD_REC_CSV = 0, VD_REC_CANDUMP = 1 } vd_record_format;
+
+/* Per-parameter alarm settings (after defaults). */
+typedef struct vd_alarm_param {
+    char name[64];
+    bool enabled;
+    bool has_baseline;   /* baseline value given (else learned) */
+    double baseline;
+} vd_alarm_param;
+
+typedef struct vd_config {
+    char path[VD_PATH_MAX];      /* the configuration file */
+    char dir[VD_PATH_MAX];       /* its directory: relative paths are relative to it */
+
+    /* stand */
+    char stand_file[VD_PATH_MAX];/* "" when inline */
+    vibid_stand *stand;          /* owned */
+    double sample_rate;          /* from the stand, Hz */
+    size_t n_params, n_channels, n_modes;
+
+    /* source */
+    vd_source_kind source_kind;
+    int source_line;
+    char dbc_file[VD_PATH_MAX];  /* socketcan / candump replay */
+    vibid_dbc *dbc;              /* owned */
+    char chanmap_file[VD_PATH_MAX]; /* "" when inline */
+    vibid_chanmap chanmap;
+    size_t model_to_chan[VIBID_DRV_MAX_CHANNELS]; /* model channel i -> chanmap index */
+    /* socketcan */
+    char iface[32];
+    int rcvbuf_bytes;
+    bool hw_timestamps;
+    unsigned can_batch;
+    /* modbus */
+    char url[256];
+    vibid_modbus_transport transport;
+    char host[128];
+    int port;
+    char device[256];
+    int baud;
+    char parity;
+    int unit_id;
+    vibid_modbus_mode modbus_mode;
+    char regmap_file[VD_PATH_MAX];
+    vibid_regmap *regmap;        /* owned */
+    double poll_period_s;
+    unsigned fifo_base;
+    double response_timeout_s, backoff_initial_s, backoff_max_s;
+    unsigned max_timeouts;
+    /* replay */
+    char replay_file[VD_PATH_MAX];
+    int replay_format;           /* vibid_replay_format */
+    bool paced;
+    double speed;
+
+    /* acquisition */
+    unsigned ring_size;
+    unsigned read_batch;
+    int read_timeout_ms;
+    int rt_priority;             /* 0 = SCHED_OTHER */
+    bool lock_memory;
+
+    /* estimator */
+    vibid_estimator method;
+    double forgetting, prefilter_hz, rls_alpha;
+    unsigned iv_lag;
+    unsigned decimation;
+    unsigned warmup_samples;
+
+    /* outputs */
+    char tracks_path[VD_PATH_MAX];
+    char influx_path[VD_PATH_MAX];
+    char influx_udp[128];
+    char influx_measurement[64];
+    char record_path[VD_PATH_MAX];
+    vd_record_format record_format;
+    char status_path[VD_PATH_MAX];
+    double status_interval_s;
+    double flush_interval_s;
+    bool fsync_on_flush;
+
+    /* alarms */
+    bool alarms_enabled;
+    double alarm_threshold, alarm_min_relative, alarm_hold_s;
+    double learn_start_s, learn_duration_s;
+    vd_alarm_param alarm_param[VD_MAX_PARAMS];
+
+    /* log */
+    int log_level;
+    double log_status_interval_s;
+} vd_config;
+
+/* Reads and checks the file. Returns 0, or -1 with *err filled. On success the
+ * config owns the stand, DBC and register map: release with vd_config_free. */
+int vd_config_load(const char *path, vd_config *cfg, vd_config_error *err);
+void vd_config_free(vd_config *cfg);
+/* Prints the effective configuration (valid libconfig syntax, defaults filled in). */
+void vd_config_print(const vd_config *cfg, FILE *out);
+const char *vd_source_kind_name(vd_source_kind k);
+const char *vd_estimator_name(vibid_estimator e);
+
+#endif

@@ -1,0 +1,703 @@
+/* daemon.c: see daemon.h. */
+
+#include "daemon.h"
+
+#include "log.h"
+
+#include <errno.h>
+#include <math.h>
+#include <poll.h>
+#include <sched.h>
+#include <signal.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/eventfd.h>
+#include <sys/mman.h>
+#include <time.h>
+#include <unistd.h>
+
+#include <vibid_drivers/source_modbus.h>
+#include <vibid_drivers/source_replay.h>
+#include <vibid_drivers/source_socketcan.h>
+
+static int64_t mono_ns(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (int64_t)ts.tv_sec * 1000000000LL + ts.tv_nsec;
+}
+
+static double mono_s(void) { return (double)mono_ns() * 1e-9; }
+
+/* ---------------------------------------------------------------- source ---- */
+
+static bool is_recording(const char *path)
+{
+    FILE *f = fopen(path, "re");
+    if (!f)
+        return false;
+    char line[64] = "";
+    bool yes = fgets(line, sizeof line, f) && strncmp(line, VD_RECORDING_MAGIC, strlen(VD_RECORDING_MAGIC)) == 0;
+    fclose(f);
+    return yes;
+}
+
+static bool has_csv_ext(const char *p)
+{
+    size_t L = strlen(p);
+    return L >= 4 && strcasecmp(p + L - 4, ".csv") == 0;
+}
+
+static int open_replay(vd_daemon *d, const char *path, int format, bool paced, double speed, char *err, size_t cap)
+{
+    vd_config *cfg = d->cfg;
+    vibid_source_replay_config rc;
+    memset(&rc, 0, sizeof rc);
+    rc.path = path;
+    rc.paced = paced;
+    rc.speed = speed > 0 ? speed : 1.0;
+    rc.sample_period_s = 1.0 / cfg->sample_rate;
+    rc.chanmap = cfg->chanmap;
+    bool csv = format == VIBID_REPLAY_CSV || (format == VIBID_REPLAY_AUTO && has_csv_ext(path));
+    if (csv) {
+        rc.format = VIBID_REPLAY_CSV;
+        if (is_recording(path)) {
+            /* Our own recording: columns are the channel names, time in column t. */
+            for (size_t i = 0; i < rc.chanmap.n; i++) {
+                rc.chanmap.ch[i].source = VIBID_CHAN_COLUMN;
+                snprintf(rc.chanmap.ch[i].ref, sizeof rc.chanmap.ch[i].ref, "%s", rc.chanmap.ch[i].name);
+                rc.chanmap.ch[i].message[0] = '\0';
+            }
+            snprintf(rc.chanmap.time_column, sizeof rc.chanmap.time_column, "t");
+            rc.chanmap.counter[0] = rc.chanmap.trigger[0] = '\0';
+        } else {
+            for (size_t i = 0; i < rc.chanmap.n; i++)
+                if (rc.chanmap.ch[i].source != VIBID_CHAN_COLUMN) {
+                    snprintf(err, cap,
+                             "%s: not a vibidd recording, and channel '%s' of %s:%u names no CSV column: a CSV "
+                             "capture needs source.channels with column = \"...\"",
+                             path, rc.chanmap.ch[i].name, cfg->path, rc.chanmap.ch[i].line);
+                    return -1;
+                }
+        }
+    } else {
+        rc.format = VIBID_REPLAY_CANDUMP;
+        if (!cfg->dbc) {
+            snprintf(err, cap, "%s: a candump capture needs a DBC: %s has no source.dbc", path, cfg->path);
+            return -1;
+        }
+        rc.dbc = cfg->dbc;
+    }
+    vibid_drv_error de = {0};
+    d->src = vibid_source_open(&vibid_source_replay_ops, &rc, &de);
+    if (!d->src) {
+        snprintf(err, cap, "replay of %s: %s", path, de.text);
+        return -1;
+    }
+    d->rec_chanmap = rc.chanmap;
+    d->file_source = true;
+    return 0;
+}
+
+static int open_source(vd_daemon *d, char *err, size_t cap)
+{
+    vd_config *cfg = d->cfg;
+    vibid_drv_error de = {0};
+    if (d->opt.replay)
+        return open_replay(d, d->opt.replay, VIBID_REPLAY_AUTO, d->opt.pace, d->opt.speed, err, cap);
+    switch (cfg->source_kind) {
+    case VD_SRC_REPLAY:
+        return open_replay(d, cfg->replay_file, cfg->replay_format, cfg->paced || d->opt.pace,
+                           d->opt.pace ? d->opt.speed : cfg->speed, err, cap);
+    case VD_SRC_SOCKETCAN: {
+        vibid_source_socketcan_config sc;
+        memset(&sc, 0, sizeof sc);
+        sc.iface = cfg->iface;
+        sc.dbc = cfg->dbc;
+        sc.chanmap = cfg->chanmap;
+        sc.rcvbuf_bytes = cfg->rcvbuf_bytes;
+        sc.hw_timestamps = cfg->hw_timestamps;
+        sc.batch = cfg->can_batch;
+        d->src = vibid_source_open(&vibid_source_socketcan_ops, &sc, &de);
+        break;
+    }
+    case VD_SRC_MODBUS: {
+        vibid_source_modbus_config mc;
+        memset(&mc, 0, sizeof mc);
+        mc.transport = cfg->transport;
+        mc.host = cfg->host;
+        mc.port = cfg->port;
+        mc.device = cfg->device;
+        mc.baud = cfg->baud;
+        mc.parity = cfg->parity;
+        mc.unit_id = cfg->unit_id;
+        mc.regmap = cfg->regmap;
+        mc.chanmap = cfg->chanmap;
+        mc.mode = cfg->modbus_mode;
+        mc.sample_period_s = 1.0 / cfg->sample_rate;
+        mc.poll_period_s = cfg->poll_period_s;
+        mc.fifo_base = cfg->fifo_base;
+        mc.response_timeout_s = cfg->response_timeout_s;
+        mc.backoff_initial_s = cfg->backoff_initial_s;
+        mc.backoff_max_s = cfg->backoff_max_s;
+        mc.max_timeouts = cfg->max_timeouts;
+        d->src = vibid_source_open(&vibid_source_modbus_ops, &mc, &de);
+        break;
+    }
+    }
+    if (!d->src) {
+        snprintf(err, cap, "%s source (%s:%d): %s", vd_source_kind_name(cfg->source_kind), cfg->path, cfg->source_line,
+                 de.text);
+        return -1;
+    }
+    d->rec_chanmap = cfg->chanmap;
+    return 0;
+}
+
+/* ------------------------------------------------------ acquisition thread ---- */
+
+static void set_realtime(vd_daemon *d)
+{
+    int prio = d->cfg->rt_priority;
+    if (prio <= 0)
+        return;
+    struct sched_param sp = {.sched_priority = prio};
+    int rc = pthread_setschedparam(pthread_self(), SCHED_FIFO, &sp);
+    if (rc == 0)
+        vd_info("acquisition thread runs SCHED_FIFO priority %d", prio);
+    else
+        vd_warning("acquisition.realtime_priority = %d: SCHED_FIFO not permitted (%s); the thread stays "
+                   "SCHED_OTHER. Grant CAP_SYS_NICE, or RLIMIT_RTPRIO >= %d (systemd: LimitRTPRIO=%d), or set "
+                   "realtime_priority = 0 to silence this",
+                   prio, strerror(rc), prio, prio);
+}
+
+static void wake_consumer(vd_daemon *d)
+{
+    atomic_thread_fence(memory_order_seq_cst);
+    if (atomic_load_explicit(&d->consumer_sleeping, memory_order_relaxed)) {
+        uint64_t one = 1;
+        ssize_t w = write(d->efd, &one, sizeof one);
+        (void)w; /* an eventfd write only fails when the counter would overflow: already awake */
+    }
+}
+
+static void *acq_main(void *arg)
+{
+    vd_daemon *d = arg;
+    set_realtime(d);
+    const size_t cap = d->cfg->read_batch;
+    vibid_record *recs = calloc(cap, sizeof *recs);
+    vd_item *item = calloc(1, sizeof *item);
+    if (!recs || !item) {
+        vd_error("acquisition: out of memory");
+        atomic_store(&d->fatal, 1);
+        atomic_store(&d->acq_done, 1);
+        free(recs);
+        free(item);
+        return NULL;
+    }
+    uint64_t pending_overflow = 0, first_lost = 0;
+    double t_stats = 0;
+    while (!atomic_load_explicit(&d->stop_acq, memory_order_relaxed)) {
+        atomic_fetch_add_explicit(&d->acq_beat, 1, memory_order_relaxed);
+        size_t n = 0;
+        vibid_drv_error de = {0};
+        int64_t t0 = mono_ns();
+        vibid_drv_status st = vibid_source_read(d->src, recs, cap, &n, d->cfg->read_timeout_ms, &de);
+        int64_t t_rx = mono_ns();
+        atomic_fetch_add_explicit(&d->acq_reads, 1, memory_order_relaxed);
+        for (size_t i = 0; i < n; i++) {
+            item->rec = recs[i];
+            item->t_rx_ns = t_rx;
+            if (pending_overflow) {
+                vd_item f;
+                memset(&f, 0, sizeof f);
+                f.rec.kind = VIBID_REC_FAULT;
+                f.rec.fault = VIBID_FAULT_DROPPED;
+                f.rec.index = first_lost;
+                f.rec.count = pending_overflow;
+                snprintf(f.rec.text, sizeof f.rec.text,
+                         "ring overflow: %llu records dropped from sample %llu on (estimator too slow; "
+                         "acquisition.ring_size)",
+                         (unsigned long long)pending_overflow, (unsigned long long)first_lost);
+                f.t_rx_ns = t_rx;
+                if (vd_ring_push(d->ring, &f))
+                    pending_overflow = 0;
+            }
+            while (!vd_ring_push(d->ring, item)) {
+                if (!d->file_source) {
+                    if (!pending_overflow)
+                        first_lost = item->rec.index;
+                    pending_overflow++;
+                    break;
+                }
+                /* replay: wait for room, never drop */
+                atomic_fetch_add_explicit(&d->acq_wait_full, 1, memory_order_relaxed);
+                wake_consumer(d);
+                if (atomic_load(&d->stop_acq) && atomic_load(&d->est_done))
+                    break;
+                struct timespec ts = {0, 50000};
+                nanosleep(&ts, NULL);
+            }
+        }
+        if (n) {
+            atomic_fetch_add_explicit(&d->acq_records, n, memory_order_relaxed);
+            wake_consumer(d);
+        }
+        double now = (double)t_rx * 1e-9;
+        if (now - t_stats > 0.2 || st == VIBID_DRV_E_EOF) {
+            /* trylock: the acquisition side never waits for the status writer */
+            if (pthread_mutex_trylock(&d->stats_mu) == 0) {
+                vibid_source_stats_get(d->src, &d->src_stats);
+                pthread_mutex_unlock(&d->stats_mu);
+                t_stats = now;
+            }
+        }
+        if (st == VIBID_DRV_OK)
+            continue;
+        if (st == VIBID_DRV_E_EOF) {
+            vd_info("end of the capture reached");
+            break;
+        }
+        if (st == VIBID_DRV_E_AGAIN) {
+            /* a source that returns at once without data (e.g. a test double): do not spin */
+            if (t_rx - t0 < 1000000) {
+                struct timespec ts = {0, 1000000};
+                nanosleep(&ts, NULL);
+            }
+            continue;
+        }
+        atomic_fetch_add_explicit(&d->acq_read_errors, 1, memory_order_relaxed);
+        vd_error("source %s failed: %s (%s)", vibid_source_kind(d->src), de.text, vibid_drv_strerror(st));
+        atomic_store(&d->fatal, 1);
+        break;
+    }
+    if (pending_overflow)
+        vd_warning("ring overflow: %llu records dropped at the end of acquisition",
+                   (unsigned long long)pending_overflow);
+    if (pthread_mutex_trylock(&d->stats_mu) == 0) {
+        vibid_source_stats_get(d->src, &d->src_stats);
+        pthread_mutex_unlock(&d->stats_mu);
+    }
+    free(recs);
+    free(item);
+    atomic_store(&d->acq_done, 1);
+    wake_consumer(d);
+    return NULL;
+}
+
+/* ------------------------------------------------------- estimation thread ---- */
+
+static const char *fault_name(vibid_fault_code c)
+{
+    static const char *const n[] = {"none",      "bad_line",  "unknown_id", "short_frame", "nonfinite", "duplicate",
+                                    "late",      "bus_error", "dropped",    "poll",        "link"};
+    return (unsigned)c < sizeof n / sizeof n[0] ? n[c] : "fault";
+}
+
+static void handle_fault(vd_daemon *d, const vibid_record *rec)
+{
+    d->faults++;
+    unsigned c = (unsigned)rec->fault < 16 ? (unsigned)rec->fault : 15;
+    uint64_t k = ++d->faults_by_code[c];
+    /* every fault is counted; the log shows the first 20 of each kind, then every 1000th */
+    if (k <= 20 || k % 1000 == 0)
+        vd_warning("source fault (%s #%llu): %s", fault_name(rec->fault), (unsigned long long)k, rec->text);
+}
+
+static void handle_gap_log(vd_daemon *d, const vibid_record *rec)
+{
+    d->gap_records++;
+    if (d->gap_records <= 20 || d->gap_records % 1000 == 0)
+        vd_notice("gap: %llu samples missing from index %llu: %s", (unsigned long long)rec->count,
+                  (unsigned long long)rec->index, rec->text);
+}
+
+static void run_alarms(vd_daemon *d, vd_row *row)
+{
+    if (!d->cfg->alarms_enabled || (row->flags & VD_FLAG_NOEST))
+        return;
+    const vibid_model *m = vibid_stand_model(d->cfg->stand);
+    bool any = false;
+    for (size_t k = 0; k < d->cfg->n_params; k++) {
+        if (!d->cfg->alarm_param[k].enabled)
+            continue;
+        vd_alarm *a = &d->alarm[k];
+        vd_alarm_event ev = vd_alarm_update(a, row->run_s, row->theta[k], row->se[k]);
+        vibid_param_info pi;
+        vibid_model_param_info(m, k, &pi);
+        if (ev == VD_ALARM_RAISED) {
+            d->alarms_raised++;
+            vd_warning("ALARM %s: %.6g differs from its baseline %.6g by %.1f standard errors (threshold %g, held "
+                       "%g s) at sample %llu, t = %.3f s",
+                       pi.name, row->theta[k], a->base, a->last_z, a->cfg.threshold, a->cfg.hold_s,
+                       (unsigned long long)row->index, row->run_s);
+            vd_writers_alarm(&d->w, pi.name, 1, row, row->theta[k], a->base, a->last_z);
+        } else if (ev == VD_ALARM_CLEARED) {
+            vd_notice("alarm %s cleared: %.6g is back within %g standard errors of %.6g at sample %llu", pi.name,
+                      row->theta[k], a->cfg.threshold, a->base, (unsigned long long)row->index);
+            vd_writers_alarm(&d->w, pi.name, 0, row, row->theta[k], a->base, a->last_z);
+        } else if (a->have_baseline && a->cfg.learn && !d->base_reported[k]) {
+            vd_info("alarm baseline of %s learned: %.9g (mean standard error %.3g, %llu estimates)", pi.name,
+                    a->base, a->base_se, (unsigned long long)a->n_learn);
+            d->base_reported[k] = true;
+        }
+        if (a->active)
+            any = true;
+    }
+    if (any)
+        row->flags |= VD_FLAG_ALARM;
+}
+
+double vd_daemon_latency_us(const vd_daemon *d, double q)
+{
+    if (!d->lat_n)
+        return NAN;
+    uint64_t target = (uint64_t)ceil(q * (double)d->lat_n), acc = 0;
+    if (target == 0)
+        target = 1;
+    for (unsigned i = 0; i < VD_LAT_BUCKETS; i++) {
+        acc += d->lat_hist[i];
+        if (acc >= target)
+            return (double)i + 0.5;
+    }
+    return VD_LAT_BUCKETS;
+}
+
+static void write_status(vd_daemon *d, const char *state, double now)
+{
+    const vd_config *cfg = d->cfg;
+    vibid_source_stats ss;
+    pthread_mutex_lock(&d->stats_mu);
+    ss = d->src_stats;
+    pthread_mutex_unlock(&d->stats_mu);
+    double dt = now - d->t_last_status;
+    if (dt > 0 && d->t_last_status > 0)
+        d->rate_hz = (double)(d->est.samples - d->samples_at_last_status) / dt;
+    d->samples_at_last_status = d->est.samples;
+    d->t_last_status = now;
+
+    char buf[8192];
+    size_t off = 0;
+#define S(...)                                                                                                         \
+    do {                                                                                                               \
+        int n_ = snprintf(buf + off, off < sizeof buf ? sizeof buf - off : 0, __VA_ARGS__);                            \
+        if (n_ > 0)                                                                                                    \
+            off += (size_t)n_;                                                                                         \
+    } while (0)
+    S("state=%s\nstand=%s\nsource=%s\nuptime_s=%.3f\n", state, vibid_stand_name(cfg->stand), vibid_source_kind(d->src),
+      now - d->t_start);
+    S("samples=%llu\nsample_rate_hz=%.1f\ngaps=%llu\nmissing_samples=%llu\nfaults=%llu\n",
+      (unsigned long long)d->est.samples, d->rate_hz, (unsigned long long)d->est.gaps,
+      (unsigned long long)d->est.missing, (unsigned long long)d->faults);
+    S("ring_capacity=%zu\nring_fill=%zu\nring_high_water=%llu\nring_overflows=%llu\nreplay_waits=%llu\n",
+      vd_ring_capacity(d->ring), vd_ring_fill(d->ring), (unsigned long long)vd_ring_high_water(d->ring),
+      (unsigned long long)vd_ring_overflows(d->ring), (unsigned long long)atomic_load(&d->acq_wait_full));
+    S("source_samples=%llu\nsource_gaps=%llu\nsource_missing_samples=%llu\nsource_faults=%llu\n",
+      (unsigned long long)ss.samples, (unsigned long long)ss.gaps, (unsigned long long)ss.missing_samples,
+      (unsigned long long)ss.faults);
+    S("source_frames=%llu\nsource_dropped_frames=%llu\nsource_error_frames=%llu\nsource_bad_lines=%llu\n",
+      (unsigned long long)ss.frames, (unsigned long long)ss.dropped, (unsigned long long)ss.error_frames,
+      (unsigned long long)ss.bad_lines);
+    S("source_polls=%llu\nsource_failed_polls=%llu\nsource_timeouts=%llu\nsource_link_losses=%llu\n"
+      "source_reconnects=%llu\nsource_overruns=%llu\n",
+      (unsigned long long)ss.polls, (unsigned long long)ss.failed_polls, (unsigned long long)ss.timeouts,
+      (unsigned long long)ss.link_losses, (unsigned long long)ss.reconnects, (unsigned long long)ss.overruns);
+    S("jitter_mean_s=%.9g\njitter_std_s=%.3g\n", ss.jitter.mean_s, ss.jitter.std_s);
+    S("rows=%llu\nestimate_failures=%llu\nnonfinite_samples=%llu\n", (unsigned long long)d->est.rows,
+      (unsigned long long)d->est.est_errors, (unsigned long long)d->est.push_errors);
+    S("latency_us_p50=%.1f\nlatency_us_p99=%.1f\n", vd_daemon_latency_us(d, 0.5), vd_daemon_latency_us(d, 0.99));
+    S("write_errors=%llu\ninflux_udp_sent=%llu\ninflux_udp_errors=%llu\n", (unsigned long long)d->w.write_errors,
+      (unsigned long long)d->w.udp_sent, (unsigned long long)d->w.udp_errors);
+    S("alarms_raised=%llu\nalarms_active=", (unsigned long long)d->alarms_raised);
+    const vibid_model *m = vibid_stand_model(cfg->stand);
+    bool first = true;
+    for (size_t k = 0; k < cfg->n_params; k++)
+        if (d->alarm[k].active) {
+            vibid_param_info pi;
+            vibid_model_param_info(m, k, &pi);
+            S("%s%s", first ? "" : ",", pi.name);
+            first = false;
+        }
+    S("\n");
+    if (d->est.have_last) {
+        const vd_row *r = &d->est.last;
+        S("last_index=%llu\nlast_time_s=%lld.%06lld\n", (unsigned long long)r->index, (long long)(r->t_us / 1000000),
+          (long long)(r->t_us % 1000000));
+        for (size_t k = 0; k < cfg->n_params; k++) {
+            vibid_param_info pi;
+            vibid_model_param_info(m, k, &pi);
+            S("estimate.%s=%.10g\nestimate.%s_se=%.3g\n", pi.name, r->theta[k], pi.name, r->se[k]);
+        }
+        for (size_t i = 0; i < cfg->n_modes; i++)
+            S("f%zu_hz=%.6g\nzeta%zu=%.6g\n", i + 1, r->freq[i], i + 1, r->zeta[i]);
+    }
+#undef S
+    if (off > sizeof buf)
+        off = sizeof buf;
+    if (cfg->status_path[0]) {
+        char tmp[VD_PATH_MAX + 8];
+        snprintf(tmp, sizeof tmp, "%s.tmp", cfg->status_path);
+        FILE *f = fopen(tmp, "we");
+        bool ok = f && fwrite(buf, 1, off, f) == off;
+        if (f && fclose(f) != 0)
+            ok = false;
+        if (!ok || rename(tmp, cfg->status_path) != 0) {
+            static uint64_t fails;
+            if (fails++ % 60 == 0)
+                vd_error("writing the status file %s failed: %s", cfg->status_path, strerror(errno));
+        }
+    }
+}
+
+static void log_status_line(vd_daemon *d)
+{
+    char est[512] = "";
+    size_t off = 0;
+    if (d->est.have_last) {
+        const vibid_model *m = vibid_stand_model(d->cfg->stand);
+        for (size_t k = 0; k < d->cfg->n_params && off < sizeof est; k++) {
+            vibid_param_info pi;
+            vibid_model_param_info(m, k, &pi);
+            int n = snprintf(est + off, sizeof est - off, " %s=%.6g", pi.name, d->est.last.theta[k]);
+            if (n > 0)
+                off += (size_t)n;
+        }
+    }
+    vd_info("status: %llu samples (%.0f/s), %llu gaps (%llu missing), %llu faults, %llu ring overflows;%s",
+            (unsigned long long)d->est.samples, d->rate_hz, (unsigned long long)d->est.gaps,
+            (unsigned long long)d->est.missing, (unsigned long long)d->faults,
+            (unsigned long long)vd_ring_overflows(d->ring), est);
+}
+
+static void housekeeping(vd_daemon *d, bool final)
+{
+    double now = mono_s();
+    atomic_fetch_add_explicit(&d->est_beat, 1, memory_order_relaxed);
+    if (atomic_exchange(&d->reopen, 0))
+        vd_writers_reopen(&d->w);
+    if (final || now - d->t_last_flush >= d->cfg->flush_interval_s) {
+        vd_writers_flush(&d->w, d->cfg->fsync_on_flush);
+        d->t_last_flush = now;
+    }
+    if (final || now - d->t_last_status >= d->cfg->status_interval_s)
+        write_status(d, final ? "stopped" : "running", now);
+    if (d->cfg->log_status_interval_s > 0 && now - d->t_last_logstatus >= d->cfg->log_status_interval_s) {
+        log_status_line(d);
+        d->t_last_logstatus = now;
+    }
+}
+
+static void process(vd_daemon *d, const vd_item *it)
+{
+    const vibid_record *rec = &it->rec;
+    if (rec->kind == VIBID_REC_FAULT) {
+        handle_fault(d, rec);
+        return;
+    }
+    if (rec->kind == VIBID_REC_GAP)
+        handle_gap_log(d, rec);
+    vd_row row;
+    int due = vd_est_record(&d->est, rec, &row);
+    if (rec->kind == VIBID_REC_SAMPLE) {
+        int64_t lat = (mono_ns() - it->t_rx_ns) / 1000;
+        if (lat < 0)
+            lat = 0;
+        d->lat_hist[lat < VD_LAT_BUCKETS ? lat : VD_LAT_BUCKETS - 1]++;
+        d->lat_n++;
+        vd_writers_sample(&d->w, rec);
+    }
+    if (due) {
+        run_alarms(d, &row);
+        vd_writers_row(&d->w, &row);
+    }
+}
+
+static void *est_main(void *arg)
+{
+    vd_daemon *d = arg;
+    uint64_t count = 0;
+    for (;;) {
+        const vd_item *it = vd_ring_peek(d->ring);
+        if (it) {
+            process(d, it);
+            vd_ring_release(d->ring);
+            if ((++count & 255u) == 0)
+                housekeeping(d, false);
+            continue;
+        }
+        /* empty: finished, or sleep until the producer wakes us (bounded by 50 ms) */
+        if (atomic_load(&d->acq_done) && !vd_ring_peek(d->ring))
+            break;
+        housekeeping(d, false);
+        atomic_store(&d->consumer_sleeping, 1);
+        atomic_thread_fence(memory_order_seq_cst);
+        if (!vd_ring_peek(d->ring) && !atomic_load(&d->acq_done)) {
+            struct pollfd pfd = {.fd = d->efd, .events = POLLIN};
+            if (poll(&pfd, 1, 50) > 0) {
+                uint64_t v;
+                ssize_t r = read(d->efd, &v, sizeof v);
+                (void)r;
+            }
+        }
+        atomic_store(&d->consumer_sleeping, 0);
+    }
+    housekeeping(d, true);
+    atomic_store(&d->est_done, 1);
+    return NULL;
+}
+
+/* ------------------------------------------------------------ life cycle ---- */
+
+int vd_daemon_init(vd_daemon *d, vd_config *cfg, const vd_options *opt, char *err, size_t cap)
+{
+    memset(d, 0, sizeof *d);
+    d->cfg = cfg;
+    d->opt = *opt;
+    d->efd = -1;
+    pthread_mutex_init(&d->stats_mu, NULL);
+    vd_notify_init(&d->notify);
+    if (cfg->lock_memory) {
+        if (mlockall(MCL_CURRENT | MCL_FUTURE) == 0)
+            vd_info("memory locked (mlockall)");
+        else
+            vd_warning("acquisition.lock_memory: mlockall failed: %s; pages may be swapped out. Grant "
+                       "CAP_IPC_LOCK or raise RLIMIT_MEMLOCK (systemd: LimitMEMLOCK=infinity)",
+                       strerror(errno));
+    }
+    d->ring = vd_ring_create(cfg->ring_size);
+    d->lat_hist = calloc(VD_LAT_BUCKETS, sizeof *d->lat_hist);
+    if (!d->ring || !d->lat_hist) {
+        snprintf(err, cap, "out of memory for a ring of %u records", cfg->ring_size);
+        return -1;
+    }
+    d->efd = eventfd(0, EFD_CLOEXEC | EFD_NONBLOCK);
+    if (d->efd < 0) {
+        snprintf(err, cap, "eventfd: %s", strerror(errno));
+        return -1;
+    }
+    if (vd_est_init(&d->est, cfg, err, cap))
+        return -1;
+    for (size_t k = 0; k < cfg->n_params; k++) {
+        vd_alarm_config ac = {cfg->alarm_threshold,
+                              cfg->alarm_min_relative,
+                              cfg->alarm_hold_s,
+                              !cfg->alarm_param[k].has_baseline,
+                              cfg->alarm_param[k].baseline,
+                              cfg->learn_start_s,
+                              cfg->learn_duration_s};
+        vd_alarm_init(&d->alarm[k], &ac);
+    }
+    if (open_source(d, err, cap))
+        return -1;
+    if (vd_writers_open(&d->w, cfg, &d->rec_chanmap, err, cap))
+        return -1;
+    return 0;
+}
+
+static void stop_threads(vd_daemon *d)
+{
+    atomic_store(&d->stop_acq, 1);
+    if (d->acq_started)
+        pthread_join(d->acq_thread, NULL);
+    d->acq_started = false;
+    atomic_store(&d->acq_done, 1);
+    wake_consumer(d);
+    if (d->est_started)
+        pthread_join(d->est_thread, NULL);
+    d->est_started = false;
+}
+
+int vd_daemon_run(vd_daemon *d)
+{
+    /* Signals: blocked here, inherited blocked by both threads, taken synchronously
+     * below. SIGPIPE: a vanished UDP/FIFO reader must not kill the daemon. */
+    sigset_t set;
+    sigemptyset(&set);
+    sigaddset(&set, SIGTERM);
+    sigaddset(&set, SIGINT);
+    sigaddset(&set, SIGHUP);
+    pthread_sigmask(SIG_BLOCK, &set, NULL);
+    signal(SIGPIPE, SIG_IGN);
+
+    d->t_start = mono_s();
+    d->t_last_flush = d->t_start;
+    if (pthread_create(&d->est_thread, NULL, est_main, d) != 0) {
+        vd_error("cannot start the estimation thread: %s", strerror(errno));
+        return 1;
+    }
+    d->est_started = true;
+    if (pthread_create(&d->acq_thread, NULL, acq_main, d) != 0) {
+        vd_error("cannot start the acquisition thread: %s", strerror(errno));
+        stop_threads(d);
+        return 1;
+    }
+    d->acq_started = true;
+    vd_notify_send(&d->notify, "READY=1\nSTATUS=acquiring");
+    vd_notice("running: stand '%s', %s source, %s estimator, %.6g Hz, ring %u records", vibid_stand_name(d->cfg->stand),
+              vibid_source_kind(d->src), vd_estimator_name(d->cfg->method), d->cfg->sample_rate, d->cfg->ring_size);
+
+    uint64_t wd_usec = vd_notify_watchdog_usec(&d->notify);
+    double wd_period = wd_usec ? (double)wd_usec * 1e-6 / 2.0 : 0.0, t_wd = 0;
+    uint64_t last_acq_beat = 0, last_est_beat = 0;
+    int stop_signal = 0;
+    while (!atomic_load(&d->est_done)) {
+        struct timespec to = {0, 100 * 1000000};
+        siginfo_t si;
+        int sig = sigtimedwait(&set, &si, &to);
+        if (sig == SIGTERM || sig == SIGINT) {
+            stop_signal = sig;
+            vd_notice("%s received: draining the ring, flushing, exiting", sig == SIGTERM ? "SIGTERM" : "SIGINT");
+            vd_notify_send(&d->notify, "STOPPING=1");
+            break;
+        }
+        if (sig == SIGHUP) {
+            atomic_store(&d->reopen, 1);
+            wake_consumer(d);
+        }
+        double now = mono_s();
+        if (wd_period > 0 && now - t_wd >= wd_period) {
+            uint64_t a = atomic_load(&d->acq_beat), e = atomic_load(&d->est_beat);
+            bool acq_ok = a != last_acq_beat || atomic_load(&d->acq_done);
+            if (acq_ok && e != last_est_beat)
+                vd_notify_send(&d->notify, "WATCHDOG=1");
+            else
+                vd_warning("watchdog: %s thread made no progress for %.1f s; not pinging systemd",
+                           acq_ok ? "estimation" : "acquisition", now - t_wd);
+            last_acq_beat = a;
+            last_est_beat = e;
+            t_wd = now;
+        }
+    }
+    (void)stop_signal;
+    stop_threads(d);
+    vd_notice("stopped: %llu samples, %llu rows, %llu gaps (%llu missing samples), %llu faults, %llu ring overflows, "
+              "latency p50 %.1f us p99 %.1f us",
+              (unsigned long long)d->est.samples, (unsigned long long)d->est.rows, (unsigned long long)d->est.gaps,
+              (unsigned long long)d->est.missing, (unsigned long long)d->faults,
+              (unsigned long long)vd_ring_overflows(d->ring), vd_daemon_latency_us(d, 0.5),
+              vd_daemon_latency_us(d, 0.99));
+    if (atomic_load(&d->fatal))
+        return 1;
+    return d->w.write_errors ? 1 : 0;
+}
+
+void vd_daemon_fini(vd_daemon *d)
+{
+    stop_threads(d);
+    vd_writers_close(&d->w);
+    vibid_source_close(d->src);
+    d->src = NULL;
+    vd_est_free(&d->est);
+    vd_ring_destroy(d->ring);
+    d->ring = NULL;
+    free(d->lat_hist);
+    d->lat_hist = NULL;
+    if (d->efd >= 0)
+        close(d->efd);
+    d->efd = -1;
+    vd_notify_close(&d->notify);
+    pthread_mutex_destroy(&d->stats_mu);
+}

@@ -1,0 +1,89 @@
+/* daemon.h: the run time of vibidd: threads, ring, signals, status, service protocol.
+ *
+ *   acquisition thread: vibid_source_read -> vd_ring_push. Never blocks on the
+ *     estimator or on disk: a full ring refuses the record, which is counted
+ *     (ring_overflows) and reported once the ring has room again (a FAULT record and a
+ *     log line); the estimator sees the jump in sample indices and treats it as a gap.
+ *     File sources (replay) have no deadline, so for them a full ring makes the reader
+ *     wait instead (no record is ever dropped in a replay).
+ *     Optional SCHED_FIFO priority for this thread (acquisition.realtime_priority).
+ *   estimation thread: vd_ring_peek -> estimator -> writers, alarms, status file,
+ *     bounded-interval flushes; sleeps on an eventfd when the ring is empty (the producer
+ *     wakes it only when it said it sleeps, so a busy pipeline makes no system calls).
+ *   main thread: signals (sigtimedwait on a blocked set: no asynchronous handler at all),
+ *     the systemd notifications and watchdog pings (only while both threads make
+ *     progress).
+ * Start order: config -> log -> memory lock -> ring -> estimator -> writers -> source ->
+ * threads -> READY=1; torn down in reverse.
+ */
+#ifndef VIBIDD_DAEMON_H
+#define VIBIDD_DAEMON_H
+
+#include <pthread.h>
+#include <stdatomic.h>
+#include <stdbool.h>
+#include <stdint.h>
+
+#include <vibid_drivers/source.h>
+
+#include "alarm.h"
+#include "config.h"
+#include "estimator.h"
+#include "notify.h"
+#include "ring.h"
+#include "writers.h"
+
+typedef struct vd_options {
+    const char *replay;        /* --replay CAPTURE (NULL: the configured source) */
+    bool pace;                 /* --pace: replay at the recorded pace */
+    double speed;              /* --speed (with --pace) */
+} vd_options;
+
+#define VD_LAT_BUCKETS 20000   /* 1 us buckets up to 20 ms; the last one collects the rest */
+
+typedef struct vd_daemon {
+    vd_config *cfg;
+    vd_options opt;
+    vibid_source *src;
+    vibid_chanmap rec_chanmap; /* the source's channels (replay of a recording: columns) */
+    bool file_source;          /* replay: wait on a full ring instead of dropping */
+    vd_ring *ring;
+    vd_est est;
+    vd_writers w;
+    vd_alarm alarm[VD_MAX_PARAMS];
+    bool base_reported[VD_MAX_PARAMS];
+    vd_notify notify;
+    int efd;
+    pthread_t acq_thread, est_thread;
+    bool acq_started, est_started;
+
+    _Atomic int stop_acq, acq_done, est_done, reopen, fatal;
+    _Atomic int consumer_sleeping;
+    _Atomic uint64_t acq_beat, est_beat;
+    /* acquisition counters, written by the acquisition thread only */
+    _Atomic uint64_t acq_records, acq_reads, acq_read_errors, acq_wait_full;
+    pthread_mutex_t stats_mu;  /* guards src_stats; the acquisition side only trylocks */
+    vibid_source_stats src_stats;
+
+    /* estimation thread state */
+    uint64_t faults_by_code[16];
+    uint64_t faults, gap_records;
+    uint64_t alarms_raised;
+    uint32_t *lat_hist;        /* receipt -> estimate pushed, 1 us buckets */
+    uint64_t lat_n;
+    double t_start, t_last_flush, t_last_status, t_last_logstatus;
+    uint64_t samples_at_last_status;
+    double rate_hz;
+} vd_daemon;
+
+/* Opens everything (see the start order). 0, or -1 with err. */
+int vd_daemon_init(vd_daemon *d, vd_config *cfg, const vd_options *opt, char *err, size_t cap);
+/* Runs until SIGTERM/SIGINT or the end of a replay; returns the exit status (0 ok, 1 a
+ * fatal run-time error). */
+int vd_daemon_run(vd_daemon *d);
+void vd_daemon_fini(vd_daemon *d);
+
+/* Latency percentile (0..1) in microseconds from the histogram, NAN when empty. */
+double vd_daemon_latency_us(const vd_daemon *d, double q);
+
+#endif

@@ -1,0 +1,147 @@
+/* estimator.c: see estimator.h. */
+#include "estimator.h"
+
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include <vibid/modal.h>
+
+int64_t vd_ns_to_us(int64_t t_ns)
+{
+    int64_t q = t_ns / 1000, r = t_ns % 1000;
+    if (r < 0) {
+        q -= 1;
+        r += 1000;
+    }
+    return r >= 500 ? q + 1 : q;
+}
+
+int vd_est_init(vd_est *e, const vd_config *cfg, char *err, size_t cap)
+{
+    memset(e, 0, sizeof *e);
+    e->cfg = cfg;
+    e->model = vibid_stand_model(cfg->stand);
+    vibid_ident_config ic;
+    vibid_ident_config_init(&ic, 1.0 / cfg->sample_rate);
+    ic.estimator = cfg->method;
+    ic.prefilter_hz = cfg->prefilter_hz;
+    ic.iv_lag = cfg->iv_lag;
+    ic.forgetting = cfg->forgetting;
+    ic.rls_alpha = cfg->rls_alpha;
+    e->ident = vibid_ident_create(e->model, &ic);
+    if (!e->ident) {
+        snprintf(err, cap, "%s: estimator: %s", cfg->stand_file[0] ? cfg->stand_file : cfg->path, vibid_last_error());
+        return -1;
+    }
+    vibid_ident_dims(e->ident, &e->nch, &e->p);
+    e->nmodes = cfg->n_modes;
+    e->cov = calloc(e->p * e->p, sizeof *e->cov);
+    if (!e->cov) {
+        snprintf(err, cap, "estimator: out of memory");
+        vibid_ident_destroy(e->ident);
+        e->ident = NULL;
+        return -1;
+    }
+    return 0;
+}
+
+void vd_est_free(vd_est *e)
+{
+    vibid_ident_destroy(e->ident);
+    e->ident = NULL;
+    free(e->cov);
+    e->cov = NULL;
+}
+
+static void restart_window(vd_est *e)
+{
+    double nanv[VIBID_DRV_MAX_CHANNELS];
+    for (size_t i = 0; i < e->nch; i++)
+        nanv[i] = NAN;
+    (void)vibid_ident_push(e->ident, nanv); /* VIBID_E_NONFINITE by design: restarts the window */
+}
+
+static void note_gap(vd_est *e, uint64_t count)
+{
+    if (count == 0)
+        return;
+    e->gaps++;
+    e->missing += count;
+    e->gap_since_row += count;
+    restart_window(e);
+}
+
+static void fill_row(vd_est *e, const vibid_record *rec, uint64_t rel, vd_row *row)
+{
+    const vd_config *cfg = e->cfg;
+    memset(row, 0, sizeof *row);
+    row->t_us = vd_ns_to_us(rec->t_ns);
+    row->index = rel;
+    row->run_s = (double)rel / cfg->sample_rate;
+    row->gap_samples = e->gap_since_row;
+    if (e->gap_since_row)
+        row->flags |= VD_FLAG_GAP;
+    e->gap_since_row = 0;
+    for (size_t k = 0; k < VD_MAX_PARAMS; k++)
+        row->theta[k] = row->se[k] = row->freq[k] = row->freq_se[k] = row->zeta[k] = row->zeta_se[k] = NAN;
+    vibid_status st = vibid_ident_estimate(e->ident, row->theta, row->se, NULL);
+    row->est_status = (int)st;
+    if (st != VIBID_OK) {
+        for (size_t k = 0; k < e->p; k++)
+            row->theta[k] = row->se[k] = NAN;
+        row->flags |= VD_FLAG_NOEST;
+        e->est_errors++;
+    } else {
+        const double *cov = vibid_ident_covariance(e->ident, e->cov) == VIBID_OK ? e->cov : NULL;
+        if (vibid_model_modal(e->model, row->theta, cov, row->freq, cov ? row->freq_se : NULL, row->zeta,
+                              cov ? row->zeta_se : NULL, NULL, NULL) != VIBID_OK) {
+            for (size_t k = 0; k < e->nmodes; k++)
+                row->freq[k] = row->freq_se[k] = row->zeta[k] = row->zeta_se[k] = NAN;
+        }
+    }
+    e->rows++;
+    e->last = *row;
+    e->have_last = true;
+}
+
+int vd_est_record(vd_est *e, const vibid_record *rec, vd_row *row)
+{
+    if (rec->kind == VIBID_REC_FAULT)
+        return 0;
+    if (!e->started) {
+        e->started = true;
+        e->first_index = rec->index;
+        e->next_index = rec->index;
+        e->next_emit = rec->index + (e->cfg->decimation - 1);
+    }
+    if (rec->index > e->next_index) /* records lost on the way (ring overflow) */
+        note_gap(e, rec->index - e->next_index);
+    if (rec->index < e->next_index) /* cannot happen with a conforming source: skip */
+        return 0;
+    if (rec->kind == VIBID_REC_GAP) {
+        note_gap(e, rec->count);
+        e->next_index = rec->index + rec->count;
+        return 0;
+    }
+    e->next_index = rec->index + 1;
+    for (size_t i = 0; i < e->nch; i++)
+        e->chan[i] = rec->values[e->cfg->model_to_chan[i]];
+    vibid_status st = vibid_ident_push(e->ident, e->chan);
+    e->last_push_status = (int)st;
+    if (st != VIBID_OK)
+        e->push_errors++; /* non-finite value: the library restarted the window itself */
+    e->samples++;
+    if (rec->index < e->next_emit)
+        return 0;
+    uint64_t rel = rec->index - e->first_index, dec = e->cfg->decimation;
+    uint64_t next = (rel / dec) * dec + (dec - 1); /* last index of rel's block */
+    if (next <= rel)
+        next += dec;
+    e->next_emit = e->first_index + next;
+    if (e->samples < e->cfg->warmup_samples)
+        return 0;
+    fill_row(e, rec, rel, row);
+    return 1;
+}

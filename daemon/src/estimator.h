@@ -1,0 +1,80 @@
+/* estimator.h: the estimation side of the pipeline: source records in, decimated
+ * parameter-track rows out.
+ *
+ * Wraps one vibid_ident (identify.h) built from the stand's model with the configured
+ * method. SAMPLE records are re-ordered from the source's channel order into the model's
+ * channel layout and pushed (no allocation: vibid_ident_push is real-time safe for
+ * every estimator). Every `decimation` samples of sample index a row is due: the
+ * current estimate, its standard errors (vibid_ident_estimate), the covariance and
+ * from them the natural frequencies and damping ratios with their standard errors
+ * (vibid_model_modal). Those calls allocate; they run only at the decimated rate, on
+ * the estimation thread, never on the acquisition thread.
+ *
+ * Across a gap (a GAP record, or sample indices that jump because the ring overflowed)
+ * the regressor's history is restarted by pushing one non-finite sample
+ * (vibid_ident_push: the difference window and the pre-filter restart, the estimator's
+ * state, theta and P, is kept). So no central difference and no filter output ever spans
+ * the gap; the first 2 samples after it (plus the pre-filter's settling) only refill the
+ * window. The row that covers a gap carries the missing-sample count and the flag G.
+ *
+ * Sample index and time: the index of a row is counted from the run's first record
+ * (index - first index), so a live run and the replay of its recording number samples
+ * alike. Times are kept to the microsecond (round(t_ns / 1000)), the resolution of
+ * candump logs, so that a recording replays to identical times.
+ */
+#ifndef VIBIDD_ESTIMATOR_H
+#define VIBIDD_ESTIMATOR_H
+
+#include <stdbool.h>
+#include <stdint.h>
+
+#include <vibid/identify.h>
+#include <vibid_drivers/sample.h>
+
+#include "config.h"
+
+enum {
+    VD_FLAG_GAP = 1u,       /* samples missing since the previous row */
+    VD_FLAG_NOEST = 2u,     /* no estimate yet / estimate failed (values NaN) */
+    VD_FLAG_ALARM = 4u      /* a drift alarm is active */
+};
+
+typedef struct vd_row {
+    int64_t t_us;           /* time of the row's sample, microseconds since the epoch */
+    uint64_t index;         /* sample index from the run's start */
+    double run_s;           /* index * h: run time used by the alarms */
+    unsigned flags;
+    uint64_t gap_samples;   /* missing samples since the previous row */
+    double theta[VD_MAX_PARAMS], se[VD_MAX_PARAMS];
+    double freq[VD_MAX_PARAMS], freq_se[VD_MAX_PARAMS], zeta[VD_MAX_PARAMS], zeta_se[VD_MAX_PARAMS];
+    int est_status;         /* vibid_status of the estimate */
+} vd_row;
+
+typedef struct vd_est {
+    const vd_config *cfg;
+    vibid_ident *ident;
+    const vibid_model *model;
+    size_t p, nch, nmodes;
+    bool started;
+    uint64_t first_index, next_index, next_emit;
+    uint64_t samples, gaps, missing, push_errors, est_errors, rows;
+    uint64_t gap_since_row;
+    double chan[VIBID_DRV_MAX_CHANNELS];
+    double *cov;            /* p x p */
+    vd_row last;            /* the latest row (for the status) */
+    bool have_last;
+    int last_push_status;
+} vd_est;
+
+/* 0, or -1 with a message in err (cap bytes): the model is not identifiable, ... */
+int vd_est_init(vd_est *e, const vd_config *cfg, char *err, size_t cap);
+void vd_est_free(vd_est *e);
+
+/* Feeds one record. Returns 1 when *row was filled (a row is due), else 0. FAULT
+ * records are not handled here (the caller logs and counts them). */
+int vd_est_record(vd_est *e, const vibid_record *rec, vd_row *row);
+
+/* Microseconds from nanoseconds, rounded to nearest (floor division for negatives). */
+int64_t vd_ns_to_us(int64_t t_ns);
+
+#endif

@@ -1,0 +1,157 @@
+/* main.c: vibidd's command line. Modules are initialised in a fixed order and torn
+ * down in reverse (daemon.h).
+ *
+ * Exit status: 0 normal end (signal, end of a replay), 1 run-time failure (source
+ * failed, outputs could not be written), 2 usage or configuration error.
+ */
+#include "config.h"
+#include "daemon.h"
+#include "log.h"
+
+#include <locale.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include <vibid/common.h>
+
+static void usage(FILE *o)
+{
+    fprintf(o,
+            "usage: vibidd -c FILE [--check] [--replay CAPTURE [--pace] [--speed X]]\n"
+            "              [--tracks F] [--influx F] [--record F] [--status F] [--log-level L]\n"
+            "  -c, --config FILE   configuration (libconfig; docs/vibidd.md)\n"
+            "  --check             validate, print the effective configuration, exit\n"
+            "  --replay CAPTURE    run the same pipeline on a capture (candump .log or CSV,\n"
+            "                      including vibidd's own raw recordings), as fast as possible\n"
+            "  --pace              replay at the recorded pace (--speed X: X times faster)\n"
+            "  --tracks F, --influx F, --record F, --status F\n"
+            "                      override outputs.*.path (\"\" disables that output)\n"
+            "  --log-level L       error, warning, notice, info, debug (overrides log.level)\n"
+            "  -h, --help          this text;  --version  version\n"
+            "Signals: SIGTERM/SIGINT drain, flush and exit 0; SIGHUP reopens the output files.\n");
+}
+
+static int set_override(char *dst, size_t cap, const char *val, const char *opt)
+{
+    if (strlen(val) >= cap) {
+        fprintf(stderr, "vibidd: %s: path too long\n", opt);
+        return -1;
+    }
+    snprintf(dst, cap, "%s", val);
+    return 0;
+}
+
+int main(int argc, char **argv)
+{
+    setlocale(LC_NUMERIC, "C"); /* strtod in the DBC/CSV parsers needs the C locale */
+    const char *cfg_path = NULL, *tracks = NULL, *influx = NULL, *record = NULL, *status = NULL, *level = NULL;
+    bool check = false;
+    vd_options opt = {NULL, false, 1.0};
+    for (int i = 1; i < argc; i++) {
+        const char *a = argv[i];
+        const char **val = NULL;
+        if (!strcmp(a, "-c") || !strcmp(a, "--config"))
+            val = &cfg_path;
+        else if (!strcmp(a, "--replay"))
+            val = &opt.replay;
+        else if (!strcmp(a, "--tracks"))
+            val = &tracks;
+        else if (!strcmp(a, "--influx"))
+            val = &influx;
+        else if (!strcmp(a, "--record"))
+            val = &record;
+        else if (!strcmp(a, "--status"))
+            val = &status;
+        else if (!strcmp(a, "--log-level"))
+            val = &level;
+        else if (!strcmp(a, "--check"))
+            check = true;
+        else if (!strcmp(a, "--pace"))
+            opt.pace = true;
+        else if (!strcmp(a, "--speed")) {
+            if (i + 1 >= argc) {
+                fprintf(stderr, "vibidd: --speed needs a value\n");
+                return 2;
+            }
+            char *end;
+            opt.speed = strtod(argv[++i], &end);
+            if (*end || !(opt.speed >= 1e-3 && opt.speed <= 1e6)) {
+                fprintf(stderr, "vibidd: --speed '%s': expected a number in [0.001, 1e6]\n", argv[i]);
+                return 2;
+            }
+        } else if (!strcmp(a, "-h") || !strcmp(a, "--help")) {
+            usage(stdout);
+            return 0;
+        } else if (!strcmp(a, "--version")) {
+            printf("vibidd %s (libvibid %s)\n", VIBID_VERSION_STRING, vibid_version_string());
+            return 0;
+        } else {
+            fprintf(stderr, "vibidd: unknown option '%s'\n", a);
+            usage(stderr);
+            return 2;
+        }
+        if (val) {
+            if (i + 1 >= argc) {
+                fprintf(stderr, "vibidd: %s needs a value\n", a);
+                return 2;
+            }
+            *val = argv[++i];
+        }
+    }
+    if (!cfg_path) {
+        fprintf(stderr, "vibidd: no configuration: use -c FILE\n");
+        usage(stderr);
+        return 2;
+    }
+    vd_log_init_from_env();
+    static vd_config cfg; /* large: keep it off the stack */
+    vd_config_error err;
+    if (vd_config_load(cfg_path, &cfg, &err)) {
+        vd_error("%s", err.text);
+        return 2;
+    }
+    if ((tracks && set_override(cfg.tracks_path, sizeof cfg.tracks_path, tracks, "--tracks")) ||
+        (influx && set_override(cfg.influx_path, sizeof cfg.influx_path, influx, "--influx")) ||
+        (record && set_override(cfg.record_path, sizeof cfg.record_path, record, "--record")) ||
+        (status && set_override(cfg.status_path, sizeof cfg.status_path, status, "--status"))) {
+        vd_config_free(&cfg);
+        return 2;
+    }
+    vd_log_set_level((vd_log_level)cfg.log_level);
+    if (level) {
+        int l = vd_log_level_parse(level);
+        if (l < 0) {
+            vd_error("--log-level '%s': expected error, warning, notice, info or debug", level);
+            vd_config_free(&cfg);
+            return 2;
+        }
+        vd_log_set_level((vd_log_level)l);
+    }
+    if (check) {
+        /* The estimator is created too: identifiability is part of a valid configuration. */
+        vd_est est;
+        char e2[1024];
+        if (vd_est_init(&est, &cfg, e2, sizeof e2)) {
+            vd_error("%s", e2);
+            vd_config_free(&cfg);
+            return 2;
+        }
+        vd_est_free(&est);
+        vd_config_print(&cfg, stdout);
+        vd_config_free(&cfg);
+        return 0;
+    }
+    static vd_daemon d;
+    char e3[2048];
+    int rc;
+    if (vd_daemon_init(&d, &cfg, &opt, e3, sizeof e3)) {
+        vd_error("%s", e3);
+        rc = 2;
+    } else {
+        rc = vd_daemon_run(&d);
+    }
+    vd_daemon_fini(&d);
+    vd_config_free(&cfg);
+    return rc;
+}

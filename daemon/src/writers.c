@@ -1,0 +1,394 @@
+/* writers.c: see writers.h. */
+
+#include "writers.h"
+
+#include "log.h"
+
+#include <arpa/inet.h>
+#include <errno.h>
+#include <math.h>
+#include <stdarg.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/socket.h>
+#include <sys/stat.h>
+#include <time.h>
+#include <unistd.h>
+
+/* Appends to buf at *off; returns -1 once the buffer is full. */
+static int put(char *buf, size_t cap, size_t *off, const char *fmt, ...) __attribute__((format(printf, 4, 5)));
+static int put(char *buf, size_t cap, size_t *off, const char *fmt, ...)
+{
+    if (*off >= cap)
+        return -1;
+    va_list ap;
+    va_start(ap, fmt);
+    int n = vsnprintf(buf + *off, cap - *off, fmt, ap);
+    va_end(ap);
+    if (n < 0 || (size_t)n >= cap - *off)
+        return -1;
+    *off += (size_t)n;
+    return 0;
+}
+
+static int put_time_us(char *buf, size_t cap, size_t *off, int64_t t_us)
+{
+    const char *sign = "";
+    uint64_t a = (uint64_t)t_us;
+    if (t_us < 0) {
+        sign = "-";
+        a = (uint64_t)(-(t_us + 1)) + 1u;
+    }
+    return put(buf, cap, off, "%s%llu.%06llu", sign, (unsigned long long)(a / 1000000u),
+               (unsigned long long)(a % 1000000u));
+}
+
+static int put_num(char *buf, size_t cap, size_t *off, double v)
+{
+    return isfinite(v) ? put(buf, cap, off, ",%.10g", v) : put(buf, cap, off, ",nan");
+}
+
+int vd_format_tracks_header(char *buf, size_t cap, const vd_config *cfg)
+{
+    size_t off = 0;
+    const vibid_model *m = vibid_stand_model(cfg->stand);
+    if (put(buf, cap, &off, "time_s,index"))
+        return -1;
+    for (size_t k = 0; k < cfg->n_params; k++) {
+        vibid_param_info pi;
+        vibid_model_param_info(m, k, &pi);
+        if (put(buf, cap, &off, ",%s,%s_se", pi.name, pi.name))
+            return -1;
+    }
+    for (size_t i = 1; i <= cfg->n_modes; i++)
+        if (put(buf, cap, &off, ",f%zu_hz,f%zu_hz_se,zeta%zu,zeta%zu_se", i, i, i, i))
+            return -1;
+    if (put(buf, cap, &off, ",gap_samples,flags\n"))
+        return -1;
+    return (int)off;
+}
+
+static void flag_text(unsigned flags, char out[4])
+{
+    int n = 0;
+    if (flags & VD_FLAG_GAP)
+        out[n++] = 'G';
+    if (flags & VD_FLAG_NOEST)
+        out[n++] = 'E';
+    if (flags & VD_FLAG_ALARM)
+        out[n++] = 'A';
+    out[n] = '\0';
+}
+
+int vd_format_track_row(char *buf, size_t cap, const vd_config *cfg, const vd_row *row)
+{
+    size_t off = 0;
+    if (put_time_us(buf, cap, &off, row->t_us) || put(buf, cap, &off, ",%llu", (unsigned long long)row->index))
+        return -1;
+    for (size_t k = 0; k < cfg->n_params; k++)
+        if (put_num(buf, cap, &off, row->theta[k]) || put_num(buf, cap, &off, row->se[k]))
+            return -1;
+    for (size_t i = 0; i < cfg->n_modes; i++)
+        if (put_num(buf, cap, &off, row->freq[i]) || put_num(buf, cap, &off, row->freq_se[i]) ||
+            put_num(buf, cap, &off, row->zeta[i]) || put_num(buf, cap, &off, row->zeta_se[i]))
+            return -1;
+    char fl[4];
+    flag_text(row->flags, fl);
+    if (put(buf, cap, &off, ",%llu,%s\n", (unsigned long long)row->gap_samples, fl))
+        return -1;
+    return (int)off;
+}
+
+void vd_influx_escape_tag(char *dst, size_t cap, const char *src)
+{
+    size_t o = 0;
+    for (; *src && o + 2 < cap; src++) {
+        if (*src == ',' || *src == ' ' || *src == '=' || *src == '\\')
+            dst[o++] = '\\';
+        dst[o++] = *src;
+    }
+    dst[o] = '\0';
+}
+
+static int put_field(char *buf, size_t cap, size_t *off, int *first, const char *name, const char *suffix, double v)
+{
+    if (!isfinite(v))
+        return 0;
+    int rc = put(buf, cap, off, "%s%s%s=%.10g", *first ? " " : ",", name, suffix, v);
+    *first = 0;
+    return rc;
+}
+
+int vd_format_influx_row(char *buf, size_t cap, const vd_config *cfg, const char *stand, const vd_row *row)
+{
+    size_t off = 0;
+    char tag[256];
+    vd_influx_escape_tag(tag, sizeof tag, stand);
+    if (put(buf, cap, &off, "%s,stand=%s", cfg->influx_measurement, tag))
+        return -1;
+    const vibid_model *m = vibid_stand_model(cfg->stand);
+    int first = 1;
+    char fname[160];
+    for (size_t k = 0; k < cfg->n_params; k++) {
+        vibid_param_info pi;
+        vibid_model_param_info(m, k, &pi);
+        /* field keys escape commas, spaces and equals signs like tags */
+        vd_influx_escape_tag(fname, sizeof fname, pi.name);
+        if (put_field(buf, cap, &off, &first, fname, "", row->theta[k]) ||
+            put_field(buf, cap, &off, &first, fname, "_se", row->se[k]))
+            return -1;
+    }
+    for (size_t i = 0; i < cfg->n_modes; i++) {
+        char f[32], z[32];
+        snprintf(f, sizeof f, "f%zu_hz", i + 1);
+        snprintf(z, sizeof z, "zeta%zu", i + 1);
+        if (put_field(buf, cap, &off, &first, f, "", row->freq[i]) ||
+            put_field(buf, cap, &off, &first, f, "_se", row->freq_se[i]) ||
+            put_field(buf, cap, &off, &first, z, "", row->zeta[i]) ||
+            put_field(buf, cap, &off, &first, z, "_se", row->zeta_se[i]))
+            return -1;
+    }
+    char fl[4];
+    flag_text(row->flags, fl);
+    if (put(buf, cap, &off, "%sindex=%llui,gap_samples=%llui,flags=\"%s\" %lld\n", first ? " " : ",",
+            (unsigned long long)row->index, (unsigned long long)row->gap_samples, fl, (long long)row->t_us * 1000LL))
+        return -1;
+    return (int)off;
+}
+
+int vd_format_influx_alarm(char *buf, size_t cap, const vd_config *cfg, const char *stand, const char *param,
+                           int raised, const vd_row *row, double value, double baseline, double z)
+{
+    size_t off = 0;
+    char tag[256], ptag[160];
+    vd_influx_escape_tag(tag, sizeof tag, stand);
+    vd_influx_escape_tag(ptag, sizeof ptag, param);
+    if (put(buf, cap, &off, "%s_alarm,stand=%s,parameter=%s state=\"%s\",index=%llui", cfg->influx_measurement, tag,
+            ptag, raised ? "raised" : "cleared", (unsigned long long)row->index))
+        return -1;
+    int first = 0;
+    if (put_field(buf, cap, &off, &first, "value", "", value) ||
+        put_field(buf, cap, &off, &first, "baseline", "", baseline) || put_field(buf, cap, &off, &first, "z", "", z))
+        return -1;
+    if (put(buf, cap, &off, " %lld\n", (long long)row->t_us * 1000LL))
+        return -1;
+    return (int)off;
+}
+
+int vd_format_recording_header(char *buf, size_t cap, const char *stand, double rate, const vibid_chanmap *map)
+{
+    size_t off = 0;
+    if (put(buf, cap, &off, VD_RECORDING_MAGIC " of stand '%s' at %.17g Hz; replay: vibidd -c CONFIG --replay FILE\nt",
+            stand, rate))
+        return -1;
+    for (size_t i = 0; i < map->n; i++)
+        if (put(buf, cap, &off, ",%s", map->ch[i].name))
+            return -1;
+    if (put(buf, cap, &off, "\n"))
+        return -1;
+    return (int)off;
+}
+
+int vd_format_recording_row(char *buf, size_t cap, const vibid_record *rec)
+{
+    size_t off = 0;
+    if (put_time_us(buf, cap, &off, vd_ns_to_us(rec->t_ns)))
+        return -1;
+    for (uint32_t i = 0; i < rec->n_values; i++)
+        if (put(buf, cap, &off, ",%.17g", rec->values[i]))
+            return -1;
+    if (put(buf, cap, &off, "\n"))
+        return -1;
+    return (int)off;
+}
+
+static double mono_s(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
+static void write_failed(vd_writers *w, const char *what, const char *path)
+{
+    w->write_errors++;
+    double now = mono_s();
+    if (w->write_errors == 1 || now - w->last_error_report > 60.0) {
+        vd_error("writing %s %s failed: %s (%llu failed writes so far; output is being lost)", what, path,
+                 strerror(errno), (unsigned long long)w->write_errors);
+        w->last_error_report = now;
+    }
+}
+
+static void emit(vd_writers *w, FILE *f, const char *what, const char *path, const char *buf, int n)
+{
+    if (!f || n <= 0)
+        return;
+    if (fwrite(buf, 1, (size_t)n, f) != (size_t)n)
+        write_failed(w, what, path);
+}
+
+static FILE *open_append(const char *path, const char *header, int hlen, char *err, size_t cap)
+{
+    FILE *f = fopen(path, "ae");
+    if (!f) {
+        snprintf(err, cap, "cannot open %s for appending: %s", path, strerror(errno));
+        return NULL;
+    }
+    struct stat st;
+    if (header && fstat(fileno(f), &st) == 0 && st.st_size == 0 && hlen > 0) {
+        if (fwrite(header, 1, (size_t)hlen, f) != (size_t)hlen) {
+            snprintf(err, cap, "cannot write the header of %s: %s", path, strerror(errno));
+            fclose(f);
+            return NULL;
+        }
+    }
+    return f;
+}
+
+static int open_files(vd_writers *w, char *err, size_t cap)
+{
+    const vd_config *cfg = w->cfg;
+    if (cfg->tracks_path[0]) {
+        int n = vd_format_tracks_header(w->linebuf, sizeof w->linebuf, cfg);
+        if (!(w->tracks = open_append(cfg->tracks_path, w->linebuf, n, err, cap)))
+            return -1;
+    }
+    if (cfg->influx_path[0] && !(w->influx = open_append(cfg->influx_path, NULL, 0, err, cap)))
+        return -1;
+    if (cfg->record_path[0]) {
+        int n = vd_format_recording_header(w->linebuf, sizeof w->linebuf, w->stand_name, cfg->sample_rate, w->chanmap);
+        if (!(w->record = open_append(cfg->record_path, w->linebuf, n, err, cap)))
+            return -1;
+    }
+    return 0;
+}
+
+int vd_writers_open(vd_writers *w, const vd_config *cfg, const vibid_chanmap *chanmap, char *err, size_t cap)
+{
+    memset(w, 0, sizeof *w);
+    w->cfg = cfg;
+    w->chanmap = chanmap;
+    w->stand_name = vibid_stand_name(cfg->stand);
+    w->udp_fd = -1;
+    if (open_files(w, err, cap)) {
+        vd_writers_close(w);
+        return -1;
+    }
+    if (cfg->influx_udp[0]) {
+        char host[128];
+        const char *colon = strrchr(cfg->influx_udp, ':');
+        snprintf(host, sizeof host, "%.*s", (int)(colon - cfg->influx_udp), cfg->influx_udp);
+        w->udp_addr.sin_family = AF_INET;
+        w->udp_addr.sin_port = htons((uint16_t)atoi(colon + 1));
+        if (inet_pton(AF_INET, host, &w->udp_addr.sin_addr) != 1) {
+            snprintf(err, cap, "outputs.influx.udp: '%s' is not an IPv4 address", host);
+            vd_writers_close(w);
+            return -1;
+        }
+        w->udp_fd = socket(AF_INET, SOCK_DGRAM | SOCK_CLOEXEC | SOCK_NONBLOCK, 0);
+        if (w->udp_fd < 0) {
+            snprintf(err, cap, "socket(AF_INET, SOCK_DGRAM) for InfluxDB UDP: %s", strerror(errno));
+            vd_writers_close(w);
+            return -1;
+        }
+    }
+    return 0;
+}
+
+static void close_files(vd_writers *w)
+{
+    FILE **fs[] = {&w->tracks, &w->influx, &w->record};
+    const char *paths[] = {w->cfg->tracks_path, w->cfg->influx_path, w->cfg->record_path};
+    for (int i = 0; i < 3; i++) {
+        if (*fs[i] && fclose(*fs[i]) != 0)
+            write_failed(w, "closing", paths[i]);
+        *fs[i] = NULL;
+    }
+}
+
+int vd_writers_reopen(vd_writers *w)
+{
+    vd_writers_flush(w, 0);
+    close_files(w);
+    char err[1200];
+    if (open_files(w, err, sizeof err)) {
+        vd_error("reopening outputs after SIGHUP: %s", err);
+        return -1;
+    }
+    vd_info("outputs reopened (SIGHUP)");
+    return 0;
+}
+
+static void send_udp(vd_writers *w, const char *buf, int n)
+{
+    if (w->udp_fd < 0 || n <= 0)
+        return;
+    ssize_t s = sendto(w->udp_fd, buf, (size_t)n, MSG_NOSIGNAL, (const struct sockaddr *)&w->udp_addr,
+                       sizeof w->udp_addr);
+    if (s != n) {
+        w->udp_errors++;
+        if (w->udp_errors == 1 || w->udp_errors % 10000 == 0)
+            vd_warning("InfluxDB UDP to %s: %s (%llu datagrams lost so far)", w->cfg->influx_udp, strerror(errno),
+                       (unsigned long long)w->udp_errors);
+    } else {
+        w->udp_sent++;
+    }
+}
+
+void vd_writers_row(vd_writers *w, const vd_row *row)
+{
+    if (w->tracks) {
+        int n = vd_format_track_row(w->linebuf, sizeof w->linebuf, w->cfg, row);
+        emit(w, w->tracks, "tracks", w->cfg->tracks_path, w->linebuf, n);
+    }
+    if (w->influx || w->udp_fd >= 0) {
+        int n = vd_format_influx_row(w->linebuf, sizeof w->linebuf, w->cfg, w->stand_name, row);
+        emit(w, w->influx, "influx", w->cfg->influx_path, w->linebuf, n);
+        send_udp(w, w->linebuf, n);
+    }
+}
+
+void vd_writers_sample(vd_writers *w, const vibid_record *rec)
+{
+    if (!w->record || rec->kind != VIBID_REC_SAMPLE)
+        return;
+    int n = vd_format_recording_row(w->linebuf, sizeof w->linebuf, rec);
+    emit(w, w->record, "raw recording", w->cfg->record_path, w->linebuf, n);
+}
+
+void vd_writers_alarm(vd_writers *w, const char *param, int raised, const vd_row *row, double value,
+                      double baseline, double z)
+{
+    if (w->influx || w->udp_fd >= 0) {
+        int n = vd_format_influx_alarm(w->linebuf, sizeof w->linebuf, w->cfg, w->stand_name, param, raised, row,
+                                       value, baseline, z);
+        emit(w, w->influx, "influx", w->cfg->influx_path, w->linebuf, n);
+        send_udp(w, w->linebuf, n);
+    }
+}
+
+void vd_writers_flush(vd_writers *w, int sync)
+{
+    FILE *fs[] = {w->tracks, w->influx, w->record};
+    const char *paths[] = {w->cfg->tracks_path, w->cfg->influx_path, w->cfg->record_path};
+    for (int i = 0; i < 3; i++) {
+        if (!fs[i])
+            continue;
+        if (fflush(fs[i]) != 0)
+            write_failed(w, "flushing", paths[i]);
+        else if (sync && fdatasync(fileno(fs[i])) != 0 && errno != EINVAL)
+            write_failed(w, "fdatasync of", paths[i]);
+    }
+}
+
+void vd_writers_close(vd_writers *w)
+{
+    if (!w->cfg)
+        return;
+    vd_writers_flush(w, w->cfg->fsync_on_flush);
+    close_files(w);
+    if (w->udp_fd >= 0)
+        close(w->udp_fd);
+    w->udp_fd = -1;
+}

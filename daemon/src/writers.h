@@ -1,0 +1,74 @@
+/* writers.h: the daemon's outputs.
+ *
+ *  tracks   CSV with a header row, one row per decimated estimate:
+ *             time_s, index, <p>, <p>_se for every unknown p (stand order),
+ *             f<i>_hz, f<i>_hz_se, zeta<i>, zeta<i>_se for every mode i (ascending f),
+ *             gap_samples, flags
+ *           time_s: sample time, s since the Unix epoch, to the microsecond; index:
+ *           sample index from the run's start; a value that could not be computed is
+ *           "nan"; flags: G (gap since the previous row), E (no estimate), A (alarm
+ *           active), "" otherwise.
+ *  influx   InfluxDB line protocol, to a file and/or UDP datagrams (Telegraf's
+ *           socket_listener / InfluxDB's UDP service):
+ *             <measurement>,stand=<name> c1=..,c1_se=..,f1_hz=..,..,gap_samples=0i,index=..i <ns>
+ *           non-finite fields are left out (line protocol has no NaN); alarm events as
+ *             <measurement>_alarm,stand=<name>,parameter=<p> state="raised",value=..,baseline=..,z=.. <ns>
+ *  record   raw samples as CSV: a comment line "# vibidd raw recording ...", a header
+ *           "t,<channel>...", rows "t,values" with t in s to the microsecond and values
+ *           as %.17g (exact round trip). --replay reads it back; missing samples show as
+ *           time steps, which the replay turns into the same gaps.
+ * Writes are buffered (stdio) and flushed by the caller on a bounded interval
+ * (outputs.tracks.flush_interval) and at exit; every failed write is counted and
+ * logged (first failure per file, then once a minute).
+ */
+#ifndef VIBIDD_WRITERS_H
+#define VIBIDD_WRITERS_H
+
+#include <stdint.h>
+#include <stdio.h>
+
+#include <netinet/in.h>
+
+#include "config.h"
+#include "estimator.h"
+
+#define VD_RECORDING_MAGIC "# vibidd raw recording"
+
+typedef struct vd_writers {
+    const vd_config *cfg;
+    const vibid_chanmap *chanmap; /* channels of the raw recording, in record order */
+    const char *stand_name;
+    FILE *tracks, *influx, *record;
+    int udp_fd;
+    struct sockaddr_in udp_addr;
+    uint64_t write_errors, udp_errors, udp_sent;
+    double last_error_report;     /* monotonic s */
+    char linebuf[16384];
+} vd_writers;
+
+/* Opens every configured output (append mode for tracks/influx/record; a header is
+ * written when the file is empty). 0, or -1 with err naming the file and errno. */
+int vd_writers_open(vd_writers *w, const vd_config *cfg, const vibid_chanmap *chanmap, char *err, size_t cap);
+/* SIGHUP: closes and reopens the files (logrotate moved them away). 0 or -1 (logged). */
+int vd_writers_reopen(vd_writers *w);
+void vd_writers_row(vd_writers *w, const vd_row *row);
+void vd_writers_sample(vd_writers *w, const vibid_record *rec);
+void vd_writers_alarm(vd_writers *w, const char *param, int raised, const vd_row *row, double value,
+                      double baseline, double z);
+/* fflush (and fdatasync when sync) every file. */
+void vd_writers_flush(vd_writers *w, int sync);
+void vd_writers_close(vd_writers *w);
+
+/* Formatters (also used by the tests). Return the length written, or -1 if cap is too
+ * small. */
+int vd_format_tracks_header(char *buf, size_t cap, const vd_config *cfg);
+int vd_format_track_row(char *buf, size_t cap, const vd_config *cfg, const vd_row *row);
+int vd_format_influx_row(char *buf, size_t cap, const vd_config *cfg, const char *stand, const vd_row *row);
+int vd_format_influx_alarm(char *buf, size_t cap, const vd_config *cfg, const char *stand, const char *param,
+                           int raised, const vd_row *row, double value, double baseline, double z);
+int vd_format_recording_header(char *buf, size_t cap, const char *stand, double rate, const vibid_chanmap *map);
+int vd_format_recording_row(char *buf, size_t cap, const vibid_record *rec);
+/* Influx tag value escaping (commas, spaces, equals signs). */
+void vd_influx_escape_tag(char *dst, size_t cap, const char *src);
+
+#endif

@@ -1,0 +1,70 @@
+/* vibid/stand_file.h: the stand-file loader shared by every vibid program (examples,
+ * vibid-sim, vibidd). It reads a stand description in libconfig syntax (format:
+ * docs/stand-file.md), builds the vibid_model through the public C API only, and keeps
+ * what the programs need beside the model: the stand's name and sample rate, the
+ * acquisition channel name of every model channel, and the true values of the unknowns
+ * (for simulation).
+ *
+ * libvibid itself does no file I/O; this is the static library vibid_stand (C11,
+ * links libconfig and libvibid).
+ *
+ * Errors name file, line and field: "stand.cfg:14: stand.elements.[1].kind: unknown
+ * element kind 'sprung' (spring, damper, cubic_spring)".
+ */
+#ifndef VIBID_STAND_FILE_H
+#define VIBID_STAND_FILE_H
+
+#include <stddef.h>
+#include <vibid/model.h>
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+typedef struct vibid_stand vibid_stand;
+
+/* Where and why loading failed. */
+typedef struct vibid_stand_error {
+    char file[256];    /* file name as given ("" if not known) */
+    int line;          /* 1-based line, 0 if not known */
+    char field[128];   /* setting path, e.g. "stand.nodes.[0].mass" ("" for syntax errors) */
+    char message[512]; /* what is wrong */
+    char text[1024];   /* "file:line: field: message", ready to print */
+} vibid_stand_error;
+
+/* Loads the group `stand` of the file at path. err may be NULL. NULL on failure. */
+vibid_stand *vibid_stand_load(const char *path, vibid_stand_error *err);
+
+/* Same, from a libconfig setting (the stand group of a bigger configuration, e.g. the
+ * daemon's); setting is a `const config_setting_t *` (void here so that this header
+ * does not need libconfig.h). file is used in messages when libconfig does not know it. */
+vibid_stand *vibid_stand_from_setting(const void *setting, const char *file, vibid_stand_error *err);
+
+void vibid_stand_destroy(vibid_stand *stand);
+
+/* The finalized model; lives as long as the stand. */
+const vibid_model *vibid_stand_model(const vibid_stand *stand);
+
+/* Name of the stand (the `name` field); lives as long as the stand. */
+const char *vibid_stand_name(const vibid_stand *stand);
+
+/* Sample rate f_a in Hz (field `sample_rate`), > 0. */
+double vibid_stand_sample_rate(const vibid_stand *stand);
+
+/* Acquisition channel name for model channel i (0 .. n_channels - 1 of
+ * vibid_model_get_dims), e.g. the DBC signal or register-map name; NULL if i is out of
+ * range. Lives as long as the stand. */
+const char *vibid_stand_channel_name(const vibid_stand *stand, size_t channel);
+
+/* Model channel index of an acquisition channel name, or (size_t)-1. */
+size_t vibid_stand_find_channel(const vibid_stand *stand, const char *name);
+
+/* True values of the unknowns for simulation (p values, in the model's parameter
+ * order): the `true_value` field, or the nominal value where it is absent. Lives as
+ * long as the stand. */
+const double *vibid_stand_true_values(const vibid_stand *stand);
+
+#ifdef __cplusplus
+}
+#endif
+#endif

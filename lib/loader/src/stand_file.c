@@ -1,0 +1,568 @@
+/* stand_file.c: libconfig stand files -> vibid_model (public C API only) plus what the
+ * programs need beside the model. Format: docs/stand-file.md. */
+#include <vibid/stand_file.h>
+
+#include <libconfig.h>
+#include <math.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+struct vibid_stand {
+    vibid_model *model;
+    char *name;
+    double sample_rate;
+    size_t n_channels;
+    char **channel_names; /* per model channel */
+    double *true_values;  /* per unknown */
+};
+
+/* Loader context: where we are, for messages. */
+typedef struct ctx {
+    const char *file;
+    vibid_stand_error *err;
+} ctx;
+
+static int fail(const ctx *c, const config_setting_t *s, const char *field, const char *fmt, ...)
+    __attribute__((format(printf, 4, 5)));
+
+static int fail(const ctx *c, const config_setting_t *s, const char *field, const char *fmt, ...) {
+    if (!c->err) return -1;
+    vibid_stand_error *e = c->err;
+    const char *file = s && config_setting_source_file(s) ? config_setting_source_file(s) : c->file;
+    snprintf(e->file, sizeof e->file, "%s", file ? file : "");
+    e->line = s ? (int)config_setting_source_line(s) : 0;
+    snprintf(e->field, sizeof e->field, "%s", field ? field : "");
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(e->message, sizeof e->message, fmt, ap);
+    va_end(ap);
+    snprintf(e->text, sizeof e->text, "%s:%d: %s%s%s", e->file, e->line, e->field, e->field[0] ? ": " : "",
+             e->message);
+    return -1;
+}
+
+/* Field path of a child: parent path + "." + name or "[i]". */
+static void child_path(char *out, size_t size, const char *parent, const char *name, int index) {
+    if (name)
+        snprintf(out, size, "%s.%s", parent, name);
+    else
+        snprintf(out, size, "%s.[%d]", parent, index);
+}
+
+/* Optional number (int or float). Returns 1 found, 0 absent, -1 wrong type. */
+static int get_number(const ctx *c, const config_setting_t *g, const char *path, const char *name, double *out) {
+    const config_setting_t *s = config_setting_get_member(g, name);
+    char f[160];
+    child_path(f, sizeof f, path, name, 0);
+    if (!s) return 0;
+    int t = config_setting_type(s);
+    if (t == CONFIG_TYPE_FLOAT)
+        *out = config_setting_get_float(s);
+    else if (t == CONFIG_TYPE_INT)
+        *out = (double)config_setting_get_int(s);
+    else if (t == CONFIG_TYPE_INT64)
+        *out = (double)config_setting_get_int64(s);
+    else
+        return fail(c, s, f, "must be a number");
+    if (!isfinite(*out)) return fail(c, s, f, "must be finite");
+    return 1;
+}
+
+static int get_bool(const ctx *c, const config_setting_t *g, const char *path, const char *name, int *out) {
+    const config_setting_t *s = config_setting_get_member(g, name);
+    char f[160];
+    child_path(f, sizeof f, path, name, 0);
+    if (!s) return 0;
+    if (config_setting_type(s) != CONFIG_TYPE_BOOL) return fail(c, s, f, "must be true or false");
+    *out = config_setting_get_bool(s);
+    return 1;
+}
+
+static int get_string(const ctx *c, const config_setting_t *g, const char *path, const char *name,
+                      const char **out) {
+    const config_setting_t *s = config_setting_get_member(g, name);
+    char f[160];
+    child_path(f, sizeof f, path, name, 0);
+    if (!s) return 0;
+    if (config_setting_type(s) != CONFIG_TYPE_STRING) return fail(c, s, f, "must be a string");
+    *out = config_setting_get_string(s);
+    if (!*out || !**out) return fail(c, s, f, "must not be empty");
+    return 1;
+}
+
+static int require_number(const ctx *c, const config_setting_t *g, const char *path, const char *name, double *out) {
+    int r = get_number(c, g, path, name, out);
+    if (r == 0) {
+        char f[160];
+        child_path(f, sizeof f, path, name, 0);
+        return fail(c, g, f, "missing (a number is required)");
+    }
+    return r < 0 ? -1 : 0;
+}
+
+static int require_string(const ctx *c, const config_setting_t *g, const char *path, const char *name,
+                          const char **out) {
+    int r = get_string(c, g, path, name, out);
+    if (r == 0) {
+        char f[160];
+        child_path(f, sizeof f, path, name, 0);
+        return fail(c, g, f, "missing (a string is required)");
+    }
+    return r < 0 ? -1 : 0;
+}
+
+/* Reports a library failure against the setting that caused it. */
+static int lib_fail(const ctx *c, const config_setting_t *s, const char *field, vibid_status st) {
+    return fail(c, s, field, "%s (%s)", vibid_last_error(), vibid_strerror(st));
+}
+
+/* Per node or base: `measure = { displacement = "x1"; velocity = "v1"; acceleration = "a1"; }`.
+ * Fills mask and the channel names in quantity order. */
+static int read_measure(const ctx *c, const config_setting_t *g, const char *path, unsigned *mask,
+                        const char *names[3]) {
+    static const char *const q[3] = {"displacement", "velocity", "acceleration"};
+    *mask = 0;
+    names[0] = names[1] = names[2] = NULL;
+    const config_setting_t *m = config_setting_get_member(g, "measure");
+    if (!m) return 0;
+    char mp[160];
+    child_path(mp, sizeof mp, path, "measure", 0);
+    if (!config_setting_is_group(m))
+        return fail(c, m, mp, "must be a group { displacement = \"channel\"; ... }");
+    for (int i = 0; i < config_setting_length(m); ++i) {
+        const config_setting_t *e = config_setting_get_elem(m, (unsigned)i);
+        const char *nm = config_setting_name(e);
+        int k = -1;
+        for (int j = 0; j < 3; ++j)
+            if (nm && !strcmp(nm, q[j])) k = j;
+        char f[200];
+        snprintf(f, sizeof f, "%s.%s", mp, nm ? nm : "?");
+        if (k < 0) return fail(c, e, f, "unknown quantity (displacement, velocity, acceleration)");
+        if (config_setting_type(e) != CONFIG_TYPE_STRING || !config_setting_get_string(e)[0])
+            return fail(c, e, f, "channel name missing: a measured quantity needs the name of its channel");
+        *mask |= 1u << k;
+        names[k] = config_setting_get_string(e);
+    }
+    return 0;
+}
+
+static char *dup_string(const char *s) {
+    size_t n = strlen(s) + 1;
+    char *d = malloc(n);
+    if (d) memcpy(d, s, n);
+    return d;
+}
+
+void vibid_stand_destroy(vibid_stand *stand) {
+    if (!stand) return;
+    vibid_model_destroy(stand->model);
+    free(stand->name);
+    if (stand->channel_names)
+        for (size_t i = 0; i < stand->n_channels; ++i) free(stand->channel_names[i]);
+    free(stand->channel_names);
+    free(stand->true_values);
+    free(stand);
+}
+
+/* Resolves an end name: a node, "ground" or "base". */
+static int resolve_end(const ctx *c, const vibid_model *m, const config_setting_t *s, const char *f, const char *name,
+                       size_t *out) {
+    if (!strcmp(name, "ground")) {
+        *out = VIBID_GROUND;
+        return 0;
+    }
+    if (!strcmp(name, "base")) {
+        *out = VIBID_BASE;
+        return 0;
+    }
+    if (vibid_model_find_node(m, name, out) != VIBID_OK)
+        return fail(c, s, f, "'%s' is not a declared node (nor ground or base)", name);
+    return 0;
+}
+
+/* Channel names and true values collected while reading, in declaration order. */
+typedef struct pending {
+    const char *node_names[4096][3];
+    size_t n_nodes;
+    const char *base_names[3];
+    const char *input_names[256];
+    size_t n_inputs;
+    double true_values[8192];
+    int has_true[8192];
+    size_t n_unknown;
+} pending;
+
+static int read_matrices(const ctx *c, vibid_model *m, const config_setting_t *g, const char *path, pending *pd) {
+    double nd = 0, nr = 0;
+    if (require_number(c, g, path, "n_dof", &nd) || (get_number(c, g, path, "n_inputs", &nr) < 0)) return -1;
+    char f[160];
+    child_path(f, sizeof f, path, "n_dof", 0);
+    if (nd < 1 || nd > 256 || nd != floor(nd)) return fail(c, g, f, "must be an integer in 1..256");
+    size_t n = (size_t)nd, r = (size_t)nr;
+    if (nr < 0 || nr > 256 || nr != floor(nr)) {
+        child_path(f, sizeof f, path, "n_inputs", 0);
+        return fail(c, g, f, "must be an integer in 0..256");
+    }
+    double *mats[4] = {calloc(n * n, sizeof(double)), calloc(n * n, sizeof(double)), calloc(n * n, sizeof(double)),
+                       calloc(n * (r ? r : 1), sizeof(double))};
+    static const char *const names[4] = {"M", "D", "C", "B"};
+    unsigned unknown = 0;
+    int rc = -1;
+    for (int k = 0; k < 4; ++k)
+        if (!mats[k]) goto out;
+    for (int k = 0; k < 4; ++k) {
+        size_t cols = k == 3 ? r : n;
+        const config_setting_t *a = config_setting_get_member(g, names[k]);
+        child_path(f, sizeof f, path, names[k], 0);
+        if (!a) {
+            if (k == 3 && r == 0) continue;
+            if (k == 1) continue; /* D may be omitted: undamped */
+            fail(c, g, f, "missing (matrix given row by row as a list of numbers)");
+            goto out;
+        }
+        if (!config_setting_is_array(a) && !config_setting_is_list(a)) {
+            fail(c, a, f, "must be an array of %zu numbers (row by row)", n * cols);
+            goto out;
+        }
+        if ((size_t)config_setting_length(a) != n * cols) {
+            fail(c, a, f, "has %d numbers, expected %zu (%zu x %zu, row by row)", config_setting_length(a), n * cols,
+                 n, cols);
+            goto out;
+        }
+        for (size_t i = 0; i < n; ++i)
+            for (size_t j = 0; j < cols; ++j) {
+                const config_setting_t *e = config_setting_get_elem(a, (unsigned)(i * cols + j));
+                int t = config_setting_type(e);
+                if (t != CONFIG_TYPE_FLOAT && t != CONFIG_TYPE_INT && t != CONFIG_TYPE_INT64) {
+                    fail(c, e, f, "element %zu is not a number", i * cols + j);
+                    goto out;
+                }
+                mats[k][i + j * n] = t == CONFIG_TYPE_FLOAT ? config_setting_get_float(e)
+                                                              : (double)config_setting_get_int64(e);
+            }
+    }
+    const config_setting_t *u = config_setting_get_member(g, "unknown");
+    if (u) {
+        child_path(f, sizeof f, path, "unknown", 0);
+        if (!config_setting_is_array(u) && !config_setting_is_list(u)) {
+            fail(c, u, f, "must be a list of matrix names, e.g. [\"D\", \"C\"]");
+            goto out;
+        }
+        for (int i = 0; i < config_setting_length(u); ++i) {
+            const char *s = config_setting_get_string_elem(u, (unsigned)i);
+            int k = -1;
+            for (int j = 0; j < 4; ++j)
+                if (s && !strcmp(s, names[j])) k = j;
+            if (k < 0) {
+                fail(c, u, f, "'%s' is not one of M, D, C, B", s ? s : "?");
+                goto out;
+            }
+            unknown |= 1u << k;
+        }
+    }
+    vibid_status st = vibid_model_set_matrices(m, n, r, mats[0], mats[1], mats[2], r ? mats[3] : NULL, unknown);
+    if (st != VIBID_OK) {
+        lib_fail(c, g, path, st);
+        goto out;
+    }
+    pd->n_nodes = n;
+    for (size_t i = 0; i < n; ++i) {
+        /* channels "q1".."qn" unless named in `channels` */
+        pd->node_names[i][0] = NULL;
+    }
+    const config_setting_t *ch = config_setting_get_member(g, "channels");
+    if (ch) {
+        child_path(f, sizeof f, path, "channels", 0);
+        if ((size_t)config_setting_length(ch) != n + r) {
+            fail(c, ch, f, "must name %zu channels: the n displacements, then the inputs", n + r);
+            goto out;
+        }
+        for (size_t i = 0; i < n + r; ++i) {
+            const char *s = config_setting_get_string_elem(ch, (unsigned)i);
+            if (!s || !*s) {
+                fail(c, ch, f, "element %zu is not a channel name", i);
+                goto out;
+            }
+            if (i < n)
+                pd->node_names[i][0] = s;
+            else
+                pd->input_names[i - n] = s;
+        }
+    }
+    pd->n_inputs = r;
+    rc = 0;
+out:
+    for (int k = 0; k < 4; ++k) free(mats[k]);
+    return rc;
+}
+
+vibid_stand *vibid_stand_from_setting(const void *setting_v, const char *file, vibid_stand_error *err) {
+    const config_setting_t *g = setting_v;
+    ctx c = {file, err};
+    if (err) memset(err, 0, sizeof *err);
+    if (!g || !config_setting_is_group(g)) {
+        fail(&c, g, "stand", "must be a group { ... }");
+        return NULL;
+    }
+    const char *path = "stand";
+    vibid_stand *st = calloc(1, sizeof *st);
+    pending *pd = calloc(1, sizeof *pd);
+    if (!st || !pd) {
+        fail(&c, g, path, "out of memory");
+        free(st);
+        free(pd);
+        return NULL;
+    }
+    vibid_model *m = st->model = vibid_model_create();
+    const char *name = "stand";
+    char f[200];
+    vibid_status s;
+    if (!m) goto fail_oom;
+    if (get_string(&c, g, path, "name", &name) < 0) goto fail;
+    if (require_number(&c, g, path, "sample_rate", &st->sample_rate)) goto fail;
+    if (!(st->sample_rate > 0)) {
+        fail(&c, config_setting_get_member(g, "sample_rate"), "stand.sample_rate", "must be > 0 (Hz)");
+        goto fail;
+    }
+    const char *disc = NULL;
+    if (get_string(&c, g, path, "discretization", &disc) < 0) goto fail;
+    if (disc) {
+        vibid_discretization d;
+        if (!strcmp(disc, "central_difference"))
+            d = VIBID_DISC_CENTRAL_DIFFERENCE;
+        else if (!strcmp(disc, "zoh"))
+            d = VIBID_DISC_ZOH;
+        else {
+            fail(&c, config_setting_get_member(g, "discretization"), "stand.discretization",
+                 "'%s' is not central_difference or zoh", disc);
+            goto fail;
+        }
+        vibid_model_set_discretization(m, d);
+    }
+
+    const config_setting_t *mats = config_setting_get_member(g, "matrices");
+    const config_setting_t *nodes = config_setting_get_member(g, "nodes");
+    if (mats && nodes) {
+        fail(&c, mats, "stand.matrices", "give either nodes/elements or matrices, not both");
+        goto fail;
+    }
+    if (mats) {
+        if (read_matrices(&c, m, mats, "stand.matrices", pd)) goto fail;
+    } else {
+        if (!nodes || !config_setting_is_list(nodes) || config_setting_length(nodes) == 0) {
+            fail(&c, nodes ? nodes : g, "stand.nodes", "must be a non-empty list ( { name = ...; mass = ...; }, ... )");
+            goto fail;
+        }
+        for (int i = 0; i < config_setting_length(nodes); ++i) {
+            const config_setting_t *e = config_setting_get_elem(nodes, (unsigned)i);
+            char p[64];
+            snprintf(p, sizeof p, "stand.nodes.[%d]", i);
+            const char *nm;
+            double mass = 0;
+            int unknown = 0;
+            if (require_string(&c, e, p, "name", &nm) || get_bool(&c, e, p, "unknown", &unknown) < 0) goto fail;
+            int has_mass = get_number(&c, e, p, "mass", &mass);
+            if (has_mass < 0) goto fail;
+            if (!has_mass && !unknown) {
+                child_path(f, sizeof f, p, "mass", 0);
+                fail(&c, e, f, "missing: a known mass needs its value in kg");
+                goto fail;
+            }
+            size_t idx;
+            if ((s = vibid_model_add_node(m, nm, mass, unknown, &idx)) != VIBID_OK) {
+                child_path(f, sizeof f, p, "mass", 0);
+                lib_fail(&c, config_setting_get_member(e, "mass") ? config_setting_get_member(e, "mass") : e,
+                         strstr(vibid_last_error(), "name") ? p : f, s);
+                goto fail;
+            }
+            if (unknown) {
+                double tv;
+                int r = get_number(&c, e, p, "true_value", &tv);
+                if (r < 0) goto fail;
+                pd->has_true[pd->n_unknown] = r;
+                pd->true_values[pd->n_unknown++] = r ? tv : mass;
+            }
+            unsigned mask;
+            if (read_measure(&c, e, p, &mask, pd->node_names[idx])) goto fail;
+            vibid_model_set_measured(m, idx, mask);
+            pd->n_nodes = idx + 1;
+        }
+        const config_setting_t *base = config_setting_get_member(g, "base");
+        if (base) {
+            unsigned mask;
+            if (read_measure(&c, base, "stand.base", &mask, pd->base_names)) goto fail;
+            vibid_model_set_measured(m, VIBID_BASE, mask);
+        }
+        const config_setting_t *els = config_setting_get_member(g, "elements");
+        for (int i = 0; els && i < config_setting_length(els); ++i) {
+            const config_setting_t *e = config_setting_get_elem(els, (unsigned)i);
+            char p[64];
+            snprintf(p, sizeof p, "stand.elements.[%d]", i);
+            const char *nm, *kind;
+            double value = 0;
+            int unknown = 0;
+            if (require_string(&c, e, p, "name", &nm) || require_string(&c, e, p, "kind", &kind) ||
+                get_bool(&c, e, p, "unknown", &unknown) < 0)
+                goto fail;
+            vibid_element_kind k;
+            child_path(f, sizeof f, p, "kind", 0);
+            if (!strcmp(kind, "spring"))
+                k = VIBID_ELEMENT_SPRING;
+            else if (!strcmp(kind, "damper"))
+                k = VIBID_ELEMENT_DAMPER;
+            else if (!strcmp(kind, "cubic_spring"))
+                k = VIBID_ELEMENT_CUBIC_SPRING;
+            else {
+                fail(&c, config_setting_get_member(e, "kind"), f,
+                     "unknown element kind '%s' (spring, damper, cubic_spring)", kind);
+                goto fail;
+            }
+            int hv = get_number(&c, e, p, "value", &value);
+            if (hv < 0) goto fail;
+            if (!hv && !unknown) {
+                child_path(f, sizeof f, p, "value", 0);
+                fail(&c, e, f, "missing: a known element needs its value");
+                goto fail;
+            }
+            const config_setting_t *btw = config_setting_get_member(e, "between");
+            child_path(f, sizeof f, p, "between", 0);
+            if (!btw || config_setting_length(btw) != 2 || !config_setting_get_string_elem(btw, 0) ||
+                !config_setting_get_string_elem(btw, 1)) {
+                fail(&c, btw ? btw : e, f, "must be two names [\"node\", \"node|ground|base\"]");
+                goto fail;
+            }
+            size_t a, b;
+            if (resolve_end(&c, m, btw, f, config_setting_get_string_elem(btw, 0), &a) ||
+                resolve_end(&c, m, btw, f, config_setting_get_string_elem(btw, 1), &b))
+                goto fail;
+            if (a == VIBID_GROUND || a == VIBID_BASE) { /* put the node first */
+                size_t t = a;
+                a = b;
+                b = t;
+            }
+            if ((s = vibid_model_add_element(m, nm, k, a, b, value, unknown)) != VIBID_OK) {
+                lib_fail(&c, e, p, s);
+                goto fail;
+            }
+            if (unknown) {
+                double tv;
+                int r = get_number(&c, e, p, "true_value", &tv);
+                if (r < 0) goto fail;
+                pd->has_true[pd->n_unknown] = r;
+                pd->true_values[pd->n_unknown++] = r ? tv : value;
+            }
+        }
+        const config_setting_t *ins = config_setting_get_member(g, "inputs");
+        for (int i = 0; ins && i < config_setting_length(ins); ++i) {
+            const config_setting_t *e = config_setting_get_elem(ins, (unsigned)i);
+            char p[64];
+            snprintf(p, sizeof p, "stand.inputs.[%d]", i);
+            const char *nm, *node, *chan;
+            double gain = 1.0;
+            int unknown = 0;
+            if (require_string(&c, e, p, "name", &nm) || require_string(&c, e, p, "node", &node) ||
+                get_bool(&c, e, p, "unknown", &unknown) < 0 || get_number(&c, e, p, "gain", &gain) < 0)
+                goto fail;
+            if (require_string(&c, e, p, "channel", &chan)) goto fail;
+            size_t idx;
+            child_path(f, sizeof f, p, "node", 0);
+            if (vibid_model_find_node(m, node, &idx) != VIBID_OK) {
+                fail(&c, config_setting_get_member(e, "node"), f, "'%s' is not a declared node", node);
+                goto fail;
+            }
+            if ((s = vibid_model_add_input(m, nm, idx, gain, unknown, NULL)) != VIBID_OK) {
+                lib_fail(&c, e, p, s);
+                goto fail;
+            }
+            pd->input_names[pd->n_inputs++] = chan;
+        }
+    }
+    /* Unknowns of a full-matrix model have no true_value fields: nominal = true. */
+    if ((s = vibid_model_finalize(m)) != VIBID_OK) {
+        lib_fail(&c, g, path, s);
+        goto fail;
+    }
+    vibid_model_dims dims;
+    vibid_model_get_dims(m, &dims);
+    st->name = dup_string(name);
+    st->n_channels = dims.n_channels;
+    st->channel_names = calloc(dims.n_channels ? dims.n_channels : 1, sizeof(char *));
+    st->true_values = calloc(dims.n_params ? dims.n_params : 1, sizeof(double));
+    if (!st->name || !st->channel_names || !st->true_values) goto fail_oom;
+    if (mats) {
+        vibid_model_nominal(m, st->true_values);
+    } else {
+        for (size_t i = 0; i < dims.n_params; ++i) st->true_values[i] = pd->true_values[i];
+    }
+    for (size_t i = 0; i < dims.n_channels; ++i) {
+        vibid_channel_info ci;
+        vibid_model_channel_info(m, i, &ci);
+        const char *acq = NULL;
+        int q = ci.kind == VIBID_CHANNEL_DISPLACEMENT ? 0 : ci.kind == VIBID_CHANNEL_VELOCITY ? 1 : 2;
+        if (ci.kind == VIBID_CHANNEL_INPUT)
+            acq = ci.index < pd->n_inputs ? pd->input_names[ci.index] : NULL;
+        else if (ci.index == VIBID_BASE)
+            acq = pd->base_names[q];
+        else if (ci.index < pd->n_nodes)
+            acq = pd->node_names[ci.index][q];
+        st->channel_names[i] = dup_string(acq ? acq : ci.name);
+        if (!st->channel_names[i]) goto fail_oom;
+    }
+    free(pd);
+    return st;
+fail_oom:
+    fail(&c, g, path, "out of memory");
+fail:
+    free(pd);
+    vibid_stand_destroy(st);
+    return NULL;
+}
+
+vibid_stand *vibid_stand_load(const char *path, vibid_stand_error *err) {
+    ctx c = {path, err};
+    if (err) memset(err, 0, sizeof *err);
+    if (!path) {
+        fail(&c, NULL, "", "no file name");
+        return NULL;
+    }
+    config_t cfg;
+    config_init(&cfg);
+    if (!config_read_file(&cfg, path)) {
+        if (err) {
+            snprintf(err->file, sizeof err->file, "%s", config_error_file(&cfg) ? config_error_file(&cfg) : path);
+            err->line = config_error_line(&cfg);
+            snprintf(err->message, sizeof err->message, "%s",
+                     config_error_type(&cfg) == CONFIG_ERR_FILE_IO ? "cannot read the file" : config_error_text(&cfg));
+            snprintf(err->text, sizeof err->text, "%s:%d: %s", err->file, err->line, err->message);
+        }
+        config_destroy(&cfg);
+        return NULL;
+    }
+    const config_setting_t *g = config_lookup(&cfg, "stand");
+    vibid_stand *st = NULL;
+    if (!g)
+        fail(&c, config_root_setting(&cfg), "stand", "missing: the file must contain a group stand = { ... };");
+    else
+        st = vibid_stand_from_setting(g, path, err);
+    config_destroy(&cfg);
+    return st;
+}
+
+const vibid_model *vibid_stand_model(const vibid_stand *stand) { return stand ? stand->model : NULL; }
+const char *vibid_stand_name(const vibid_stand *stand) { return stand ? stand->name : NULL; }
+double vibid_stand_sample_rate(const vibid_stand *stand) { return stand ? stand->sample_rate : 0.0; }
+const double *vibid_stand_true_values(const vibid_stand *stand) { return stand ? stand->true_values : NULL; }
+
+const char *vibid_stand_channel_name(const vibid_stand *stand, size_t channel) {
+    if (!stand || channel >= stand->n_channels) return NULL;
+    return stand->channel_names[channel];
+}
+
+size_t vibid_stand_find_channel(const vibid_stand *stand, const char *name) {
+    if (!stand || !name) return (size_t)-1;
+    for (size_t i = 0; i < stand->n_channels; ++i)
+        if (!strcmp(stand->channel_names[i], name)) return i;
+    return (size_t)-1;
+}

@@ -1,0 +1,402 @@
+// identify.cpp: model + regressor + estimator -> physical parameters with standard
+// errors (identify.h). For ZOH models the unstructured difference form (1.16) is
+// estimated and taken back to the structured unknowns by the matrix logarithm and a
+// small linear least-squares problem.
+#include <vibid/identify.h>
+#include <vibid/iv.h>
+#include <vibid/lsq.h>
+#include <vibid/regressor.h>
+#include <vibid/rls.h>
+
+#include "api_guard.hpp"
+#include "discretize_internal.hpp"
+#include "model_internal.hpp"
+
+#include <Eigen/Dense>
+
+#include <algorithm>
+#include <cmath>
+#include <memory>
+#include <string>
+#include <vector>
+
+using Eigen::MatrixXd;
+using Eigen::VectorXd;
+using vibid::throw_error;
+
+struct vibid_ident {
+    vibid_model model;
+    vibid_ident_config cfg{};
+    vibid_regressor *reg = nullptr;
+    vibid_lsq *lsq = nullptr;
+    vibid_iv *iv = nullptr;
+    vibid_rls *rls = nullptr;
+    std::size_t n = 0, p = 0, p_reg = 0, m = 0, q = 0, n_channels = 0;
+    bool zoh = false;
+    // Per-sample scratch (sized in create).
+    std::vector<double> x, y, rows_x, rows_w;
+    std::vector<double> ring;  // IV: the last iv_lag + 1 regressors x (p_reg * m each)
+    unsigned long long n_built = 0, n_samples = 0, n_rows = 0;
+    // ZOH way back: structure matrices of each unknown and the known part.
+    std::vector<MatrixXd> S_M, S_D, S_C, S_B;  // S_B: n x rz = [B_i, c_base_i]
+    MatrixXd K_M, K_D, K_C, K_B;               // known parts (theta = 0)
+    // Last estimate
+    std::vector<double> cov;
+    bool have_cov = false;
+
+    vibid_ident() = default;
+    vibid_ident(const vibid_ident &) = delete;
+    vibid_ident &operator=(const vibid_ident &) = delete;
+    ~vibid_ident() {
+        vibid_regressor_destroy(reg);
+        vibid_lsq_destroy(lsq);
+        vibid_iv_destroy(iv);
+        vibid_rls_destroy(rls);
+    }
+};
+
+namespace {
+
+void check_status(vibid_status s, const char *what) {
+    if (s != VIBID_OK) throw_error(s, "%s: %s", what, vibid_last_error());
+}
+
+// x is p x m column-major; rows is m x p column-major (one regression row per equation).
+inline void transpose_into(const double *x, std::size_t p, std::size_t m, double *rows) {
+    for (std::size_t e = 0; e < m; ++e)
+        for (std::size_t i = 0; i < p; ++i) rows[e + i * m] = x[i + e * p];
+}
+
+std::string regressor_name(const vibid_ident &id, std::size_t i) {
+    if (!id.zoh) return id.model.terms[id.model.param_term[i]].name;
+    const std::size_t n = id.n, rz = (id.p_reg - 2 * n) / 2;
+    if (i < 2 * n) return id.model.nodes[i % n].name + (i < n ? "(k-1)" : "(k-2)");
+    const std::size_t j = (i - 2 * n) % rz;
+    const std::string base = j < id.model.inputs.size() ? id.model.inputs[j].name : std::string("base");
+    return base + (i - 2 * n < rz ? "(k-1)" : "(k-2)");
+}
+
+[[noreturn]] void refuse_null_space(const vibid_ident &id, const vibid_lsq_info &info) {
+    std::string names;
+    if (id.lsq) {
+        std::vector<double> basis(id.p_reg * id.p_reg);
+        std::size_t nv = 0;
+        if (vibid_lsq_null_space(id.lsq, basis.data(), id.p_reg, &nv) == VIBID_OK) {
+            for (std::size_t v = 0; v < std::min(nv, id.p_reg); ++v) {
+                const double *col = basis.data() + v * id.p_reg;
+                double vmax = 0;
+                for (std::size_t i = 0; i < id.p_reg; ++i) vmax = std::max(vmax, std::fabs(col[i]));
+                std::string group;
+                for (std::size_t i = 0; i < id.p_reg; ++i)
+                    if (std::fabs(col[i]) > 0.1 * vmax) group += (group.empty() ? "" : ", ") + regressor_name(id, i);
+                names += (names.empty() ? "{" : "; {") + group + "}";
+            }
+        }
+    }
+    throw_error(VIBID_E_NOT_IDENTIFIABLE,
+                "the data do not separate the parameters (rank %zu of %zu)%s%s: the excitation is not rich enough",
+                info.rank, id.p_reg, names.empty() ? "" : "; cannot separate ", names.c_str());
+}
+
+// ZOH way back: Theta (p_reg x n) of (1.16) -> structured unknowns theta (p).
+VectorXd zoh_to_theta(const vibid_ident &id, const MatrixXd &Th, vibid_log_info &log_info) {
+    const Eigen::Index n = static_cast<Eigen::Index>(id.n);
+    const Eigen::Index rz = static_cast<Eigen::Index>((id.p_reg - 2 * id.n) / 2);
+    const MatrixXd ThT = Th.transpose();  // [A1 A2 B1 B0]
+    const MatrixXd Dt = -ThT.leftCols(n), Ct = -ThT.middleCols(n, n);
+    const MatrixXd B1 = ThT.middleCols(2 * n, rz), B0 = ThT.rightCols(rz);
+    MatrixXd K, L, J;
+    vibid::second_order_to_continuous(Dt, Ct, B1, B0, id.cfg.sample_time, K, L, J, log_info);
+    // M(theta) K = C(theta), M(theta) L = D(theta), M(theta) J = [B c_base](theta):
+    // linear in theta.
+    const Eigen::Index rows = 2 * n * n + n * rz;
+    const Eigen::Index p = static_cast<Eigen::Index>(id.p);
+    MatrixXd A(rows, p);
+    VectorXd b(rows);
+    auto stack = [&](const MatrixXd &Mm, const MatrixXd &Dm, const MatrixXd &Cm, const MatrixXd &Bm) {
+        VectorXd v(rows);
+        MatrixXd e1 = Mm * K - Cm, e2 = Mm * L - Dm, e3 = Mm * J - Bm;
+        v << Eigen::Map<VectorXd>(e1.data(), e1.size()), Eigen::Map<VectorXd>(e2.data(), e2.size()),
+            Eigen::Map<VectorXd>(e3.data(), e3.size());
+        return v;
+    };
+    for (Eigen::Index i = 0; i < p; ++i)
+        A.col(i) = stack(id.S_M[static_cast<std::size_t>(i)], id.S_D[static_cast<std::size_t>(i)],
+                         id.S_C[static_cast<std::size_t>(i)], id.S_B[static_cast<std::size_t>(i)]);
+    b = -stack(id.K_M, id.K_D, id.K_C, id.K_B);
+    VectorXd scale(p);
+    for (Eigen::Index i = 0; i < p; ++i) {
+        scale(i) = A.col(i).norm();
+        if (scale(i) == 0.0) scale(i) = 1.0;
+        A.col(i) /= scale(i);
+    }
+    Eigen::ColPivHouseholderQR<MatrixXd> qr(A);
+    qr.setThreshold(1e-10);
+    if (qr.rank() < p)
+        throw_error(VIBID_E_NOT_IDENTIFIABLE,
+                    "ZOH way back: the continuous matrices do not determine all structured unknowns (rank %ld of %ld)",
+                    static_cast<long>(qr.rank()), static_cast<long>(p));
+    VectorXd th = qr.solve(b);
+    return th.cwiseQuotient(scale);
+}
+
+}  // namespace
+
+extern "C" {
+
+VIBID_API void vibid_ident_config_init(vibid_ident_config *cfg, double sample_time) {
+    if (!cfg) return;
+    cfg->estimator = VIBID_ESTIMATOR_LS;
+    cfg->sample_time = sample_time;
+    cfg->prefilter_hz = 0.0;
+    cfg->iv_lag = 3;
+    cfg->forgetting = 1.0;
+    cfg->rls_alpha = 1e-9;
+}
+
+VIBID_API vibid_ident *vibid_ident_create(const vibid_model *model, const vibid_ident_config *cfg) {
+    return vibid::guard_create<vibid_ident>(__func__, [&] {
+        vibid::require_finalized(model);
+        if (!cfg) throw_error(VIBID_E_NULL_ARGUMENT, "cfg is NULL");
+        if (cfg->estimator != VIBID_ESTIMATOR_LS && cfg->estimator != VIBID_ESTIMATOR_IV &&
+            cfg->estimator != VIBID_ESTIMATOR_RLS)
+            throw_error(VIBID_E_OUT_OF_RANGE, "estimator %d unknown", static_cast<int>(cfg->estimator));
+        if (cfg->estimator == VIBID_ESTIMATOR_IV && (cfg->iv_lag < 3 || cfg->iv_lag > 4096))
+            throw_error(VIBID_E_OUT_OF_RANGE, "iv_lag = %zu outside 3..4096 (the difference window is 3 samples)",
+                        cfg->iv_lag);
+        // Identifiability before any sample.
+        check_status(vibid_model_check_identifiable(model, nullptr), "model not identifiable");
+        auto id = std::make_unique<vibid_ident>();
+        id->model = *model;
+        id->cfg = *cfg;
+        id->reg = vibid_regressor_create(model, cfg->sample_time, cfg->prefilter_hz);
+        if (!id->reg) throw_error(VIBID_E_OUT_OF_RANGE, "%s", vibid_last_error());
+        vibid_regressor_dims rd{};
+        check_status(vibid_regressor_get_dims(id->reg, &rd), "regressor");
+        id->p_reg = rd.n_regressors;
+        id->m = rd.n_equations;
+        id->q = rd.n_outputs;
+        id->n = model->nodes.size();
+        id->p = model->param_term.size();
+        id->n_channels = model->channels.size();
+        id->zoh = model->discretization == VIBID_DISC_ZOH;
+        id->x.assign(id->p_reg * id->m, 0.0);
+        id->y.assign(id->m * id->q, 0.0);
+        id->rows_x.assign(id->p_reg * id->m, 0.0);
+        id->rows_w.assign(id->p_reg * id->m, 0.0);
+        switch (cfg->estimator) {
+        case VIBID_ESTIMATOR_LS:
+            id->lsq = vibid_lsq_create(id->p_reg, id->q);
+            if (!id->lsq) throw_error(VIBID_E_NO_MEMORY, "vibid_lsq_create: %s", vibid_last_error());
+            break;
+        case VIBID_ESTIMATOR_IV:
+            id->iv = vibid_iv_create(id->p_reg, id->q);
+            if (!id->iv) throw_error(VIBID_E_NO_MEMORY, "vibid_iv_create: %s", vibid_last_error());
+            id->ring.assign((cfg->iv_lag + 1) * id->p_reg * id->m, 0.0);
+            break;
+        case VIBID_ESTIMATOR_RLS: {
+            vibid_rls_config rc;
+            vibid_rls_config_init(&rc, id->p_reg, id->q);
+            rc.n_equations = id->m;
+            rc.forgetting = cfg->forgetting;
+            rc.alpha = cfg->rls_alpha;
+            rc.trace_max = static_cast<double>(id->p_reg) / cfg->rls_alpha;
+            id->rls = vibid_rls_create(&rc);
+            if (!id->rls) throw_error(VIBID_E_OUT_OF_RANGE, "vibid_rls_create: %s", vibid_last_error());
+            break;
+        }
+        }
+        if (id->zoh) {
+            const Eigen::Index n = static_cast<Eigen::Index>(id->n), r = static_cast<Eigen::Index>(model->inputs.size());
+            const Eigen::Index rz = static_cast<Eigen::Index>((id->p_reg - 2 * id->n) / 2);
+            auto fetch = [&](long param, MatrixXd &Mm, MatrixXd &Dm, MatrixXd &Cm, MatrixXd &Bz) {
+                Mm.resize(n, n);
+                Dm.resize(n, n);
+                Cm.resize(n, n);
+                MatrixXd Bm(n, r);
+                VectorXd cb(n);
+                vibid_status s;
+                if (param < 0) {
+                    std::vector<double> zero(id->p, 0.0);
+                    s = vibid_model_assemble(model, zero.data(), Mm.data(), Dm.data(), Cm.data(), Bm.data(), nullptr,
+                                             cb.data());
+                } else {
+                    s = vibid_model_structure(model, static_cast<std::size_t>(param), Mm.data(), Dm.data(), Cm.data(),
+                                              Bm.data(), nullptr, cb.data());
+                }
+                check_status(s, "structure");
+                Bz.resize(n, rz);
+                if (r) Bz.leftCols(r) = Bm;
+                if (rz > r) Bz.col(r) = cb;
+            };
+            id->S_M.resize(id->p);
+            id->S_D.resize(id->p);
+            id->S_C.resize(id->p);
+            id->S_B.resize(id->p);
+            for (std::size_t i = 0; i < id->p; ++i) fetch(static_cast<long>(i), id->S_M[i], id->S_D[i], id->S_C[i], id->S_B[i]);
+            fetch(-1, id->K_M, id->K_D, id->K_C, id->K_B);
+        }
+        id->cov.assign(id->p * id->p, 0.0);
+        return id.release();
+    });
+}
+
+VIBID_API vibid_status vibid_ident_reset(vibid_ident *ident) {
+    VIBID_GUARD(
+        if (!ident) throw_error(VIBID_E_NULL_ARGUMENT, "ident is NULL");
+        check_status(vibid_regressor_reset(ident->reg), "regressor reset");
+        if (ident->lsq) check_status(vibid_lsq_reset(ident->lsq), "lsq reset");
+        if (ident->iv) check_status(vibid_iv_reset(ident->iv), "iv reset");
+        if (ident->rls) check_status(vibid_rls_reset(ident->rls), "rls reset");
+        ident->n_built = ident->n_samples = ident->n_rows = 0;
+        ident->have_cov = false;
+        return VIBID_OK;);
+}
+
+VIBID_API void vibid_ident_destroy(vibid_ident *ident) { delete ident; }
+
+VIBID_API vibid_status vibid_ident_dims(const vibid_ident *ident, size_t *n_channels, size_t *n_params) {
+    if (!ident) return VIBID_FAIL(VIBID_E_NULL_ARGUMENT, "ident is NULL");
+    if (n_channels) *n_channels = ident->n_channels;
+    if (n_params) *n_params = ident->p;
+    return VIBID_OK;
+}
+
+// Real-time path for every estimator: no exceptions, no allocation.
+VIBID_API vibid_status vibid_ident_push(vibid_ident *ident, const double *channels) {
+    if (!ident || !channels) return VIBID_FAIL(VIBID_E_NULL_ARGUMENT, "ident and channels are required");
+    int ready = 0;
+    vibid_status s = vibid_regressor_push(ident->reg, channels, ident->x.data(), ident->y.data(), &ready);
+    if (s != VIBID_OK) {
+        // A gap: restart the difference window, the pre-filter and the instrument ring
+        // together, so that every later row is again an exact regression.
+        if (s == VIBID_E_NONFINITE) {
+            vibid_regressor_reset(ident->reg);
+            ident->n_built = 0;
+        }
+        return s;
+    }
+    ++ident->n_samples;
+    if (!ready) return VIBID_OK;
+    const std::size_t p = ident->p_reg, m = ident->m;
+    switch (ident->cfg.estimator) {
+    case VIBID_ESTIMATOR_LS:
+        transpose_into(ident->x.data(), p, m, ident->rows_x.data());
+        s = vibid_lsq_add_rows(ident->lsq, m, ident->rows_x.data(), ident->y.data(), nullptr);
+        break;
+    case VIBID_ESTIMATOR_IV: {
+        const std::size_t L = ident->cfg.iv_lag, slots = L + 1, block = p * m;
+        double *slot = ident->ring.data() + (ident->n_built % slots) * block;
+        std::copy(ident->x.begin(), ident->x.end(), slot);
+        if (ident->n_built >= L) {
+            const double *old = ident->ring.data() + ((ident->n_built - L) % slots) * block;
+            transpose_into(ident->x.data(), p, m, ident->rows_x.data());
+            transpose_into(old, p, m, ident->rows_w.data());
+            s = vibid_iv_add_rows(ident->iv, m, ident->rows_x.data(), ident->rows_w.data(), ident->y.data(), nullptr);
+        }
+        break;
+    }
+    case VIBID_ESTIMATOR_RLS: s = vibid_rls_update(ident->rls, ident->x.data(), ident->y.data()); break;
+    }
+    if (s != VIBID_OK) return s;
+    ++ident->n_built;
+    ident->n_rows += m;
+    return VIBID_OK;
+}
+
+VIBID_API vibid_status vibid_ident_push_block(vibid_ident *ident, size_t n_samples, const double *channels) {
+    if (!ident || (!channels && n_samples)) return VIBID_FAIL(VIBID_E_NULL_ARGUMENT, "ident and channels are required");
+    const std::size_t nc = ident->n_channels;
+    // Gathers one sample (a row of the column-major block) at a time into a stack
+    // buffer: no allocation, so this is as real-time safe as vibid_ident_push.
+    double sample[256];
+    if (nc > 256) return VIBID_FAIL(VIBID_E_DIMENSION, "more than 256 channels: push samples one by one");
+    for (std::size_t k = 0; k < n_samples; ++k) {
+        for (std::size_t c = 0; c < nc; ++c) sample[c] = channels[k + c * n_samples];
+        vibid_status s = vibid_ident_push(ident, sample);
+        if (s != VIBID_OK) return s;
+    }
+    return VIBID_OK;
+}
+
+VIBID_API vibid_status vibid_ident_estimate(vibid_ident *ident, double *theta, double *stderr_out,
+                                            vibid_ident_info *info) {
+    VIBID_GUARD(
+        if (!ident || !theta) throw_error(VIBID_E_NULL_ARGUMENT, "ident and theta are required");
+        vibid_ident &id = *ident;
+        const std::size_t pr = id.p_reg, q = id.q, P = pr * q;
+        MatrixXd Th(pr, q);
+        MatrixXd cov_reg = MatrixXd::Zero(P, P);  // Cov(vec Theta), vec column-major
+        vibid_lsq_info li{};
+        vibid_ident_info out{};
+        if (id.n_rows <= pr)
+            throw_error(VIBID_E_INSUFFICIENT_DATA, "%llu equations for %zu regressors: push more samples", id.n_rows, pr);
+        if (id.lsq) {
+            vibid_status s = vibid_lsq_solve(id.lsq, Th.data(), &li);
+            if (s == VIBID_E_NOT_IDENTIFIABLE) refuse_null_space(id, li);
+            check_status(s, "least squares");
+            MatrixXd Pm(pr, pr), Sig(q, q);
+            check_status(vibid_lsq_covariance(id.lsq, Pm.data(), Sig.data()), "least-squares covariance");
+            for (std::size_t j = 0; j < q; ++j)
+                for (std::size_t l = 0; l < q; ++l)
+                    cov_reg.block(j * pr, l * pr, pr, pr) = Sig(j, l) * Pm;
+        } else if (id.iv) {
+            vibid_status s = vibid_iv_solve(id.iv, Th.data(), &li);
+            if (s == VIBID_E_NOT_IDENTIFIABLE) refuse_null_space(id, li);
+            check_status(s, "instrumental variables");
+            // iv.h exposes standard errors only: the covariance is taken as diagonal.
+            MatrixXd se(pr, q);
+            check_status(vibid_iv_stderr(id.iv, se.data()), "instrumental-variable standard errors");
+            for (std::size_t i = 0; i < P; ++i) cov_reg(i, i) = se.data()[i] * se.data()[i];
+        } else {
+            check_status(vibid_rls_theta(id.rls, Th.data()), "recursive least squares");
+            MatrixXd Pm(pr, pr), Sig(q, q);
+            check_status(vibid_rls_covariance(id.rls, Pm.data()), "rls covariance");
+            if (vibid_rls_residual_covariance(id.rls, Sig.data()) == VIBID_OK)
+                for (std::size_t j = 0; j < q; ++j)
+                    for (std::size_t l = 0; l < q; ++l)
+                        cov_reg.block(j * pr, l * pr, pr, pr) = Sig(j, l) * Pm;
+            li.rank = pr;
+            li.rcond = 0.0;
+        }
+        const std::size_t p = id.p;
+        MatrixXd cov(p, p);
+        if (!id.zoh) {
+            std::copy(Th.data(), Th.data() + p, theta);
+            cov = cov_reg;
+        } else {
+            VectorXd th = zoh_to_theta(id, Th, out.log_info);
+            // Standard errors through the numerical Jacobian of the whole way back.
+            MatrixXd J(p, P);
+            for (std::size_t k = 0; k < P; ++k) {
+                const double step = 1e-6 * std::max(std::fabs(Th.data()[k]), 1e-9);
+                MatrixXd tp = Th, tm = Th;
+                tp.data()[k] += step;
+                tm.data()[k] -= step;
+                vibid_log_info dummy{};
+                J.col(static_cast<Eigen::Index>(k)) = (zoh_to_theta(id, tp, dummy) - zoh_to_theta(id, tm, dummy)) / (2 * step);
+            }
+            cov = J * cov_reg * J.transpose();
+            std::copy(th.data(), th.data() + p, theta);
+        }
+        if (stderr_out)
+            for (std::size_t i = 0; i < p; ++i)
+                stderr_out[i] = std::sqrt(std::max(cov(static_cast<Eigen::Index>(i), static_cast<Eigen::Index>(i)), 0.0));
+        std::copy(cov.data(), cov.data() + p * p, id.cov.begin());
+        id.have_cov = true;
+        out.n_samples = id.n_samples;
+        out.n_rows = id.n_rows;
+        out.rank = li.rank;
+        out.rcond = li.rcond;
+        if (info) *info = out;
+        return VIBID_OK;);
+}
+
+VIBID_API vibid_status vibid_ident_covariance(const vibid_ident *ident, double *cov) {
+    if (!ident || !cov) return VIBID_FAIL(VIBID_E_NULL_ARGUMENT, "ident and cov are required");
+    if (!ident->have_cov) return VIBID_FAIL(VIBID_E_STATE, "no estimate yet: call vibid_ident_estimate first");
+    std::copy(ident->cov.begin(), ident->cov.end(), cov);
+    return VIBID_OK;
+}
+
+}  // extern "C"

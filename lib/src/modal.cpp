@@ -1,0 +1,166 @@
+// modal.cpp: natural frequencies, damping ratios and mode shapes from M, D, C (the
+// quadratic eigenvalue problem, solved through the state matrix of (1.6)), and their
+// standard errors propagated from a parameter covariance.
+#include <vibid/modal.h>
+
+#include "api_guard.hpp"
+#include "model_internal.hpp"
+
+#include <Eigen/Dense>
+
+#include <algorithm>
+#include <cmath>
+#include <complex>
+#include <vector>
+
+using Eigen::MatrixXd;
+using vibid::throw_error;
+
+namespace {
+
+struct Mode {
+    double freq_hz;
+    double zeta;
+    Eigen::VectorXcd shape;
+};
+
+std::vector<Mode> modes_of(const MatrixXd &M, const MatrixXd &D, const MatrixXd &C) {
+    const Eigen::Index n = M.rows();
+    Eigen::FullPivLU<MatrixXd> lu(M);
+    if (!lu.isInvertible()) throw_error(VIBID_E_NUMERICAL, "mass matrix is singular");
+    MatrixXd A = MatrixXd::Zero(2 * n, 2 * n);
+    A.topRightCorner(n, n).setIdentity();
+    A.bottomLeftCorner(n, n) = -lu.solve(C);
+    A.bottomRightCorner(n, n) = -lu.solve(D);
+    Eigen::EigenSolver<MatrixXd> es(A, true);
+    if (es.info() != Eigen::Success) throw_error(VIBID_E_NUMERICAL, "eigen solver did not converge");
+    std::vector<Mode> modes;
+    std::vector<std::pair<double, Eigen::Index>> real_roots;
+    const double scale = std::max(A.norm(), 1e-300);
+    for (Eigen::Index i = 0; i < 2 * n; ++i) {
+        const std::complex<double> l = es.eigenvalues()(i);
+        if (std::fabs(l.imag()) > 1e-12 * scale) {
+            if (l.imag() < 0) continue;  // the conjugate describes the same mode
+            const double w = std::abs(l);
+            modes.push_back(Mode{w / (2.0 * M_PI), -l.real() / w, es.eigenvectors().col(i).head(n)});
+        } else {
+            real_roots.emplace_back(l.real(), i);
+        }
+    }
+    // Overdamped (or rigid-body) modes: pair the real roots in ascending order.
+    std::sort(real_roots.begin(), real_roots.end());
+    for (std::size_t k = 0; k + 1 < real_roots.size(); k += 2) {
+        const double l1 = real_roots[k].first, l2 = real_roots[k + 1].first;
+        const double prod = l1 * l2;
+        Mode md;
+        if (prod > 0.0) {
+            const double w = std::sqrt(prod);
+            md.freq_hz = w / (2.0 * M_PI);
+            md.zeta = -(l1 + l2) / (2.0 * w);
+        } else {
+            md.freq_hz = 0.0;  // a zero root: rigid-body motion
+            md.zeta = 1.0;
+        }
+        md.shape = es.eigenvectors().col(real_roots[k + 1].second).head(n);
+        modes.push_back(md);
+    }
+    if (static_cast<Eigen::Index>(modes.size()) != n)
+        throw_error(VIBID_E_NUMERICAL, "could not pair the %ld eigenvalues into %ld modes", static_cast<long>(2 * n),
+                    static_cast<long>(n));
+    for (auto &md : modes) {
+        Eigen::Index imax = 0;
+        md.shape.cwiseAbs().maxCoeff(&imax);
+        const std::complex<double> pivot = md.shape(imax);
+        if (std::abs(pivot) > 0) md.shape /= pivot;
+        md.shape(imax) = 1.0;
+    }
+    std::sort(modes.begin(), modes.end(), [](const Mode &a, const Mode &b) { return a.freq_hz < b.freq_hz; });
+    return modes;
+}
+
+void write_modes(const std::vector<Mode> &modes, std::size_t n, double *freq_hz, double *zeta, double *shape_re,
+                 double *shape_im) {
+    for (std::size_t j = 0; j < n; ++j) {
+        if (freq_hz) freq_hz[j] = modes[j].freq_hz;
+        if (zeta) zeta[j] = modes[j].zeta;
+        for (std::size_t i = 0; i < n; ++i) {
+            if (shape_re) shape_re[i + j * n] = modes[j].shape(static_cast<Eigen::Index>(i)).real();
+            if (shape_im) shape_im[i + j * n] = modes[j].shape(static_cast<Eigen::Index>(i)).imag();
+        }
+    }
+}
+
+std::vector<Mode> model_modes(const vibid_model *model, const double *theta) {
+    const std::size_t n = model->nodes.size();
+    MatrixXd M(n, n), D(n, n), C(n, n);
+    if (vibid_model_assemble(model, theta, M.data(), D.data(), C.data(), nullptr, nullptr, nullptr) != VIBID_OK)
+        throw_error(VIBID_E_NUMERICAL, "assembling the model failed: %s", vibid_last_error());
+    return modes_of(M, D, C);
+}
+
+}  // namespace
+
+extern "C" {
+
+VIBID_API vibid_status vibid_modal(size_t n, const double *M, const double *D, const double *C, double *freq_hz,
+                                   double *zeta, double *shape_re, double *shape_im) {
+    VIBID_GUARD(
+        if (n < 1 || n > 512) throw_error(VIBID_E_DIMENSION, "n = %zu outside 1..512", n);
+        if (!M || !C || !freq_hz || !zeta) throw_error(VIBID_E_NULL_ARGUMENT, "M, C, freq_hz and zeta are required");
+        if (!vibid::all_finite(M, n * n) || !vibid::all_finite(C, n * n) || (D && !vibid::all_finite(D, n * n)))
+            throw_error(VIBID_E_NONFINITE, "matrix with NaN or Inf");
+        const Eigen::Index N = static_cast<Eigen::Index>(n);
+        MatrixXd Dm = D ? MatrixXd(Eigen::Map<const MatrixXd>(D, N, N)) : MatrixXd::Zero(N, N);
+        auto modes = modes_of(Eigen::Map<const MatrixXd>(M, N, N), Dm, Eigen::Map<const MatrixXd>(C, N, N));
+        write_modes(modes, n, freq_hz, zeta, shape_re, shape_im);
+        return VIBID_OK;);
+}
+
+VIBID_API vibid_status vibid_model_modal(const vibid_model *model, const double *theta, const double *cov,
+                                         double *freq_hz, double *freq_se, double *zeta, double *zeta_se,
+                                         double *shape_re, double *shape_im) {
+    VIBID_GUARD(
+        vibid::require_finalized(model);
+        if (!freq_hz || !zeta) throw_error(VIBID_E_NULL_ARGUMENT, "freq_hz and zeta are required");
+        const std::size_t n = model->nodes.size(), p = model->param_term.size();
+        std::vector<double> th(p);
+        if (theta)
+            std::copy(theta, theta + p, th.begin());
+        else
+            vibid_model_nominal(model, th.data());
+        if (!vibid::all_finite(th.data(), p)) throw_error(VIBID_E_NONFINITE, "theta has NaN or Inf");
+        const auto modes = model_modes(model, th.data());
+        write_modes(modes, n, freq_hz, zeta, shape_re, shape_im);
+        if (cov && (freq_se || zeta_se)) {
+            if (!vibid::all_finite(cov, p * p)) throw_error(VIBID_E_NONFINITE, "cov has NaN or Inf");
+            // First-order propagation: J (2n x p) by central differences, se^2 = diag(J cov J^T).
+            MatrixXd J(2 * n, p);
+            for (std::size_t i = 0; i < p; ++i) {
+                const double step = 1e-6 * std::max(std::fabs(th[i]), 1e-12);
+                std::vector<double> tp = th, tm = th;
+                tp[i] += step;
+                tm[i] -= step;
+                const auto mp = model_modes(model, tp.data()), mm = model_modes(model, tm.data());
+                for (std::size_t j = 0; j < n; ++j) {
+                    J(static_cast<Eigen::Index>(j), static_cast<Eigen::Index>(i)) =
+                        (mp[j].freq_hz - mm[j].freq_hz) / (2 * step);
+                    J(static_cast<Eigen::Index>(n + j), static_cast<Eigen::Index>(i)) = (mp[j].zeta - mm[j].zeta) / (2 * step);
+                }
+            }
+            const Eigen::Index P = static_cast<Eigen::Index>(p);
+            const MatrixXd V = J * Eigen::Map<const MatrixXd>(cov, P, P) * J.transpose();
+            for (std::size_t j = 0; j < n; ++j) {
+                const Eigen::Index a = static_cast<Eigen::Index>(j), b = static_cast<Eigen::Index>(n + j);
+                if (freq_se) freq_se[j] = std::sqrt(std::max(V(a, a), 0.0));
+                if (zeta_se) zeta_se[j] = std::sqrt(std::max(V(b, b), 0.0));
+            }
+        } else {
+            for (std::size_t j = 0; j < n; ++j) {
+                if (freq_se) freq_se[j] = 0.0;
+                if (zeta_se) zeta_se[j] = 0.0;
+            }
+        }
+        return VIBID_OK;);
+}
+
+}  // extern "C"

@@ -1,0 +1,469 @@
+/* sim/sim_config.c: reads the `simulation` group (see sim_config.h, docs/sim.md). */
+#include "sim_config.h"
+
+#include <libconfig.h>
+#include <math.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+typedef struct ctx {
+    const char *file;
+    char *err;
+    size_t errlen;
+} ctx;
+
+static int fail(ctx *c, const config_setting_t *s, const char *path, const char *fmt, ...)
+    __attribute__((format(printf, 4, 5)));
+
+static int fail(ctx *c, const config_setting_t *s, const char *path, const char *fmt, ...)
+{
+    char msg[512];
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(msg, sizeof msg, fmt, ap);
+    va_end(ap);
+    if (c->err && c->errlen)
+        snprintf(c->err, c->errlen, "%s:%d: %s: %s", c->file, s ? (int)config_setting_source_line(s) : 0, path, msg);
+    return -1;
+}
+
+/* number member: 1 found, 0 absent, -1 error (wrong type or not finite). */
+static int get_num(ctx *c, const config_setting_t *g, const char *gpath, const char *name, double *out)
+{
+    const config_setting_t *m = config_setting_get_member(g, name);
+    if (!m) return 0;
+    char path[256];
+    snprintf(path, sizeof path, "%s.%s", gpath, name);
+    int t = config_setting_type(m);
+    if (t == CONFIG_TYPE_INT || t == CONFIG_TYPE_INT64) *out = (double)config_setting_get_int64(m);
+    else if (t == CONFIG_TYPE_FLOAT) *out = config_setting_get_float(m);
+    else return fail(c, m, path, "must be a number");
+    if (!isfinite(*out)) return fail(c, m, path, "must be finite");
+    return 1;
+}
+
+static int get_str(ctx *c, const config_setting_t *g, const char *gpath, const char *name, const char **out)
+{
+    const config_setting_t *m = config_setting_get_member(g, name);
+    if (!m) return 0;
+    if (config_setting_type(m) != CONFIG_TYPE_STRING) {
+        char path[256];
+        snprintf(path, sizeof path, "%s.%s", gpath, name);
+        return fail(c, m, path, "must be a string");
+    }
+    *out = config_setting_get_string(m);
+    return 1;
+}
+
+static int get_bool(ctx *c, const config_setting_t *g, const char *gpath, const char *name, int *out)
+{
+    const config_setting_t *m = config_setting_get_member(g, name);
+    if (!m) return 0;
+    if (config_setting_type(m) != CONFIG_TYPE_BOOL) {
+        char path[256];
+        snprintf(path, sizeof path, "%s.%s", gpath, name);
+        return fail(c, m, path, "must be true or false");
+    }
+    *out = config_setting_get_bool(m);
+    return 1;
+}
+
+/* Rejects members that this group does not know (typos must not pass silently). */
+static int check_members(ctx *c, const config_setting_t *g, const char *gpath, const char *const *known)
+{
+    for (int i = 0; i < config_setting_length(g); i++) {
+        const config_setting_t *m = config_setting_get_elem(g, (unsigned)i);
+        const char *nm = config_setting_name(m);
+        if (!nm) continue;
+        int ok = 0;
+        for (const char *const *k = known; *k; k++)
+            if (strcmp(*k, nm) == 0) ok = 1;
+        if (!ok) {
+            char path[256], list[512] = "";
+            snprintf(path, sizeof path, "%s.%s", gpath, nm);
+            for (const char *const *k = known; *k; k++) {
+                strncat(list, *k, sizeof list - strlen(list) - 1);
+                if (k[1]) strncat(list, ", ", sizeof list - strlen(list) - 1);
+            }
+            return fail(c, m, path, "unknown setting (known: %s)", list);
+        }
+    }
+    return 0;
+}
+
+static const config_setting_t *get_list(ctx *c, const config_setting_t *g, const char *gpath, const char *name, int *err)
+{
+    const config_setting_t *m = config_setting_get_member(g, name);
+    *err = 0;
+    if (!m) return NULL;
+    if (config_setting_type(m) != CONFIG_TYPE_LIST) {
+        char path[256];
+        snprintf(path, sizeof path, "%s.%s", gpath, name);
+        *err = fail(c, m, path, "must be a list ( {...}, {...} )");
+        return NULL;
+    }
+    return m;
+}
+
+/* model channel index from an acquisition name or a model channel name */
+static size_t find_channel(const vibid_stand *st, const char *name)
+{
+    size_t i = vibid_stand_find_channel(st, name);
+    if (i != (size_t)-1) return i;
+    const vibid_model *m = vibid_stand_model(st);
+    vibid_model_dims d;
+    vibid_model_get_dims(m, &d);
+    for (size_t k = 0; k < d.n_channels; k++) {
+        vibid_channel_info ci;
+        if (vibid_model_channel_info(m, k, &ci) == VIBID_OK && strcmp(ci.name, name) == 0) return k;
+    }
+    return (size_t)-1;
+}
+
+static void channel_list(const vibid_stand *st, char *buf, size_t cap)
+{
+    vibid_model_dims d;
+    vibid_model_get_dims(vibid_stand_model(st), &d);
+    buf[0] = 0;
+    for (size_t k = 0; k < d.n_channels; k++) {
+        const char *nm = vibid_stand_channel_name(st, k);
+        strncat(buf, nm ? nm : "?", cap - strlen(buf) - 1);
+        if (k + 1 < d.n_channels) strncat(buf, ", ", cap - strlen(buf) - 1);
+    }
+}
+
+static int parse_exc(ctx *c, const config_setting_t *e, const char *path, uint64_t seed, size_t index, sim_exc_spec *s)
+{
+    static const char *const known[] = {"target", "kind", "amplitude", "offset", "frequency", "phase",
+                                        "f_start", "f_stop", "sweep_time", "dwell", "steps", "f_low",
+                                        "f_high", "order", "samples_per_bit", "t_on", "t_off", "seed", NULL};
+    if (check_members(c, e, path, known)) return -1;
+    const char *kind = NULL;
+    if (get_str(c, e, path, "kind", &kind) < 0) return -1;
+    if (!kind) return fail(c, e, path, "kind missing (constant, triangle, sine, stepped_sine, sweep_linear, sweep_log, prbs, noise)");
+    int k = sim_exc_kind_from_name(kind);
+    if (k < 0) {
+        char p2[256];
+        snprintf(p2, sizeof p2, "%s.kind", path);
+        return fail(c, config_setting_get_member(e, "kind"), p2,
+                    "unknown kind '%s' (constant, triangle, sine, stepped_sine, sweep_linear, sweep_log, prbs, noise)", kind);
+    }
+    sim_exc_spec_init(s, (sim_exc_kind)k);
+    double v;
+    struct { const char *name; double *dst; } nums[] = {
+        {"amplitude", &s->amplitude}, {"offset", &s->offset}, {"frequency", &s->frequency},
+        {"phase", &s->phase_deg}, {"f_start", &s->f_start}, {"f_stop", &s->f_stop},
+        {"sweep_time", &s->sweep_time}, {"dwell", &s->dwell}, {"f_low", &s->f_low},
+        {"f_high", &s->f_high}, {"t_on", &s->t_on}, {"t_off", &s->t_off}};
+    for (size_t i = 0; i < sizeof nums / sizeof nums[0]; i++)
+        if (get_num(c, e, path, nums[i].name, nums[i].dst) < 0) return -1;
+    int r;
+    if ((r = get_num(c, e, path, "steps", &v)) < 0) return -1;
+    if (r) s->steps = (int)v;
+    if ((r = get_num(c, e, path, "order", &v)) < 0) return -1;
+    if (r) s->prbs_order = (int)v;
+    if ((r = get_num(c, e, path, "samples_per_bit", &v)) < 0) return -1;
+    if (r) s->prbs_samples = (int)v;
+    if ((r = get_num(c, e, path, "seed", &v)) < 0) return -1;
+    /* each random component gets its own stream: run seed and position, unless given */
+    s->seed = r ? (uint64_t)v : seed * 1000003ull + index + 1;
+    if (s->kind == SIM_EXC_NOISE && !config_setting_get_member(e, "f_high"))
+        s->f_high = INFINITY; /* full band: no low-pass */
+    return 0;
+}
+
+int sim_config_load(const char *path, const vibid_stand *stand, const uint64_t *seed, sim_config *cfg, char *err,
+                    size_t errlen)
+{
+    memset(cfg, 0, sizeof *cfg);
+    snprintf(cfg->file, sizeof cfg->file, "%s", path);
+    cfg->seed = 1;
+    cfg->rtol = 1e-10;
+    cfg->atol = 1e-15;
+    cfg->can_id = 0x100;
+    cfg->fifo_base = 1000;
+    cfg->fifo_capacity = 1000;
+    for (size_t i = 0; i < SIM_MAX_CHANNELS; i++) cfg->can_sig[i] = (sim_can_signal){SIM_CAN_FLOAT32, 1.0};
+
+    ctx c = {path, err, errlen};
+    const vibid_model *model = vibid_stand_model(stand);
+    vibid_model_dims d;
+    vibid_model_get_dims(model, &d);
+    if (d.n_channels > SIM_MAX_CHANNELS) {
+        fail(&c, NULL, "stand", "%zu channels; vibid-sim handles at most %d", d.n_channels, SIM_MAX_CHANNELS);
+        return -1;
+    }
+
+    config_t lc;
+    config_init(&lc);
+    int rc = -1;
+    if (!config_read_file(&lc, path)) {
+        if (err && errlen)
+            snprintf(err, errlen, "%s:%d: %s", config_error_file(&lc) ? config_error_file(&lc) : path,
+                     config_error_line(&lc), config_error_text(&lc));
+        goto out;
+    }
+    if (seed) cfg->seed = *seed;
+    const config_setting_t *g = config_lookup(&lc, "simulation");
+    if (!g) { rc = 0; goto out; }
+    const char *gp = "simulation";
+    if (!config_setting_is_group(g)) { fail(&c, g, gp, "must be a group { ... }"); goto out; }
+    static const char *const known[] = {"seed", "duration", "hold", "integrator", "excitation", "noise",
+                                        "changes", "can", "modbus", NULL};
+    if (check_members(&c, g, gp, known)) goto out;
+
+    double v;
+    int r;
+    if ((r = get_num(&c, g, gp, "seed", &v)) < 0) goto out;
+    if (r) {
+        if (v < 0) { fail(&c, config_setting_get_member(g, "seed"), "simulation.seed", "must be >= 0"); goto out; }
+        cfg->seed = (uint64_t)v;
+    }
+    if (seed) cfg->seed = *seed;
+    if ((r = get_num(&c, g, gp, "duration", &v)) < 0) goto out;
+    if (r) {
+        if (!(v > 0)) { fail(&c, config_setting_get_member(g, "duration"), "simulation.duration", "%g must be > 0 s", v); goto out; }
+        cfg->duration = v;
+    }
+    const char *hold = NULL;
+    if (get_str(&c, g, gp, "hold", &hold) < 0) goto out;
+    if (hold) {
+        if (strcmp(hold, "zoh") == 0) cfg->smooth = 0;
+        else if (strcmp(hold, "smooth") == 0) cfg->smooth = 1;
+        else { fail(&c, config_setting_get_member(g, "hold"), "simulation.hold", "'%s': use \"zoh\" or \"smooth\"", hold); goto out; }
+    }
+
+    const config_setting_t *ig = config_setting_get_member(g, "integrator");
+    if (ig) {
+        static const char *const ik[] = {"rtol", "atol", "method", NULL};
+        if (!config_setting_is_group(ig)) { fail(&c, ig, "simulation.integrator", "must be a group"); goto out; }
+        if (check_members(&c, ig, "simulation.integrator", ik)) goto out;
+        if (get_num(&c, ig, "simulation.integrator", "rtol", &cfg->rtol) < 0) goto out;
+        if (get_num(&c, ig, "simulation.integrator", "atol", &cfg->atol) < 0) goto out;
+        const char *meth = NULL;
+        if (get_str(&c, ig, "simulation.integrator", "method", &meth) < 0) goto out;
+        if (meth) {
+            if (strcmp(meth, "fehlberg8") == 0) cfg->method = 0;
+            else if (strcmp(meth, "dormand_prince5") == 0) cfg->method = 1;
+            else { fail(&c, config_setting_get_member(ig, "method"), "simulation.integrator.method", "'%s': use \"fehlberg8\" or \"dormand_prince5\"", meth); goto out; }
+        }
+        if (!(cfg->rtol >= 1e-14 && cfg->rtol <= 1e-2)) { fail(&c, ig, "simulation.integrator.rtol", "%g outside [1e-14, 1e-2]", cfg->rtol); goto out; }
+        if (!(cfg->atol > 0)) { fail(&c, ig, "simulation.integrator.atol", "%g must be > 0", cfg->atol); goto out; }
+    }
+
+    int lerr;
+    const config_setting_t *ex = get_list(&c, g, gp, "excitation", &lerr);
+    if (lerr) goto out;
+    for (int i = 0; ex && i < config_setting_length(ex); i++) {
+        const config_setting_t *e = config_setting_get_elem(ex, (unsigned)i);
+        char p[128];
+        snprintf(p, sizeof p, "simulation.excitation.[%d]", i);
+        if (!config_setting_is_group(e)) { fail(&c, e, p, "must be a group { ... }"); goto out; }
+        const char *tg = NULL;
+        if (get_str(&c, e, p, "target", &tg) < 0) goto out;
+        if (!tg) { fail(&c, e, p, "target missing: \"base\" or the name of a force input"); goto out; }
+        int is_base = strcmp(tg, "base") == 0;
+        size_t input = 0;
+        if (is_base && !d.has_base) { fail(&c, e, p, "target \"base\": no element of the stand connects to the base"); goto out; }
+        if (!is_base) {
+            int found = 0;
+            char names[512] = "";
+            for (size_t k = 0; k < d.n_channels && !found; k++) {
+                vibid_channel_info ci;
+                vibid_model_channel_info(model, k, &ci);
+                if (ci.kind != VIBID_CHANNEL_INPUT) continue;
+                const char *an = vibid_stand_channel_name(stand, k);
+                if (strcmp(ci.name, tg) == 0 || (an && strcmp(an, tg) == 0)) { found = 1; input = ci.index; }
+                strncat(names, ci.name, sizeof names - strlen(names) - 1);
+                strncat(names, " ", sizeof names - strlen(names) - 1);
+            }
+            if (!found) {
+                fail(&c, config_setting_get_member(e, "target"), p, "target '%s' is neither \"base\" nor a force input of the stand (inputs: %s)",
+                     tg, names[0] ? names : "none");
+                goto out;
+            }
+        }
+        sim_exc_target *t = NULL;
+        for (size_t k = 0; k < cfg->n_targets; k++)
+            if (cfg->targets[k].is_base == is_base && (is_base || cfg->targets[k].input == input)) t = &cfg->targets[k];
+        if (!t) {
+            sim_exc_target *nt = realloc(cfg->targets, (cfg->n_targets + 1) * sizeof *nt);
+            if (!nt) { fail(&c, e, p, "out of memory"); goto out; }
+            cfg->targets = nt;
+            t = &cfg->targets[cfg->n_targets++];
+            memset(t, 0, sizeof *t);
+            t->is_base = is_base;
+            t->input = input;
+        }
+        sim_exc_spec *ns = realloc(t->specs, (t->n + 1) * sizeof *ns);
+        if (!ns) { fail(&c, e, p, "out of memory"); goto out; }
+        t->specs = ns;
+        if (parse_exc(&c, e, p, cfg->seed, (size_t)i, &t->specs[t->n])) goto out;
+        t->n++;
+    }
+
+    const config_setting_t *nl = get_list(&c, g, gp, "noise", &lerr);
+    if (lerr) goto out;
+    for (int i = 0; nl && i < config_setting_length(nl); i++) {
+        const config_setting_t *e = config_setting_get_elem(nl, (unsigned)i);
+        char p[128];
+        snprintf(p, sizeof p, "simulation.noise.[%d]", i);
+        static const char *const nk[] = {"channel", "std", "snr_db", "resolution", NULL};
+        if (!config_setting_is_group(e)) { fail(&c, e, p, "must be a group { ... }"); goto out; }
+        if (check_members(&c, e, p, nk)) goto out;
+        const char *ch = NULL;
+        if (get_str(&c, e, p, "channel", &ch) < 0) goto out;
+        if (!ch) { fail(&c, e, p, "channel missing"); goto out; }
+        size_t idx = find_channel(stand, ch);
+        if (idx == (size_t)-1) {
+            char names[512];
+            channel_list(stand, names, sizeof names);
+            fail(&c, config_setting_get_member(e, "channel"), p, "unknown channel '%s' (channels: %s)", ch, names);
+            goto out;
+        }
+        sim_noise_spec ns = {idx, 0.0, NAN, 0.0};
+        int hs, hn;
+        if ((hs = get_num(&c, e, p, "std", &ns.std)) < 0 || (hn = get_num(&c, e, p, "snr_db", &ns.snr_db)) < 0 ||
+            get_num(&c, e, p, "resolution", &ns.resolution) < 0)
+            goto out;
+        if (hs && hn) { fail(&c, e, p, "give either std or snr_db, not both"); goto out; }
+        if (hs && ns.std < 0) { fail(&c, e, p, "std = %g must be >= 0", ns.std); goto out; }
+        if (ns.resolution < 0) { fail(&c, e, p, "resolution = %g must be >= 0", ns.resolution); goto out; }
+        sim_noise_spec *nn = realloc(cfg->noise, (cfg->n_noise + 1) * sizeof *nn);
+        if (!nn) { fail(&c, e, p, "out of memory"); goto out; }
+        cfg->noise = nn;
+        cfg->noise[cfg->n_noise++] = ns;
+    }
+
+    const config_setting_t *cl = get_list(&c, g, gp, "changes", &lerr);
+    if (lerr) goto out;
+    for (int i = 0; cl && i < config_setting_length(cl); i++) {
+        const config_setting_t *e = config_setting_get_elem(cl, (unsigned)i);
+        char p[128];
+        snprintf(p, sizeof p, "simulation.changes.[%d]", i);
+        static const char *const ck[] = {"parameter", "at", "ramp", "factor", "value", NULL};
+        if (!config_setting_is_group(e)) { fail(&c, e, p, "must be a group { ... }"); goto out; }
+        if (check_members(&c, e, p, ck)) goto out;
+        const char *pn = NULL;
+        if (get_str(&c, e, p, "parameter", &pn) < 0) goto out;
+        if (!pn) { fail(&c, e, p, "parameter missing"); goto out; }
+        size_t pi = (size_t)-1;
+        char names[512] = "";
+        for (size_t k = 0; k < d.n_params; k++) {
+            vibid_param_info inf;
+            vibid_model_param_info(model, k, &inf);
+            if (strcmp(inf.name, pn) == 0) pi = k;
+            strncat(names, inf.name, sizeof names - strlen(names) - 1);
+            strncat(names, " ", sizeof names - strlen(names) - 1);
+        }
+        if (pi == (size_t)-1) {
+            fail(&c, config_setting_get_member(e, "parameter"), p,
+                 "'%s' is not an unknown parameter of the stand (changeable: %s); only parameters marked unknown = true can change",
+                 pn, names[0] ? names : "none");
+            goto out;
+        }
+        sim_change ch = {pi, 0.0, 0.0, 0.0};
+        double factor = 0.0;
+        int ha, hf, hv;
+        if ((ha = get_num(&c, e, p, "at", &ch.at)) < 0 || get_num(&c, e, p, "ramp", &ch.ramp) < 0 ||
+            (hf = get_num(&c, e, p, "factor", &factor)) < 0 || (hv = get_num(&c, e, p, "value", &ch.value)) < 0)
+            goto out;
+        if (!ha || ch.at < 0) { fail(&c, e, p, "at (s, >= 0) missing or negative"); goto out; }
+        if (ch.ramp < 0) { fail(&c, e, p, "ramp = %g must be >= 0 s", ch.ramp); goto out; }
+        if (hf == hv) { fail(&c, e, p, "give exactly one of factor (times the true value) or value"); goto out; }
+        if (hf) ch.value = factor * vibid_stand_true_values(stand)[pi];
+        for (size_t k = 0; k < cfg->n_changes; k++)
+            if (cfg->changes[k].param == pi && !(ch.at >= cfg->changes[k].at + cfg->changes[k].ramp)) {
+                fail(&c, e, p, "changes of '%s' must be given in time order without overlap", pn);
+                goto out;
+            }
+        sim_change *nc = realloc(cfg->changes, (cfg->n_changes + 1) * sizeof *nc);
+        if (!nc) { fail(&c, e, p, "out of memory"); goto out; }
+        cfg->changes = nc;
+        cfg->changes[cfg->n_changes++] = ch;
+    }
+
+    const config_setting_t *cg = config_setting_get_member(g, "can");
+    if (cg) {
+        const char *cp = "simulation.can";
+        static const char *const kk[] = {"id", "fd", "extended", "signals", NULL};
+        if (!config_setting_is_group(cg)) { fail(&c, cg, cp, "must be a group"); goto out; }
+        if (check_members(&c, cg, cp, kk)) goto out;
+        if (get_bool(&c, cg, cp, "fd", &cfg->can_fd) < 0 || get_bool(&c, cg, cp, "extended", &cfg->can_extended) < 0) goto out;
+        if ((r = get_num(&c, cg, cp, "id", &v)) < 0) goto out;
+        if (r) cfg->can_id = (uint32_t)v;
+        if (r && (v < 0 || v > (cfg->can_extended ? 0x1FFFFFFF : 0x7FF))) {
+            fail(&c, config_setting_get_member(cg, "id"), "simulation.can.id", "%g outside 0..0x%X", v, cfg->can_extended ? 0x1FFFFFFF : 0x7FF);
+            goto out;
+        }
+        const config_setting_t *sl = get_list(&c, cg, cp, "signals", &lerr);
+        if (lerr) goto out;
+        for (int i = 0; sl && i < config_setting_length(sl); i++) {
+            const config_setting_t *e = config_setting_get_elem(sl, (unsigned)i);
+            char p[128];
+            snprintf(p, sizeof p, "simulation.can.signals.[%d]", i);
+            static const char *const sk[] = {"channel", "type", "scale", NULL};
+            if (!config_setting_is_group(e)) { fail(&c, e, p, "must be a group"); goto out; }
+            if (check_members(&c, e, p, sk)) goto out;
+            const char *ch = NULL, *ty = NULL;
+            if (get_str(&c, e, p, "channel", &ch) < 0 || get_str(&c, e, p, "type", &ty) < 0) goto out;
+            if (!ch) { fail(&c, e, p, "channel missing"); goto out; }
+            size_t idx = find_channel(stand, ch);
+            if (idx == (size_t)-1) {
+                char names[512];
+                channel_list(stand, names, sizeof names);
+                fail(&c, config_setting_get_member(e, "channel"), p, "unknown channel '%s' (channels: %s)", ch, names);
+                goto out;
+            }
+            sim_can_signal sg = {SIM_CAN_FLOAT32, 1.0};
+            if (ty) {
+                if (strcmp(ty, "int16") == 0) sg.type = SIM_CAN_INT16;
+                else if (strcmp(ty, "int32") == 0) sg.type = SIM_CAN_INT32;
+                else if (strcmp(ty, "float32") == 0) sg.type = SIM_CAN_FLOAT32;
+                else { fail(&c, config_setting_get_member(e, "type"), p, "type '%s': use int16, int32 or float32", ty); goto out; }
+            }
+            if (get_num(&c, e, p, "scale", &sg.scale) < 0) goto out;
+            if (!(sg.scale > 0)) { fail(&c, e, p, "scale = %g must be > 0", sg.scale); goto out; }
+            if (sg.type == SIM_CAN_FLOAT32 && sg.scale != 1.0) { fail(&c, e, p, "float32 signals are not scaled (scale must be 1)"); goto out; }
+            cfg->can_sig[idx] = sg;
+        }
+    }
+
+    const config_setting_t *mg = config_setting_get_member(g, "modbus");
+    if (mg) {
+        const char *mp = "simulation.modbus";
+        static const char *const mk[] = {"fifo_base", "capacity", NULL};
+        if (!config_setting_is_group(mg)) { fail(&c, mg, mp, "must be a group"); goto out; }
+        if (check_members(&c, mg, mp, mk)) goto out;
+        if ((r = get_num(&c, mg, mp, "fifo_base", &v)) < 0) goto out;
+        if (r) {
+            if (v < 0 || v > 65535) { fail(&c, mg, "simulation.modbus.fifo_base", "%g outside 0..65535", v); goto out; }
+            cfg->fifo_base = (unsigned)v;
+        }
+        if ((r = get_num(&c, mg, mp, "capacity", &v)) < 0) goto out;
+        if (r) {
+            if (v < 2 || v > 32767) { fail(&c, mg, "simulation.modbus.capacity", "%g outside 2..32767", v); goto out; }
+            cfg->fifo_capacity = (unsigned)v;
+        }
+    }
+    rc = 0;
+out:
+    config_destroy(&lc);
+    if (rc) sim_config_free(cfg);
+    return rc;
+}
+
+void sim_config_free(sim_config *cfg)
+{
+    if (!cfg) return;
+    for (size_t i = 0; i < cfg->n_targets; i++) free(cfg->targets[i].specs);
+    free(cfg->targets);
+    free(cfg->noise);
+    free(cfg->changes);
+    cfg->targets = NULL;
+    cfg->noise = NULL;
+    cfg->changes = NULL;
+    cfg->n_targets = cfg->n_noise = cfg->n_changes = 0;
+}

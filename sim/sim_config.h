@@ -1,0 +1,85 @@
+/* sim/sim_config.h: the `simulation` group of a stand file (docs/sim.md), read by
+ * vibid-sim beside the `stand` group that the shared loader reads.
+ *
+ *   simulation = {
+ *     seed = 1; duration = 10.0; hold = "zoh";            # or "smooth"
+ *     integrator = { rtol = 1e-10; atol = 1e-15; method = "fehlberg8"; };  # or "dormand_prince5"
+ *     excitation = ( { target = "base"; kind = "triangle"; amplitude = 1e-3; frequency = 10.0; } );
+ *     noise = ( { channel = "x1"; std = 1e-7; resolution = 1e-8; }, { channel = "x2"; snr_db = 60.0; } );
+ *     changes = ( { parameter = "c2"; at = 60.0; factor = 0.9; ramp = 0.0; } );
+ *     can = { id = 0x100; fd = false; extended = false;
+ *             signals = ( { channel = "x1"; type = "int32"; scale = 1e-9; } ); };
+ *     modbus = { fifo_base = 1000; capacity = 1000; };
+ *   };
+ * Everything is optional; without the group the stand is simulated at rest.
+ */
+#ifndef VIBID_SIM_CONFIG_H
+#define VIBID_SIM_CONFIG_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include <vibid/stand_file.h>
+
+#include "excitation.h"
+
+#define SIM_MAX_CHANNELS 64
+
+typedef struct sim_exc_target {
+    int is_base;          /* 1: base motion s(t); 0: force input */
+    size_t input;         /* input index j (force inputs) */
+    sim_exc_spec *specs;  /* summed components */
+    size_t n;
+} sim_exc_target;
+
+typedef struct sim_noise_spec {
+    size_t channel;       /* model channel index */
+    double std;           /* channel units; used when snr_db is not given */
+    double snr_db;        /* signal RMS / noise std in dB; NaN if not given */
+    double resolution;    /* quantisation step (0 = none) */
+} sim_noise_spec;
+
+typedef struct sim_change {
+    size_t param;         /* unknown parameter index (model parameter order) */
+    double at;            /* s: start of the change */
+    double ramp;          /* s: duration of the linear ramp (0 = step at the first sample >= at) */
+    double value;         /* value after the change (absolute) */
+} sim_change;
+
+typedef enum sim_can_type { SIM_CAN_INT16 = 0, SIM_CAN_INT32 = 1, SIM_CAN_FLOAT32 = 2 } sim_can_type;
+
+typedef struct sim_can_signal {
+    sim_can_type type;
+    double scale;         /* physical = raw * scale (integer types) */
+} sim_can_signal;
+
+typedef struct sim_config {
+    char file[256];
+    uint64_t seed;
+    double duration;      /* s; 0 = not given */
+    int smooth;           /* 0 = ZOH inputs (1.10), 1 = smooth */
+    double rtol, atol;
+    int method;           /* 0 = fehlberg8 (Fehlberg 13-7-8, default), 1 = dormand_prince5 (7-4-5) */
+    sim_exc_target *targets;
+    size_t n_targets;
+    sim_noise_spec *noise;
+    size_t n_noise;
+    sim_change *changes;
+    size_t n_changes;
+    /* CAN */
+    uint32_t can_id;      /* id of the first frame; frames use can_id, can_id+1, ... */
+    int can_fd, can_extended;
+    sim_can_signal can_sig[SIM_MAX_CHANNELS]; /* per model channel */
+    /* Modbus */
+    unsigned fifo_base, fifo_capacity;
+} sim_config;
+
+/* Reads the `simulation` group of path for the loaded stand (names of inputs,
+ * channels and parameters are resolved against it). Returns 0, or -1 with err =
+ * "file:line: simulation.field: message". */
+/* seed: NULL, or a seed that replaces simulation.seed (before streams are derived). */
+int sim_config_load(const char *path, const vibid_stand *stand, const uint64_t *seed, sim_config *cfg, char *err,
+                    size_t errlen);
+void sim_config_free(sim_config *cfg);
+
+#endif

@@ -1,0 +1,416 @@
+/* sim/sim_engine.c: see sim_engine.h. */
+#include "sim_engine.h"
+
+#include <arkode/arkode_erkstep.h>
+#include <math.h>
+#include <nvector/nvector_serial.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sundials/sundials_context.h>
+
+struct sim_engine {
+    const vibid_stand *stand;
+    const sim_config *cfg;
+    const vibid_model *model;
+    size_t n, r, p, nch;
+    int has_base;
+    double h;
+    /* excitation */
+    sim_exc *base_exc;
+    sim_exc **in_exc;      /* r entries, NULL = zero input */
+    /* parameters */
+    double *theta0, *theta, *theta_k;
+    int mass_changes, ramp_in_interval;
+    /* mass matrix */
+    double *M, *Minv, *work;
+    int diag;
+    /* integrator */
+    SUNContext sunctx;
+    void *ark;
+    N_Vector y;
+    double hnext;
+    /* per-RHS scratch */
+    double *u, *f;
+    /* channels */
+    vibid_channel_info *ch;
+    double *noise_std, *resolution;
+    sim_rng noise_rng;
+    uint64_t k;
+    double tk;
+    char err[512];
+};
+
+static void set_err(sim_engine *e, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
+static void set_err(sim_engine *e, const char *fmt, ...)
+{
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(e->err, sizeof e->err, fmt, ap);
+    va_end(ap);
+}
+
+/* theta at time t within interval [tk, tk + h): steps at sample boundaries, ramps continuous */
+static void theta_at(const sim_engine *e, double t, double tk, double *theta)
+{
+    memcpy(theta, e->theta0, e->p * sizeof *theta);
+    for (size_t i = 0; i < e->cfg->n_changes; i++) {
+        const sim_change *c = &e->cfg->changes[i];
+        double prev = theta[c->param];
+        if (c->ramp <= 0.0) {
+            /* first sample boundary >= at, with a tolerance for at = k h written in decimal */
+            if (tk >= c->at - 1e-9 * e->h) theta[c->param] = c->value;
+        } else if (t >= c->at + c->ramp) {
+            theta[c->param] = c->value;
+        } else if (t > c->at) {
+            theta[c->param] = prev + (c->value - prev) * (t - c->at) / c->ramp;
+        }
+    }
+}
+
+/* Gauss-Jordan inverse with partial pivoting of the n x n column-major A (destroyed). */
+static int invert(size_t n, double *A, double *Ainv)
+{
+    for (size_t i = 0; i < n * n; i++) Ainv[i] = 0.0;
+    for (size_t i = 0; i < n; i++) Ainv[i + i * n] = 1.0;
+    for (size_t c = 0; c < n; c++) {
+        size_t piv = c;
+        for (size_t i = c + 1; i < n; i++)
+            if (fabs(A[i + c * n]) > fabs(A[piv + c * n])) piv = i;
+        if (!(fabs(A[piv + c * n]) > 0.0)) return -1;
+        if (piv != c)
+            for (size_t j = 0; j < n; j++) {
+                double t = A[c + j * n]; A[c + j * n] = A[piv + j * n]; A[piv + j * n] = t;
+                t = Ainv[c + j * n]; Ainv[c + j * n] = Ainv[piv + j * n]; Ainv[piv + j * n] = t;
+            }
+        double d = A[c + c * n];
+        for (size_t j = 0; j < n; j++) { A[c + j * n] /= d; Ainv[c + j * n] /= d; }
+        for (size_t i = 0; i < n; i++) {
+            if (i == c) continue;
+            double m = A[i + c * n];
+            if (m == 0.0) continue;
+            for (size_t j = 0; j < n; j++) { A[i + j * n] -= m * A[c + j * n]; Ainv[i + j * n] -= m * Ainv[c + j * n]; }
+        }
+    }
+    return 0;
+}
+
+static int refresh_mass(sim_engine *e, const double *theta)
+{
+    size_t n = e->n;
+    if (vibid_model_assemble(e->model, theta, e->M, NULL, NULL, NULL, NULL, NULL) != VIBID_OK) {
+        set_err(e, "assembling M failed: %s", vibid_last_error());
+        return -1;
+    }
+    e->diag = 1;
+    for (size_t j = 0; j < n; j++)
+        for (size_t i = 0; i < n; i++)
+            if (i != j && e->M[i + j * n] != 0.0) e->diag = 0;
+    if (e->diag) {
+        for (size_t i = 0; i < n; i++) {
+            if (!(e->M[i + i * n] > 0.0)) {
+                set_err(e, "mass of node %zu is %g: must be > 0 for simulation (give true_value)", i, e->M[i + i * n]);
+                return -1;
+            }
+            e->Minv[i] = 1.0 / e->M[i + i * n];
+        }
+        return 0;
+    }
+    memcpy(e->work, e->M, n * n * sizeof *e->work);
+    if (invert(n, e->work, e->Minv)) {
+        set_err(e, "mass matrix is singular at the true values");
+        return -1;
+    }
+    return 0;
+}
+
+/* xdot = [y'; M^-1 f(y, y', s, s', u, theta(t))] */
+static int rhs(sunrealtype t, N_Vector x, N_Vector xdot, void *user)
+{
+    sim_engine *e = user;
+    size_t n = e->n;
+    const double *y = N_VGetArrayPointer(x);
+    double *yd = N_VGetArrayPointer(xdot);
+    double base[2] = {0.0, 0.0};
+    if (e->base_exc) sim_exc_eval(e->base_exc, t, &base[0], &base[1]);
+    for (size_t j = 0; j < e->r; j++) {
+        double dv;
+        e->u[j] = 0.0;
+        if (e->in_exc[j]) sim_exc_eval(e->in_exc[j], t, &e->u[j], &dv);
+    }
+    const double *theta = e->theta_k;
+    if (e->ramp_in_interval) {
+        theta_at(e, t, e->tk, e->theta);
+        theta = e->theta;
+    }
+    if (vibid_model_forces(e->model, theta, y, y + n, e->has_base ? base : NULL, e->r ? e->u : NULL, e->f) != VIBID_OK)
+        return -1;
+    memcpy(yd, y + n, n * sizeof *yd);
+    if (e->diag) {
+        for (size_t i = 0; i < n; i++) yd[n + i] = e->Minv[i] * e->f[i];
+    } else {
+        for (size_t i = 0; i < n; i++) {
+            double a = 0.0;
+            for (size_t j = 0; j < n; j++) a += e->Minv[i + j * n] * e->f[j];
+            yd[n + i] = a;
+        }
+    }
+    return 0;
+}
+
+sim_engine *sim_engine_create_internal(const vibid_stand *stand, const sim_config *cfg, int with_noise, char *err,
+                                       size_t errlen);
+
+sim_engine *sim_engine_create(const vibid_stand *stand, const sim_config *cfg, char *err, size_t errlen)
+{
+    return sim_engine_create_internal(stand, cfg, 1, err, errlen);
+}
+
+#define CFAIL(...) do { set_err(e, __VA_ARGS__); goto fail; } while (0)
+
+sim_engine *sim_engine_create_internal(const vibid_stand *stand, const sim_config *cfg, int with_noise, char *err,
+                                       size_t errlen)
+{
+    sim_engine *e = calloc(1, sizeof *e);
+    if (!e) {
+        if (err && errlen) snprintf(err, errlen, "out of memory");
+        return NULL;
+    }
+    e->stand = stand;
+    e->cfg = cfg;
+    e->model = vibid_stand_model(stand);
+    vibid_model_dims d;
+    if (vibid_model_get_dims(e->model, &d) != VIBID_OK) CFAIL("model: %s", vibid_last_error());
+    e->n = d.n_dof;
+    e->r = d.n_inputs;
+    e->p = d.n_params;
+    e->nch = d.n_channels;
+    e->has_base = d.has_base;
+    e->h = 1.0 / vibid_stand_sample_rate(stand);
+    size_t n = e->n;
+    if (e->nch > SIM_MAX_CHANNELS) CFAIL("%zu channels, at most %d", e->nch, SIM_MAX_CHANNELS);
+
+    e->theta0 = calloc(e->p + 1, sizeof(double));
+    e->theta = calloc(e->p + 1, sizeof(double));
+    e->theta_k = calloc(e->p + 1, sizeof(double));
+    e->M = calloc(n * n, sizeof(double));
+    e->Minv = calloc(n * n, sizeof(double));
+    e->work = calloc(n * n, sizeof(double));
+    e->u = calloc(e->r + 1, sizeof(double));
+    e->f = calloc(n, sizeof(double));
+    e->in_exc = calloc(e->r + 1, sizeof(sim_exc *));
+    e->ch = calloc(e->nch + 1, sizeof *e->ch);
+    e->noise_std = calloc(e->nch + 1, sizeof(double));
+    e->resolution = calloc(e->nch + 1, sizeof(double));
+    if (!e->theta0 || !e->theta || !e->theta_k || !e->M || !e->Minv || !e->work || !e->u || !e->f || !e->in_exc ||
+        !e->ch || !e->noise_std || !e->resolution)
+        CFAIL("out of memory");
+    if (e->p) memcpy(e->theta0, vibid_stand_true_values(stand), e->p * sizeof(double));
+    for (size_t i = 0; i < e->p; i++) {
+        vibid_param_info pi;
+        vibid_model_param_info(e->model, i, &pi);
+        if (!isfinite(e->theta0[i])) CFAIL("parameter %s: true value not finite", pi.name);
+        for (size_t c = 0; c < cfg->n_changes; c++)
+            if (cfg->changes[c].param == i && pi.kind == VIBID_PARAM_MASS) e->mass_changes = 1;
+    }
+    for (size_t i = 0; i < e->nch; i++) vibid_model_channel_info(e->model, i, &e->ch[i]);
+
+    char xerr[256];
+    for (size_t i = 0; i < cfg->n_targets; i++) {
+        const sim_exc_target *t = &cfg->targets[i];
+        sim_exc *x = sim_exc_create(t->specs, t->n, e->h, cfg->smooth, xerr, sizeof xerr);
+        if (!x) CFAIL("%s: simulation.excitation (target %s): %s", cfg->file, t->is_base ? "base" : "input", xerr);
+        if (t->is_base) e->base_exc = x;
+        else e->in_exc[t->input] = x;
+    }
+
+    theta_at(e, 0.0, 0.0, e->theta_k);
+    if (refresh_mass(e, e->theta_k)) goto fail;
+
+    if (SUNContext_Create(NULL, &e->sunctx)) CFAIL("SUNContext_Create failed");
+    e->y = N_VNew_Serial((sunindextype)(2 * n), e->sunctx);
+    if (!e->y) CFAIL("N_VNew_Serial failed");
+    N_VConst(0.0, e->y); /* the stand starts at rest in its unloaded position */
+    e->ark = ERKStepCreate(rhs, 0.0, e->y, e->sunctx);
+    if (!e->ark) CFAIL("ERKStepCreate failed");
+    if (ERKStepSetUserData(e->ark, e) || ERKStepSStolerances(e->ark, cfg->rtol, cfg->atol) ||
+        ERKStepSetTableNum(e->ark, cfg->method == 1 ? ARKODE_DORMAND_PRINCE_7_4_5 : ARKODE_FEHLBERG_13_7_8) || ERKStepSetMaxNumSteps(e->ark, 1000000) ||
+        ERKStepSetMaxStep(e->ark, e->h))
+        CFAIL("ERKStep options rejected");
+    e->hnext = 0.0;
+
+    sim_rng_seed(&e->noise_rng, cfg->seed ^ 0x6E6F697365ull);
+    int need_pilot = 0;
+    for (size_t i = 0; with_noise && i < cfg->n_noise; i++) {
+        const sim_noise_spec *ns = &cfg->noise[i];
+        e->resolution[ns->channel] = ns->resolution;
+        if (isnan(ns->snr_db)) e->noise_std[ns->channel] = ns->std;
+        else need_pilot = 1;
+    }
+    if (need_pilot) {
+        /* SNR: noise std from the RMS of the clean signal over a pilot run of the first
+         * min(duration, 2 s) (deterministic: same excitation, no noise) */
+        sim_engine *pe = sim_engine_create_internal(stand, cfg, 0, xerr, sizeof xerr);
+        if (!pe) CFAIL("SNR pilot run: %s", xerr);
+        double dur = cfg->duration > 0 ? fmin(cfg->duration, 2.0) : 2.0;
+        uint64_t ns = (uint64_t)ceil(dur / e->h);
+        if (ns < 2) ns = 2;
+        double *sum = calloc(e->nch, sizeof(double)), *v = calloc(e->nch, sizeof(double));
+        int bad = !sum || !v;
+        for (uint64_t s = 0; s < ns && !bad; s++) {
+            uint64_t kk;
+            double tt;
+            if (sim_engine_next(pe, &kk, &tt, v, NULL)) bad = 2;
+            for (size_t c = 0; c < e->nch && !bad; c++) sum[c] += v[c] * v[c];
+        }
+        if (bad == 2) snprintf(xerr, sizeof xerr, "%s", sim_engine_error(pe));
+        for (size_t i = 0; !bad && i < cfg->n_noise; i++) {
+            const sim_noise_spec *nsp = &cfg->noise[i];
+            if (isnan(nsp->snr_db)) continue;
+            double rms = sqrt(sum[nsp->channel] / (double)ns);
+            e->noise_std[nsp->channel] = rms / pow(10.0, nsp->snr_db / 20.0);
+        }
+        free(sum);
+        free(v);
+        sim_engine_destroy(pe);
+        if (bad == 1) CFAIL("out of memory");
+        if (bad == 2) CFAIL("SNR pilot run: %s", xerr);
+    }
+    e->k = 0;
+    return e;
+fail:
+    if (err && errlen) snprintf(err, errlen, "%s", e->err);
+    sim_engine_destroy(e);
+    return NULL;
+}
+
+void sim_engine_destroy(sim_engine *e)
+{
+    if (!e) return;
+    if (e->ark) ERKStepFree(&e->ark);
+    if (e->y) N_VDestroy(e->y);
+    if (e->sunctx) SUNContext_Free(&e->sunctx);
+    sim_exc_destroy(e->base_exc);
+    for (size_t j = 0; e->in_exc && j < e->r; j++) sim_exc_destroy(e->in_exc[j]);
+    free(e->in_exc);
+    free(e->theta0);
+    free(e->theta);
+    free(e->theta_k);
+    free(e->M);
+    free(e->Minv);
+    free(e->work);
+    free(e->u);
+    free(e->f);
+    free(e->ch);
+    free(e->noise_std);
+    free(e->resolution);
+    free(e);
+}
+
+size_t sim_engine_channels(const sim_engine *e) { return e->nch; }
+double sim_engine_period(const sim_engine *e) { return e->h; }
+double sim_engine_noise_std(const sim_engine *e, size_t c) { return c < e->nch ? e->noise_std[c] : 0.0; }
+const char *sim_engine_error(const sim_engine *e) { return e->err; }
+double sim_engine_param(const sim_engine *e, size_t i) { return i < e->p ? e->theta_k[i] : NAN; }
+
+void sim_engine_stats_get(const sim_engine *e, sim_engine_stats *s)
+{
+    s->steps = s->rhs_evals = 0;
+    ERKStepGetNumSteps(e->ark, &s->steps);
+    ERKStepGetNumRhsEvals(e->ark, &s->rhs_evals);
+}
+
+int sim_engine_next(sim_engine *e, uint64_t *kout, double *tout, double *values, double *clean)
+{
+    size_t n = e->n;
+    uint64_t k = e->k;
+    double tk = (double)k * e->h, tk1 = (double)(k + 1) * e->h;
+    e->tk = tk;
+    /* inputs of this interval */
+    if (e->base_exc) sim_exc_begin_sample(e->base_exc, k);
+    for (size_t j = 0; j < e->r; j++)
+        if (e->in_exc[j]) sim_exc_begin_sample(e->in_exc[j], k);
+    /* parameters of this interval */
+    int mass_changed = 0;
+    theta_at(e, tk, tk, e->theta);
+    for (size_t i = 0; i < e->p; i++)
+        if (e->theta[i] != e->theta_k[i]) mass_changed = 1;
+    memcpy(e->theta_k, e->theta, e->p * sizeof(double));
+    e->ramp_in_interval = 0;
+    for (size_t i = 0; i < e->cfg->n_changes; i++) {
+        const sim_change *c = &e->cfg->changes[i];
+        if (c->ramp > 0.0 && c->at < tk1 && c->at + c->ramp > tk) e->ramp_in_interval = 1;
+    }
+    if (e->mass_changes && mass_changed && refresh_mass(e, e->theta_k)) return -1;
+
+    /* the sample: state at t_k and inputs u_k */
+    const double *x = N_VGetArrayPointer(e->y);
+    double acc[256];
+    int need_acc = 0;
+    for (size_t c = 0; c < e->nch; c++)
+        if (e->ch[c].kind == VIBID_CHANNEL_ACCELERATION && e->ch[c].index != VIBID_BASE) need_acc = 1;
+    if (need_acc) {
+        /* accelerations at t_k+ (with the new input), from the equations of motion */
+        N_Vector tmp = N_VClone(e->y);
+        if (!tmp) { set_err(e, "out of memory"); return -1; }
+        int rc = rhs(tk, e->y, tmp, e);
+        const double *xd = N_VGetArrayPointer(tmp);
+        for (size_t i = 0; i < n && i < 256; i++) acc[i] = xd[n + i];
+        N_VDestroy(tmp);
+        if (rc) { set_err(e, "force evaluation failed at t = %g: %s", tk, vibid_last_error()); return -1; }
+    }
+    double s = 0, sd = 0, sdd = 0;
+    if (e->base_exc) {
+        s = sim_exc_sample_value(e->base_exc);
+        double v0, d0;
+        sim_exc_eval(e->base_exc, tk, &v0, &d0);
+        sd = d0;
+        if (e->cfg->smooth) {
+            double dl = e->h * 1e-3, v1, d1;
+            sim_exc_eval(e->base_exc, tk + dl, &v1, &d1);
+            sdd = (d1 - d0) / dl;
+        }
+    }
+    for (size_t c = 0; c < e->nch; c++) {
+        const vibid_channel_info *ci = &e->ch[c];
+        double v = 0.0;
+        int base = ci->index == VIBID_BASE;
+        switch (ci->kind) {
+        case VIBID_CHANNEL_DISPLACEMENT: v = base ? s : x[ci->index]; break;
+        case VIBID_CHANNEL_VELOCITY: v = base ? sd : x[n + ci->index]; break;
+        case VIBID_CHANNEL_ACCELERATION: v = base ? sdd : (ci->index < 256 ? acc[ci->index] : NAN); break;
+        case VIBID_CHANNEL_INPUT: v = e->in_exc[ci->index] ? sim_exc_sample_value(e->in_exc[ci->index]) : 0.0; break;
+        }
+        if (clean) clean[c] = v;
+        if (e->noise_std[c] > 0.0) v += e->noise_std[c] * sim_rng_normal(&e->noise_rng);
+        if (e->resolution[c] > 0.0) v = nearbyint(v / e->resolution[c]) * e->resolution[c];
+        values[c] = v;
+    }
+    *kout = k;
+    *tout = tk;
+
+    /* integrate over [t_k, t_{k+1}], restarted at t_k (the input jumped) */
+    if (k > 0 || e->hnext > 0) {
+        if (e->hnext > 0) ERKStepSetInitStep(e->ark, e->hnext);
+        if (ERKStepReset(e->ark, tk, e->y)) { set_err(e, "ERKStepReset failed at t = %g", tk); return -1; }
+    }
+    ERKStepSetStopTime(e->ark, tk1);
+    sunrealtype tret = tk;
+    int flag = ERKStepEvolve(e->ark, tk1, e->y, &tret, ARK_NORMAL);
+    if (flag < 0) {
+        set_err(e, "ARKODE ERKStepEvolve failed with flag %d (%s) between t = %g and %g s", flag,
+                ERKStepGetReturnFlagName(flag), tk, tk1);
+        return -1;
+    }
+    for (size_t i = 0; i < 2 * n; i++)
+        if (!isfinite(N_VGetArrayPointer(e->y)[i])) {
+            set_err(e, "state not finite at t = %g s (unstable stand or too large excitation?)", tk1);
+            return -1;
+        }
+    sunrealtype hc = 0;
+    ERKStepGetCurrentStep(e->ark, &hc);
+    e->hnext = hc > 0 ? fmin(hc, e->h) : e->h;
+    e->k = k + 1;
+    return 0;
+}

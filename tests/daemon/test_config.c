@@ -1,0 +1,214 @@
+/* Unit tests of the configuration reader: every error names file, line and field;
+ * defaults are filled in; the printed effective configuration reads back identically. */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <cmocka.h>
+
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+#include "config.h"
+
+static char dir[256];
+
+static const char *write_cfg(const char *name, const char *text)
+{
+    static char path[512];
+    snprintf(path, sizeof path, "%s/%s", dir, name);
+    FILE *f = fopen(path, "w");
+    assert_non_null(f);
+    fputs(text, f);
+    fclose(f);
+    return path;
+}
+
+#define STAND "stand = \"" VD_SOURCE_DIR "/examples/stands/paper_example1.cfg\";\n"
+#define SOURCE                                                                                                         \
+    "source = {\n"                                                                                                     \
+    "  kind = \"replay\";\n"                                                                                           \
+    "  file = \"cap.csv\";\n"                                                                                          \
+    "  time_column = \"t\";\n"                                                                                         \
+    "  channels = (\n"                                                                                                 \
+    "    { name = \"x1\"; quantity = \"displacement\"; node = 0; column = \"x1\"; },\n"                                \
+    "    { name = \"x2\"; quantity = \"displacement\"; node = 1; column = \"x2\"; },\n"                                \
+    "    { name = \"s\"; quantity = \"base_displacement\"; node = 0; column = \"s\"; }\n"                              \
+    "  );\n"                                                                                                           \
+    "};\n"
+/* STAND is line 1, SOURCE lines 2..11; a directive added after them is on line 12. */
+
+static void expect_error(const char *name, const char *text, const char *want_prefix, const char *want_sub)
+{
+    const char *path = write_cfg(name, text);
+    vd_config cfg;
+    vd_config_error err;
+    int rc = vd_config_load(path, &cfg, &err);
+    if (rc == 0)
+        vd_config_free(&cfg);
+    assert_int_equal(rc, -1);
+    char prefix[600];
+    snprintf(prefix, sizeof prefix, "%s%s", path, want_prefix);
+    if (strncmp(err.text, prefix, strlen(prefix)) != 0 || !strstr(err.text, want_sub)) {
+        print_error("got: %s\nwant prefix: %s\nwant substring: %s\n", err.text, prefix, want_sub);
+        fail();
+    }
+}
+
+static void test_syntax_error(void **state)
+{
+    (void)state;
+    expect_error("syntax.cfg", STAND "source = {\n kind = \"replay\";\n file = ; };\n", ":4: syntax error", "syntax error");
+}
+
+static void test_range_error(void **state)
+{
+    (void)state;
+    expect_error("range.cfg", STAND SOURCE "estimator = { forgetting = 1.5; };\n", ":12: estimator.forgetting:",
+                 "1.5 outside [0.9, 1]");
+    expect_error("range2.cfg", STAND SOURCE "estimator = {\n  decimation = 0;\n};\n", ":13: estimator.decimation:",
+                 "0 outside [1, 10000000]");
+    expect_error("range3.cfg", STAND SOURCE "estimator = { prefilter_hz = 2000.0; };\n",
+                 ":12: estimator.prefilter_hz:", "outside [0, 900]");
+}
+
+static void test_type_error(void **state)
+{
+    (void)state;
+    expect_error("type.cfg", STAND SOURCE "acquisition = { lock_memory = 1; };\n", ":12: acquisition.lock_memory:",
+                 "true or false");
+    expect_error("type2.cfg", STAND SOURCE "estimator = { method = \"kalman\"; };\n", ":12: estimator.method:",
+                 "'kalman' is not one of ls, iv, rls");
+}
+
+static void test_unknown_directive(void **state)
+{
+    (void)state;
+    expect_error("unknown.cfg", STAND SOURCE "estimator = { forgeting = 0.99; };\n", ":12: estimator.forgeting:",
+                 "unknown directive");
+    expect_error("unknown2.cfg", STAND SOURCE "output = { };\n", ":12: output:", "unknown directive");
+}
+
+static void test_ring_power_of_two(void **state)
+{
+    (void)state;
+    expect_error("ring.cfg", STAND SOURCE "acquisition = { ring_size = 1000; };\n", ":12: acquisition.ring_size:",
+                 "not a power of two");
+}
+
+static void test_missing_parts(void **state)
+{
+    (void)state;
+    /* nothing to point at: file and field, no line */
+    expect_error("nosrc.cfg", STAND, ": source:", "missing");
+    expect_error("nostand.cfg", SOURCE, ": stand:", "missing");
+    expect_error("nokind.cfg", STAND "source = { file = \"x.csv\"; };\n", ":2: source.kind:", "missing");
+}
+
+static void test_stand_errors(void **state)
+{
+    (void)state;
+    /* a stand file that does not exist: the message names it and where it was referenced */
+    const char *path = write_cfg("badstand.cfg", "stand = \"/nonexistent/stand.cfg\";\n" SOURCE);
+    vd_config cfg;
+    vd_config_error err;
+    assert_int_equal(vd_config_load(path, &cfg, &err), -1);
+    assert_non_null(strstr(err.text, "/nonexistent/stand.cfg"));
+    assert_non_null(strstr(err.text, "badstand.cfg:1"));
+    /* an inline stand with a bad element kind: the loader's file:line:field */
+    expect_error("inline.cfg",
+                 "stand = {\n sample_rate = 1000.0;\n nodes = ( { name = \"m1\"; mass = 1.0; measure = { displacement "
+                 "= \"x1\"; }; } );\n elements = ( { name = \"c\"; kind = \"sprung\"; between = [\"m1\", \"ground\"]; "
+                 "unknown = true; } );\n};\n" SOURCE,
+                 ":4: stand.elements.[0].kind", "sprung");
+}
+
+static void test_channel_missing(void **state)
+{
+    (void)state;
+    expect_error("chan.cfg",
+                 STAND "source = {\n  kind = \"replay\";\n  file = \"cap.csv\";\n  time_column = \"t\";\n"
+                       "  channels = (\n    { name = \"x1\"; quantity = \"displacement\"; node = 0; column = \"x1\"; }\n"
+                       "  );\n};\n",
+                 ":6: source.channels:", "needs channel 'x2'");
+}
+
+static void test_alarm_param(void **state)
+{
+    (void)state;
+    expect_error("alarm.cfg", STAND SOURCE "alarms = {\n parameters = ( { name = \"c3\"; } );\n};\n",
+                 ":13: alarms.parameters.[0].name:", "'c3' is not an unknown parameter");
+}
+
+static void test_modbus_url(void **state)
+{
+    (void)state;
+    expect_error("url.cfg",
+                 STAND "source = {\n kind = \"modbus\";\n url = \"tcp://127.0.0.1:99999\";\n"
+                       " registers = ( { name = \"x1\"; address = 0; type = \"FLOAT32\"; } );\n"
+                       " channels = ( { name = \"x1\"; quantity = \"displacement\"; node = 0; register = \"x1\"; },\n"
+                       "   { name = \"x2\"; quantity = \"displacement\"; node = 1; register = \"x2\"; },\n"
+                       "   { name = \"s\"; quantity = \"base_displacement\"; node = 0; register = \"s\"; } );\n};\n",
+                 ":4: source.url:", "port '99999' outside 1..65535");
+}
+
+static void test_defaults_and_roundtrip(void **state)
+{
+    (void)state;
+    const char *path = write_cfg("ok.cfg", STAND SOURCE);
+    vd_config cfg;
+    vd_config_error err;
+    assert_int_equal(vd_config_load(path, &cfg, &err), 0);
+    assert_int_equal(cfg.source_kind, VD_SRC_REPLAY);
+    assert_int_equal(cfg.method, VIBID_ESTIMATOR_RLS);
+    assert_int_equal(cfg.decimation, 200); /* f_a / 10 at 2 kHz */
+    assert_int_equal(cfg.ring_size, 65536);
+    assert_true(cfg.forgetting == 1.0);
+    assert_int_equal(cfg.n_params, 3);
+    assert_int_equal(cfg.n_modes, 2);
+    assert_false(cfg.alarms_enabled); /* no alarms group */
+    char expect_file[600];
+    snprintf(expect_file, sizeof expect_file, "%s/cap.csv", dir);
+    assert_string_equal(cfg.replay_file, expect_file);
+    /* the printout is a configuration that loads to the same printout */
+    char *p1 = NULL, *p2 = NULL;
+    size_t n1 = 0, n2 = 0;
+    FILE *o = open_memstream(&p1, &n1);
+    vd_config_print(&cfg, o);
+    fclose(o);
+    vd_config_free(&cfg);
+    const char *path2 = write_cfg("printed.cfg", p1);
+    assert_int_equal(vd_config_load(path2, &cfg, &err), 0);
+    o = open_memstream(&p2, &n2);
+    vd_config_print(&cfg, o);
+    fclose(o);
+    vd_config_free(&cfg);
+    /* identical apart from the first comment line, which names the file */
+    assert_string_equal(strchr(p1, '\n'), strchr(p2, '\n'));
+    free(p1);
+    free(p2);
+}
+
+int main(void)
+{
+    snprintf(dir, sizeof dir, "/tmp/vd_test_config_%d", (int)getpid());
+    char cmd[300];
+    snprintf(cmd, sizeof cmd, "mkdir -p %s", dir);
+    if (system(cmd) != 0)
+        return 1;
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_syntax_error),      cmocka_unit_test(test_range_error),
+        cmocka_unit_test(test_type_error),        cmocka_unit_test(test_unknown_directive),
+        cmocka_unit_test(test_ring_power_of_two), cmocka_unit_test(test_missing_parts),
+        cmocka_unit_test(test_stand_errors),      cmocka_unit_test(test_channel_missing),
+        cmocka_unit_test(test_alarm_param),       cmocka_unit_test(test_modbus_url),
+        cmocka_unit_test(test_defaults_and_roundtrip),
+    };
+    int rc = cmocka_run_group_tests(tests, NULL, NULL);
+    snprintf(cmd, sizeof cmd, "rm -rf %s", dir);
+    if (system(cmd) != 0)
+        return 1;
+    return rc;
+}

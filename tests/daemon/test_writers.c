@@ -1,0 +1,221 @@
+/* Unit tests of the output formats (writers.h): tracks CSV header and rows, InfluxDB
+ * line protocol (escaping, no NaN fields, ns timestamps), raw recording rows (exact
+ * round trip), microsecond rounding of times, and the estimator's gap handling. */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <cmocka.h>
+
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+#include "config.h"
+#include "estimator.h"
+#include "writers.h"
+
+static vd_config cfg;
+
+static int setup(void **state)
+{
+    (void)state;
+    char path[256];
+    snprintf(path, sizeof path, "/tmp/vd_test_writers_%d.cfg", (int)getpid());
+    FILE *f = fopen(path, "w");
+    fprintf(f, "stand = \"%s/examples/stands/paper_example1.cfg\";\n"
+               "source = { kind = \"replay\"; file = \"x.csv\"; time_column = \"t\";\n"
+               " channels = ( { name = \"x1\"; quantity = \"displacement\"; node = 0; column = \"x1\"; },\n"
+               "  { name = \"s\"; quantity = \"base_displacement\"; node = 0; column = \"s\"; },\n"
+               "  { name = \"x2\"; quantity = \"displacement\"; node = 1; column = \"x2\"; } ); };\n"
+               "estimator = { decimation = 10; };\n",
+            VD_SOURCE_DIR);
+    fclose(f);
+    vd_config_error err;
+    int rc = vd_config_load(path, &cfg, &err);
+    unlink(path);
+    if (rc)
+        fprintf(stderr, "%s\n", err.text);
+    return rc;
+}
+
+static int teardown(void **state)
+{
+    (void)state;
+    vd_config_free(&cfg);
+    return 0;
+}
+
+static void test_tracks_header(void **state)
+{
+    (void)state;
+    char buf[1024];
+    int n = vd_format_tracks_header(buf, sizeof buf, &cfg);
+    assert_true(n > 0);
+    assert_string_equal(buf, "time_s,index,c1,c1_se,d,d_se,c2,c2_se,f1_hz,f1_hz_se,zeta1,zeta1_se,f2_hz,f2_hz_se,"
+                             "zeta2,zeta2_se,gap_samples,flags\n");
+    assert_int_equal(vd_format_tracks_header(buf, 20, &cfg), -1); /* too small: refused, not cut */
+}
+
+static vd_row sample_row(void)
+{
+    vd_row r;
+    memset(&r, 0, sizeof r);
+    r.t_us = 1700000000123456LL;
+    r.index = 42;
+    double th[3] = {2.5e5, 300.0, 1.5e6}, se[3] = {12.5, 0.25, NAN};
+    for (int k = 0; k < 3; k++) {
+        r.theta[k] = th[k];
+        r.se[k] = se[k];
+    }
+    r.freq[0] = 22.7;
+    r.freq[1] = 48.3;
+    r.freq_se[0] = r.freq_se[1] = 0.01;
+    r.zeta[0] = 0.065;
+    r.zeta[1] = 0.0435;
+    r.zeta_se[0] = r.zeta_se[1] = 1e-4;
+    r.gap_samples = 3;
+    r.flags = VD_FLAG_GAP | VD_FLAG_ALARM;
+    return r;
+}
+
+static void test_track_row(void **state)
+{
+    (void)state;
+    vd_row r = sample_row();
+    char buf[1024];
+    assert_true(vd_format_track_row(buf, sizeof buf, &cfg, &r) > 0);
+    assert_string_equal(buf, "1700000000.123456,42,250000,12.5,300,0.25,1500000,nan,22.7,0.01,0.065,0.0001,48.3,0.01,"
+                             "0.0435,0.0001,3,GA\n");
+    r.t_us = -1500000; /* before the epoch: -1.500000 */
+    r.flags = VD_FLAG_NOEST;
+    assert_true(vd_format_track_row(buf, sizeof buf, &cfg, &r) > 0);
+    assert_true(strncmp(buf, "-1.500000,42,", 13) == 0);
+    assert_non_null(strstr(buf, ",3,E\n"));
+}
+
+static void test_influx(void **state)
+{
+    (void)state;
+    vd_row r = sample_row();
+    char buf[2048];
+    assert_true(vd_format_influx_row(buf, sizeof buf, &cfg, "stand one,a=b", &r) > 0);
+    /* tag escaping; c2_se (NaN) left out; integer fields with i; ns timestamp */
+    assert_string_equal(buf, "vibid,stand=stand\\ one\\,a\\=b c1=250000,c1_se=12.5,d=300,d_se=0.25,c2=1500000,"
+                             "f1_hz=22.7,f1_hz_se=0.01,zeta1=0.065,zeta1_se=0.0001,f2_hz=48.3,f2_hz_se=0.01,"
+                             "zeta2=0.0435,zeta2_se=0.0001,index=42i,gap_samples=3i,flags=\"GA\" "
+                             "1700000000123456000\n");
+    assert_true(vd_format_influx_alarm(buf, sizeof buf, &cfg, "s", "c2", 1, &r, 1.35e6, 1.5e6, 12.0) > 0);
+    assert_string_equal(buf, "vibid_alarm,stand=s,parameter=c2 state=\"raised\",index=42i,value=1350000,"
+                             "baseline=1500000,z=12 1700000000123456000\n");
+}
+
+static void test_recording_roundtrip(void **state)
+{
+    (void)state;
+    vibid_record rec;
+    memset(&rec, 0, sizeof rec);
+    rec.kind = VIBID_REC_SAMPLE;
+    rec.t_ns = 1700000000123456789LL; /* rounds to ...123457 us */
+    rec.n_values = 3;
+    rec.values[0] = 0.1;
+    rec.values[1] = -1.2345678901234567e-7;
+    rec.values[2] = 1.0 / 3.0;
+    char buf[512];
+    assert_true(vd_format_recording_row(buf, sizeof buf, &rec) > 0);
+    assert_true(strncmp(buf, "1700000000.123457,", 18) == 0);
+    /* every value reads back to the same double */
+    char *p = strchr(buf, ',') + 1;
+    for (int i = 0; i < 3; i++) {
+        char *end;
+        double v = strtod(p, &end);
+        assert_true(v == rec.values[i]);
+        p = end + 1;
+    }
+    char hdr[256];
+    assert_true(vd_format_recording_header(hdr, sizeof hdr, "st", 2000.0, &cfg.chanmap) > 0);
+    assert_true(strncmp(hdr, VD_RECORDING_MAGIC, strlen(VD_RECORDING_MAGIC)) == 0);
+    assert_non_null(strstr(hdr, "\nt,x1,s,x2\n"));
+}
+
+static void test_ns_to_us(void **state)
+{
+    (void)state;
+    assert_int_equal(vd_ns_to_us(1499), 1);
+    assert_int_equal(vd_ns_to_us(1500), 2);
+    assert_int_equal(vd_ns_to_us(-1499), -1);
+    assert_int_equal(vd_ns_to_us(-1501), -2);
+    assert_int_equal(vd_ns_to_us(0), 0);
+}
+
+/* Estimator: a gap restarts the difference window, is counted and flagged in the next
+ * row; rows are due every `decimation` indices, also across a gap. */
+static void test_estimator_gap(void **state)
+{
+    (void)state;
+    vd_est e;
+    char err[512];
+    assert_int_equal(vd_est_init(&e, &cfg, err, sizeof err), 0);
+    vibid_record rec;
+    memset(&rec, 0, sizeof rec);
+    rec.n_values = 3;
+    vd_row row;
+    int rows = 0;
+    uint64_t idx[8];
+    unsigned flags[8];
+    uint64_t gaps[8];
+    for (uint64_t k = 100; k < 160; k++) {
+        if (k >= 125 && k < 128) { /* 3 samples missing */
+            if (k == 125) {
+                rec.kind = VIBID_REC_GAP;
+                rec.index = 125;
+                rec.count = 3;
+                assert_int_equal(vd_est_record(&e, &rec, &row), 0);
+            }
+            continue;
+        }
+        rec.kind = VIBID_REC_SAMPLE;
+        rec.index = k;
+        rec.t_ns = (int64_t)k * 500000;
+        double t = (double)k * 5e-4;
+        rec.values[0] = 1e-3 * sin(140 * t);
+        rec.values[1] = 1e-3 * sin(31 * t);
+        rec.values[2] = 1e-3 * sin(300 * t);
+        if (vd_est_record(&e, &rec, &row)) {
+            idx[rows] = row.index;
+            flags[rows] = row.flags;
+            gaps[rows] = row.gap_samples;
+            rows++;
+        }
+    }
+    /* index relative to the first record (100): rows at 9, 19 (in time), 29 (after the gap) ... */
+    assert_int_equal(rows, 6);
+    assert_int_equal(idx[0], 9);
+    assert_int_equal(idx[1], 19);
+    assert_int_equal(idx[2], 29);
+    assert_int_equal(gaps[2], 3);
+    assert_true(flags[2] & VD_FLAG_GAP);
+    assert_int_equal(gaps[3], 0);
+    assert_false(flags[3] & VD_FLAG_GAP);
+    assert_int_equal(e.gaps, 1);
+    assert_int_equal(e.missing, 3);
+    /* an index jump without a GAP record (ring overflow) is a gap too */
+    rec.kind = VIBID_REC_SAMPLE;
+    rec.index = 170;
+    vd_est_record(&e, &rec, &row);
+    assert_int_equal(e.gaps, 2);
+    assert_int_equal(e.missing, 13);
+    vd_est_free(&e);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_tracks_header), cmocka_unit_test(test_track_row),
+        cmocka_unit_test(test_influx),        cmocka_unit_test(test_recording_roundtrip),
+        cmocka_unit_test(test_ns_to_us),      cmocka_unit_test(test_estimator_gap),
+    };
+    return cmocka_run_group_tests(tests, setup, teardown);
+}

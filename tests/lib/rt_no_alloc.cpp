@@ -1,0 +1,250 @@
+// rt_no_alloc.cpp: the per-sample functions allocate nothing.
+//
+// Linked against vibid_rtcheck (the library built with EIGEN_RUNTIME_NO_MALLOC and
+// assertions on) with -Wl,--wrap=malloc,--wrap=calloc,--wrap=realloc, so that every
+// malloc/calloc/realloc call made from the library's objects or this file goes through
+// the counters below; operator new is replaced too. Inside the armed window Eigen's own
+// check is also switched off (set_is_malloc_allowed(false)): any Eigen heap allocation
+// then fails an assertion and aborts the test. Allocations made inside the C library
+// itself (e.g. by printf) are not visible to --wrap; the library's error paths only
+// format into a fixed buffer.
+//
+// The test proves both detectors can fire: a deliberate malloc and operator new inside
+// the armed window are counted, and a forked child that allocates an Eigen matrix with
+// allocation forbidden dies of the assertion.
+
+// This file must see the same Eigen inline functions as the library objects, which
+// are compiled with assertions on (-UNDEBUG): with NDEBUG here, the linker could keep
+// this file's copy of Eigen's aligned_malloc, without the check, for the whole program.
+#undef NDEBUG
+
+#include <Eigen/Core>
+
+#include <cmath>
+#include <csignal>
+#include <cstddef>
+#include <cstdio>
+#include <cstdlib>
+#include <new>
+
+#include <fcntl.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+extern "C" {
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stdint.h>
+#include <cmocka.h>
+}
+
+#include <vibid/iv.h>
+#include <vibid/lsq.h>
+#include <vibid/rls.h>
+
+namespace {
+// Plain globals: the test is single-threaded and the hooks must not allocate.
+bool armed = false;
+std::size_t n_alloc = 0;
+
+void arm() {
+    n_alloc = 0;
+    Eigen::internal::set_is_malloc_allowed(false);
+    armed = true;
+}
+
+std::size_t disarm() {
+    armed = false;
+    Eigen::internal::set_is_malloc_allowed(true);
+    return n_alloc;
+}
+}  // namespace
+
+extern "C" {
+void *__real_malloc(std::size_t size);
+void *__real_calloc(std::size_t n, std::size_t size);
+void *__real_realloc(void *ptr, std::size_t size);
+
+void *__wrap_malloc(std::size_t size) {
+    if (armed) ++n_alloc;
+    return __real_malloc(size);
+}
+void *__wrap_calloc(std::size_t n, std::size_t size) {
+    if (armed) ++n_alloc;
+    return __real_calloc(n, size);
+}
+void *__wrap_realloc(void *ptr, std::size_t size) {
+    if (armed) ++n_alloc;
+    return __real_realloc(ptr, size);
+}
+}
+
+// operator new lives in libstdc++.so, whose malloc calls --wrap cannot see: replace it.
+void *operator new(std::size_t size) {
+    if (armed) ++n_alloc;
+    if (void *p = __real_malloc(size ? size : 1)) return p;
+    throw std::bad_alloc();
+}
+void *operator new[](std::size_t size) { return ::operator new(size); }
+void *operator new(std::size_t size, const std::nothrow_t &) noexcept {
+    if (armed) ++n_alloc;
+    return __real_malloc(size ? size : 1);
+}
+void *operator new[](std::size_t size, const std::nothrow_t &tag) noexcept { return ::operator new(size, tag); }
+void operator delete(void *p) noexcept { std::free(p); }
+void operator delete[](void *p) noexcept { std::free(p); }
+void operator delete(void *p, std::size_t) noexcept { std::free(p); }
+void operator delete[](void *p, std::size_t) noexcept { std::free(p); }
+
+namespace {
+
+vibid_rls *make_rls(vibid_rls_form form, std::size_t p, std::size_t q, std::size_t m) {
+    vibid_rls_config cfg;
+    vibid_rls_config_init(&cfg, p, q);
+    cfg.n_equations = m;
+    cfg.form = form;
+    cfg.forgetting = 0.99;
+    cfg.alpha = 1e-3;
+    cfg.windup = VIBID_RLS_WINDUP_TRACE_BOUND;
+    cfg.trace_max = static_cast<double>(p) / cfg.alpha;
+    vibid_rls *rls = vibid_rls_create(&cfg);
+    assert_non_null(rls);
+    return rls;
+}
+
+// Deterministic, well-scaled data (no RNG needed: any finite values do).
+double value(std::size_t k, std::size_t i) { return std::sin(0.37 * static_cast<double>(k) + 1.3 * static_cast<double>(i)); }
+
+void test_counters_fire(void **state) {
+    (void)state;
+    // Volatile function pointers keep the compiler from eliding the allocations.
+    void *(*volatile do_malloc)(std::size_t) = std::malloc;
+    void *(*volatile do_new)(std::size_t) = static_cast<void *(*)(std::size_t)>(&::operator new);
+    arm();
+    void *a = do_malloc(16);
+    void *b = do_new(16);
+    const std::size_t n = disarm();
+    std::free(a);
+    ::operator delete(b);
+    assert_int_equal(n, 2);
+
+    // Eigen's check: a child that allocates a matrix while forbidden must abort.
+    const pid_t pid = fork();
+    assert_true(pid >= 0);
+    if (pid == 0) {
+        const int devnull = open("/dev/null", O_WRONLY);
+        if (devnull >= 0) dup2(devnull, STDERR_FILENO);  // the assertion message is expected
+        Eigen::internal::set_is_malloc_allowed(false);
+        Eigen::MatrixXd m(64, 64);
+        m.setZero();
+        _exit(m(0, 0) == 0.0 ? 0 : 1);
+    }
+    int status = 0;
+    assert_int_equal(waitpid(pid, &status, 0), pid);
+    assert_true(WIFSIGNALED(status) && WTERMSIG(status) == SIGABRT);
+}
+
+// Every per-sample RLS function, both forms, trace bound on, equation covariance on,
+// the frozen path, the error paths, and the allocation-free configuration calls.
+void test_rls_no_alloc(void **state) {
+    (void)state;
+    const std::size_t p = 12, q = 3, m = 3;
+    const double Sigma[9] = {2.0, 0.5, 0.1, 0.5, 1.0, 0.2, 0.1, 0.2, 0.7};
+    for (vibid_rls_form form : {VIBID_RLS_FORM_BIERMAN_UD, VIBID_RLS_FORM_COVARIANCE}) {
+        vibid_rls *rls = make_rls(form, p, q, m);
+        double x[p * m], y[m * q], yhat[m * q], theta[p * q], se[p * q], P[p * p], Se[q * q], P0[p * p];
+        for (std::size_t i = 0; i < p * p; ++i) P0[i] = (i % (p + 1) == 0) ? 2.0 : 0.0;
+        vibid_rls_stats st;
+        std::size_t bad_status = 0;
+
+        arm();
+        if (vibid_rls_set_equation_covariance(rls, Sigma) != VIBID_OK) ++bad_status;
+        if (vibid_rls_set_prior(rls, nullptr, P0) != VIBID_OK) ++bad_status;
+        for (std::size_t k = 0; k < 300; ++k) {
+            for (std::size_t i = 0; i < p * m; ++i) x[i] = value(k, i);
+            // Long unexcited stretches so that the trace bound is active.
+            if (k % 100 > 50)
+                for (std::size_t i = 0; i < p * m; ++i) x[i] = 0.0;
+            for (std::size_t i = 0; i < m * q; ++i) y[i] = value(k, i + 100);
+            if (vibid_rls_set_adaptation(rls, k % 50 < 45) != VIBID_OK) ++bad_status;
+            if (vibid_rls_update(rls, x, y) != VIBID_OK) ++bad_status;
+            if (vibid_rls_predict(rls, x, yhat) != VIBID_OK) ++bad_status;
+            if (vibid_rls_theta(rls, theta) != VIBID_OK) ++bad_status;
+            if (vibid_rls_get_stats(rls, &st) != VIBID_OK) ++bad_status;
+            if (k > 20) {
+                if (vibid_rls_stderr(rls, se) != VIBID_OK) ++bad_status;
+                if (vibid_rls_residual_covariance(rls, Se) != VIBID_OK) ++bad_status;
+            }
+            if (vibid_rls_covariance(rls, P) != VIBID_OK) ++bad_status;
+        }
+        // Error paths format a message; they must not allocate either.
+        if (vibid_rls_set_adaptation(rls, 1) != VIBID_OK) ++bad_status;
+        x[0] = NAN;
+        if (vibid_rls_update(rls, x, y) != VIBID_E_NONFINITE) ++bad_status;
+        x[0] = 1e200;
+        if (vibid_rls_update(rls, x, y) != VIBID_E_NUMERICAL) ++bad_status;
+        if (vibid_rls_update(rls, nullptr, y) != VIBID_E_NULL_ARGUMENT) ++bad_status;
+        P0[0] = -1.0;
+        if (vibid_rls_set_prior(rls, nullptr, P0) != VIBID_E_NUMERICAL) ++bad_status;
+        if (vibid_rls_reset(rls) != VIBID_OK) ++bad_status;
+        if (vibid_rls_set_equation_covariance(rls, nullptr) != VIBID_OK) ++bad_status;
+        const std::size_t n = disarm();
+
+        assert_int_equal(bad_status, 0);
+        assert_int_equal(n, 0);
+        assert_true(st.n_samples == 300);
+        vibid_rls_destroy(rls);
+    }
+}
+
+// The other estimators' per-sample functions: batch LS row accumulation and recursive IV.
+void test_lsq_riv_no_alloc(void **state) {
+    (void)state;
+    const std::size_t p = 8, q = 2, rows = 16;
+    vibid_lsq *lsq = vibid_lsq_create(p, q);
+    assert_non_null(lsq);
+    vibid_riv_config cfg;
+    vibid_riv_config_init(&cfg, p, q);
+    cfg.forgetting = 0.99;
+    cfg.trace_bound = 1;
+    vibid_riv *riv = vibid_riv_create(&cfg);
+    assert_non_null(riv);
+    double X[rows * p], Y[rows * q], w[rows], x[p], wi[p], y[q], theta[p * q];
+    std::size_t bad_status = 0;
+
+    arm();
+    for (std::size_t k = 0; k < 200; ++k) {
+        for (std::size_t i = 0; i < rows * p; ++i) X[i] = value(k, i);
+        for (std::size_t i = 0; i < rows * q; ++i) Y[i] = value(k, i + 500);
+        for (std::size_t i = 0; i < rows; ++i) w[i] = 1.0 + 0.5 * value(k, i + 900);
+        if (vibid_lsq_add_rows(lsq, rows, X, Y, (k % 2) ? w : nullptr) != VIBID_OK) ++bad_status;
+        for (std::size_t i = 0; i < p; ++i) {
+            x[i] = value(k, i);
+            wi[i] = value(k, i + 7);
+        }
+        for (std::size_t i = 0; i < q; ++i) y[i] = value(k, i + 300);
+        if (vibid_riv_update(riv, x, wi, y) != VIBID_OK) ++bad_status;
+        if (vibid_riv_theta(riv, theta) != VIBID_OK) ++bad_status;
+    }
+    X[0] = NAN;
+    if (vibid_lsq_add_rows(lsq, rows, X, Y, nullptr) != VIBID_E_NONFINITE) ++bad_status;
+    x[0] = NAN;
+    if (vibid_riv_update(riv, x, wi, y) != VIBID_E_NONFINITE) ++bad_status;
+    const std::size_t n = disarm();
+
+    assert_int_equal(bad_status, 0);
+    assert_int_equal(n, 0);
+    vibid_lsq_destroy(lsq);
+    vibid_riv_destroy(riv);
+}
+
+}  // namespace
+
+int main(void) {
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_counters_fire),
+        cmocka_unit_test(test_rls_no_alloc),
+        cmocka_unit_test(test_lsq_riv_no_alloc),
+    };
+    return cmocka_run_group_tests(tests, nullptr, nullptr);
+}

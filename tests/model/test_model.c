@@ -1,0 +1,284 @@
+/* test_model.c: models, discretization, modal parameters and identification of the
+ * paper's example 1 (issue 3 targets). The stand: m1 = 10 kg, m2 = 20 kg, c1 = 2.5e5 N/m,
+ * d = 300 N s/m (m1-m2), c2 = 1.5e6 N/m (m2-base), 2 kHz, triangle base 5 Hz, 1 mm. */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <cmocka.h>
+
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <vibid/vibid.h>
+
+#ifndef M_PI
+#define M_PI 3.14159265358979323846
+#endif
+
+#include "support/example_common.h"
+#include "support/stand_sim.h"
+
+#define H (1.0 / 2000.0)
+static const double truth[3] = {2.5e5, 300.0, 1.5e6}; /* c1, d, c2 */
+
+static double *simulate(const vibid_model *m, size_t n, int hold) {
+    vibid_model_dims dims;
+    assert_int_equal(vibid_model_get_dims(m, &dims), VIBID_OK);
+    double *rec = malloc(n * dims.n_channels * sizeof(double));
+    assert_non_null(rec);
+    stand_sim_config sc = {H, n, 20, hold, 1e-3, 5.0, 0.0, 0.0};
+    assert_int_equal(stand_sim_run(m, NULL, &sc, rec), 0);
+    return rec;
+}
+
+static void estimate(const vibid_model *m, vibid_estimator est, double pf, size_t lag, const double *rec, size_t n,
+                     double *theta) {
+    vibid_ident_config cfg;
+    vibid_ident_config_init(&cfg, H);
+    cfg.estimator = est;
+    cfg.prefilter_hz = pf;
+    if (lag) cfg.iv_lag = lag;
+    vibid_ident *id = vibid_ident_create(m, &cfg);
+    if (!id) fail_msg("ident_create: %s", vibid_last_error());
+    assert_int_equal(vibid_ident_push_block(id, n, rec), VIBID_OK);
+    double se[3];
+    vibid_status s = vibid_ident_estimate(id, theta, se, NULL);
+    if (s != VIBID_OK) fail_msg("estimate: %s", vibid_last_error());
+    vibid_ident_destroy(id);
+}
+
+/* Noise-free, base held over each interval: the difference form (1.16) is exact, so
+ * ZOH + LS must return the truth up to rounding and the RK4 error (~1e-9); 1e-4 is the
+ * issue's target. */
+static void test_zoh_noise_free(void **state) {
+    (void)state;
+    vibid_model *m = example_two_mass_model(10, 20, 2.5e5, 300, 1.5e6, 0, VIBID_DISC_ZOH);
+    assert_non_null(m);
+    double *rec = simulate(m, 4000, 1);
+    double th[3];
+    estimate(m, VIBID_ESTIMATOR_LS, 0.0, 0, rec, 4000, th);
+    for (int i = 0; i < 3; ++i) {
+        double rel = fabs(th[i] - truth[i]) / truth[i];
+        printf("  zoh noise-free: param %d = %.9g (rel err %.2e)\n", i, th[i], rel);
+        assert_true(rel < 1e-4);
+    }
+    free(rec);
+    vibid_model_destroy(m);
+}
+
+/* Noise-free, continuous triangle: central differences carry an O((omega h)^2 / 12)
+ * bias, 0.2 % at the 48 Hz mode and 2 kHz; the issue's bound is 1 %. */
+static void test_central_difference_noise_free(void **state) {
+    (void)state;
+    vibid_model *m = example_two_mass_model(10, 20, 2.5e5, 300, 1.5e6, 0, VIBID_DISC_CENTRAL_DIFFERENCE);
+    double *rec = simulate(m, 4000, 0);
+    double th[3];
+    estimate(m, VIBID_ESTIMATOR_LS, 0.0, 0, rec, 4000, th);
+    for (int i = 0; i < 3; ++i) {
+        double rel = fabs(th[i] - truth[i]) / truth[i];
+        printf("  cd noise-free: param %d = %.9g (rel err %.2e)\n", i, th[i], rel);
+        assert_true(rel < 0.01);
+    }
+    free(rec);
+    vibid_model_destroy(m);
+}
+
+/* 1 % of RMS white noise on x1, x2, s; N = 20,000; 50 realisations (one simulation, 50
+ * noise draws: the noise is what varies). Best offered estimator: central differences with
+ * the 150 Hz pre-filter and LS. Targets (issue 3): mean absolute relative error < 2 % on
+ * c1, c2 and < 10 % on d. */
+static void test_noisy_monte_carlo(void **state) {
+    (void)state;
+    const size_t n = 20000, runs = 50;
+    vibid_model *m = example_two_mass_model(10, 20, 2.5e5, 300, 1.5e6, 0, VIBID_DISC_CENTRAL_DIFFERENCE);
+    double *clean = simulate(m, n, 0);
+    double *rec = malloc(n * 3 * sizeof(double));
+    double mare[3] = {0, 0, 0};
+    uint64_t seed = 12345;
+    for (size_t k = 0; k < runs; ++k) {
+        memcpy(rec, clean, n * 3 * sizeof(double));
+        stand_sim_add_noise(rec, n, 3, 0.01, &seed);
+        double th[3];
+        estimate(m, VIBID_ESTIMATOR_LS, 150.0, 0, rec, n, th);
+        for (int i = 0; i < 3; ++i) mare[i] += fabs(th[i] - truth[i]) / truth[i] / (double)runs;
+    }
+    printf("  noisy MC (%zu runs): mean abs rel err c1 %.3f %%, d %.3f %%, c2 %.3f %%\n", runs, 100 * mare[0],
+           100 * mare[1], 100 * mare[2]);
+    assert_true(mare[0] < 0.02);
+    assert_true(mare[2] < 0.02);
+    assert_true(mare[1] < 0.10);
+    free(rec);
+    free(clean);
+    vibid_model_destroy(m);
+}
+
+/* ---- rejections: each names the item ---- */
+static void expect_error(vibid_status got, vibid_status want, const char *needle) {
+    assert_int_equal(got, want);
+    if (!strstr(vibid_last_error(), needle)) fail_msg("message '%s' lacks '%s'", vibid_last_error(), needle);
+}
+
+static void test_bad_input(void **state) {
+    (void)state;
+    vibid_model *m = vibid_model_create();
+    size_t a, b;
+    expect_error(vibid_model_add_node(m, "m1", -1.0, 0, &a), VIBID_E_OUT_OF_RANGE, "m1");
+    assert_int_equal(vibid_model_add_node(m, "m1", 1.0, 0, &a), VIBID_OK);
+    expect_error(vibid_model_add_element(m, "k9", VIBID_ELEMENT_SPRING, a, 7, 1.0, 1), VIBID_E_OUT_OF_RANGE, "k9");
+    expect_error(vibid_model_add_node(m, "m1", 1.0, 0, &b), VIBID_E_OUT_OF_RANGE, "m1");
+    assert_int_equal(vibid_model_add_element(m, "k1", VIBID_ELEMENT_SPRING, a, VIBID_GROUND, 100.0, 0), VIBID_OK);
+    assert_int_equal(vibid_model_add_input(m, "f", a, 1.0, 0, NULL), VIBID_OK);
+    assert_int_equal(vibid_model_set_measured(m, a, VIBID_MEASURE_DISPLACEMENT), VIBID_OK);
+    assert_int_equal(vibid_model_finalize(m), VIBID_OK);
+    /* nothing unknown: fine for simulation, refused for identification */
+    expect_error(vibid_model_check_identifiable(m, NULL), VIBID_E_OUT_OF_RANGE, "nothing unknown");
+    vibid_model_destroy(m);
+
+    /* channels missing: a damper needs a velocity, only acceleration is measured */
+    m = vibid_model_create();
+    vibid_model_add_node(m, "m1", 1.0, 0, &a);
+    vibid_model_add_element(m, "dd", VIBID_ELEMENT_DAMPER, a, VIBID_GROUND, 1.0, 1);
+    vibid_model_add_element(m, "kk", VIBID_ELEMENT_SPRING, a, VIBID_GROUND, 1.0, 1);
+    vibid_model_add_input(m, "f", a, 1.0, 0, NULL);
+    vibid_model_set_measured(m, a, VIBID_MEASURE_ACCELERATION);
+    assert_int_equal(vibid_model_finalize(m), VIBID_OK);
+    expect_error(vibid_model_check_identifiable(m, NULL), VIBID_E_DIMENSION, "m1");
+    vibid_model_destroy(m);
+
+    /* two unknown springs in parallel cannot be separated: both named */
+    m = vibid_model_create();
+    vibid_model_add_node(m, "m1", 1.0, 0, &a);
+    vibid_model_add_element(m, "ka", VIBID_ELEMENT_SPRING, a, VIBID_GROUND, 1.0, 1);
+    vibid_model_add_element(m, "kb", VIBID_ELEMENT_SPRING, a, VIBID_GROUND, 1.0, 1);
+    vibid_model_add_input(m, "f", a, 1.0, 0, NULL);
+    vibid_model_set_measured(m, a, VIBID_MEASURE_DISPLACEMENT);
+    assert_int_equal(vibid_model_finalize(m), VIBID_OK);
+    expect_error(vibid_model_check_identifiable(m, NULL), VIBID_E_NOT_IDENTIFIABLE, "ka, kb");
+    vibid_ident_config cfg;
+    vibid_ident_config_init(&cfg, H);
+    assert_null(vibid_ident_create(m, &cfg)); /* refused before any sample */
+    vibid_model_destroy(m);
+
+    /* no excitation at all: not controllable */
+    m = vibid_model_create();
+    vibid_model_add_node(m, "m1", 1.0, 0, &a);
+    vibid_model_add_element(m, "k", VIBID_ELEMENT_SPRING, a, VIBID_GROUND, 1.0, 1);
+    vibid_model_set_measured(m, a, VIBID_MEASURE_DISPLACEMENT);
+    assert_int_equal(vibid_model_finalize(m), VIBID_OK);
+    expect_error(vibid_model_check_identifiable(m, NULL), VIBID_E_NOT_IDENTIFIABLE, "excit");
+    vibid_model_destroy(m);
+
+    /* a node nothing touches */
+    m = vibid_model_create();
+    vibid_model_add_node(m, "m1", 1.0, 0, &a);
+    vibid_model_add_node(m, "lonely", 1.0, 0, &b);
+    vibid_model_add_element(m, "k", VIBID_ELEMENT_SPRING, a, VIBID_GROUND, 1.0, 1);
+    expect_error(vibid_model_finalize(m), VIBID_E_OUT_OF_RANGE, "lonely");
+    vibid_model_destroy(m);
+}
+
+/* One DOF: f = sqrt(c/m) / 2 pi, zeta = d / (2 sqrt(c m)) exactly; 1e-10 is rounding. */
+static void test_modal_analytic(void **state) {
+    (void)state;
+    double M = 2.0, C = 8.0e4, D = 40.0, f, z;
+    assert_int_equal(vibid_modal(1, &M, &D, &C, &f, &z, NULL, NULL), VIBID_OK);
+    assert_float_equal(f, sqrt(C / M) / (2 * M_PI), 1e-10 * f);
+    assert_float_equal(z, D / (2 * sqrt(C * M)), 1e-10);
+    /* two equal masses, springs k-k-k to ground, undamped: sqrt(k/m), sqrt(3k/m) */
+    double M2[4] = {1, 0, 0, 1}, C2[4] = {2e4, -1e4, -1e4, 2e4}, f2[2], z2[2], re[4];
+    assert_int_equal(vibid_modal(2, M2, NULL, C2, f2, z2, re, NULL), VIBID_OK);
+    assert_float_equal(f2[0], 100.0 / (2 * M_PI), 1e-9);
+    assert_float_equal(f2[1], sqrt(3e4) / (2 * M_PI), 1e-9);
+    assert_float_equal(re[0] * re[1], 1.0, 1e-9);  /* in phase */
+    assert_float_equal(re[2] * re[3], -1.0, 1e-9); /* out of phase */
+}
+
+/* vibid_zoh then vibid_zoh_inverse returns A and B to rounding (1e-9 relative);
+ * second_order_form then second_order_to_continuous returns M^-1 C, M^-1 D, M^-1 B. */
+static void test_discretization_round_trip(void **state) {
+    (void)state;
+    double M[4] = {10, 0, 0, 20}, D[4] = {300, -300, -300, 300}, C[4] = {2.5e5, -2.5e5, -2.5e5, 1.75e6},
+           B[2] = {0, 1.5e6};
+    double Dt[4], Ct[4], B1[2], B2[2], K[4], L[4], J[2];
+    vibid_log_info info;
+    assert_int_equal(vibid_second_order_form(2, 1, M, D, C, B, H, Dt, Ct, B1, B2), VIBID_OK);
+    assert_int_equal(vibid_second_order_to_continuous(2, 1, Dt, Ct, B1, B2, H, K, L, J, &info), VIBID_OK);
+    const double Kt[4] = {2.5e4, -1.25e4, -2.5e4, 8.75e4}, Lt[4] = {30, -15, -30, 15}, Jt[2] = {0, 7.5e4};
+    for (int i = 0; i < 4; ++i) {
+        assert_float_equal(K[i], Kt[i], 1e-7 * 8.75e4);
+        assert_float_equal(L[i], Lt[i], 1e-7 * 30);
+    }
+    for (int i = 0; i < 2; ++i) assert_float_equal(J[i], Jt[i], 1e-7 * 7.5e4);
+    assert_false(info.ambiguous);
+    /* too slow sampling: a 50 Hz undamped mode at h = 1/100 s sits exactly at Nyquist */
+    double m1 = 1.0, d1 = 0.0, c1 = pow(2 * M_PI * 50.0, 2), b1 = 1.0, dt, ct, bb1, bb2, k, l, j;
+    assert_int_equal(vibid_second_order_form(1, 1, &m1, &d1, &c1, &b1, 0.009, &dt, &ct, &bb1, &bb2), VIBID_OK);
+    vibid_status s = vibid_second_order_to_continuous(1, 1, &dt, &ct, &bb1, &bb2, 0.009, &k, &l, &j, &info);
+    /* 50 Hz at 111 Hz sampling: 0.9 of Nyquist -> flagged ambiguous (or refused) */
+    assert_true(s != VIBID_OK || info.ambiguous);
+}
+
+/* Stand files: the shipped examples load; errors give file:line: field. */
+#include <vibid/stand_file.h>
+static void write_file(const char *path, const char *text) {
+    FILE *f = fopen(path, "w");
+    assert_non_null(f);
+    fputs(text, f);
+    fclose(f);
+}
+
+static void test_loader(void **state) {
+    (void)state;
+    vibid_stand_error err;
+    vibid_stand *st = vibid_stand_load(VIBID_SOURCE_DIR "/examples/stands/paper_example1.cfg", &err);
+    if (!st) fail_msg("%s", err.text);
+    assert_string_equal(vibid_stand_channel_name(st, 2), "s");
+    assert_float_equal(vibid_stand_true_values(st)[2], 1.5e6, 0);
+    assert_float_equal(vibid_stand_sample_rate(st), 2000.0, 0);
+    vibid_stand_destroy(st);
+
+    const char *path = "test_loader_bad.cfg";
+    write_file(path, "stand = {\n  sample_rate = 1000.0;\n  nodes = ( { name = \"m1\"; mass = 1.0; } );\n"
+                     "  elements = (\n    { name = \"k\"; kind = \"sprung\"; between = [\"m1\", \"ground\"]; value = 1.0; }\n"
+                     "  );\n};\n");
+    assert_null(vibid_stand_load(path, &err));
+    printf("  loader error: %s\n", err.text);
+    assert_int_equal(err.line, 5);
+    assert_string_equal(err.field, "stand.elements.[0].kind");
+
+    write_file(path, "stand = {\n  sample_rate = 1000.0;\n  nodes = ( { name = \"m1\"; mass = -1.0; } );\n};\n");
+    assert_null(vibid_stand_load(path, &err));
+    printf("  loader error: %s\n", err.text);
+    assert_int_equal(err.line, 3);
+    assert_non_null(strstr(err.text, "m1"));
+
+    write_file(path, "stand = {\n  sample_rate = 1000.0;\n  nodes = ( { name = \"m1\"; mass = 1.0;\n"
+                     "    measure = { displacement = \"\"; }; } );\n};\n");
+    assert_null(vibid_stand_load(path, &err));
+    printf("  loader error: %s\n", err.text);
+    assert_int_equal(err.line, 4);
+    assert_non_null(strstr(err.field, "measure.displacement"));
+
+    write_file(path, "stand = {\n  sample_rate = 1000.0;\n  nodes = ( { name = \"m1\"; mass = 1.0; } );\n"
+                     "  elements = ( { name = \"k\"; kind = \"spring\"; between = [\"m1\", \"m7\"]; value = 1.0; } );\n};\n");
+    assert_null(vibid_stand_load(path, &err));
+    printf("  loader error: %s\n", err.text);
+    assert_int_equal(err.line, 4);
+    assert_non_null(strstr(err.text, "m7"));
+    remove(path);
+}
+
+int main(void) {
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_zoh_noise_free),
+        cmocka_unit_test(test_central_difference_noise_free),
+        cmocka_unit_test(test_noisy_monte_carlo),
+        cmocka_unit_test(test_bad_input),
+        cmocka_unit_test(test_modal_analytic),
+        cmocka_unit_test(test_discretization_round_trip),
+        cmocka_unit_test(test_loader),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}
