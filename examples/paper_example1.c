@@ -1,8 +1,10 @@
 /* paper_example1: the two-mass oscillator of the paper's Bild 2, identified from its
  * triangular base excitation.
  *
- * Stand: m1 -- (c1, d) -- m2 -- c2 -- base s(t). True d = 300 N s/m, c1 = 2.5e5 N/m,
- * c2 = 1.5e6 N/m (the paper's values). The paper gives no masses and no sample rate:
+ * Stand (read from examples/stands/paper_example1.cfg with the shared loader, as vibid-sim
+ * and vibidd read it): m1 -- (c1, d) -- m2 -- c2 -- base s(t). True d = 300 N s/m,
+ * c1 = 2.5e5 N/m, c2 = 1.5e6 N/m (the paper's values, the file's true_value fields). The
+ * paper gives no masses and no sample rate (the file's choices):
  *   m1 = 10 kg, m2 = 20 kg: natural frequencies 22.7 Hz and 48.3 Hz with damping ratios
  *     of a few percent, a realistic small test stand;
  *   f_a = 2 kHz (h = 0.5 ms): 41 samples per period of the highest mode, so central
@@ -18,7 +20,9 @@
  *
  * Output: a table of estimates against N per case, example1_tracks.csv, and (if gnuplot
  * is found at run time) example1_tracks.png via plot_tracks.gp.
- * Usage: paper_example1 [output-directory]
+ * Usage: paper_example1 [--stand FILE] [output-directory]
+ *   FILE defaults to the in-tree examples/stands/paper_example1.cfg. The ZOH cases use
+ *   the same file with its discretization switched to zoh (example_load_stand).
  */
 #include "support/example_common.h"
 #include "support/stand_sim.h"
@@ -28,33 +32,51 @@
 #include <string.h>
 
 int main(int argc, char **argv) {
-    const char *outdir = argc > 1 ? argv[1] : ".";
-    const double m1 = 10.0, m2 = 20.0, d = 300.0, c1 = 2.5e5, c2 = 1.5e6;
-    const double fs = 2000.0, h = 1.0 / fs;
+    const char *outdir, *stand_path;
+    if (example_parse_args(argc, argv, VIBID_EXAMPLES_DIR "/stands/paper_example1.cfg", &stand_path, &outdir) != 0)
+        return 2;
+    vibid_stand *stand = example_load_stand(stand_path, VIBID_DISC_CENTRAL_DIFFERENCE);
+    vibid_stand *stand_zoh = example_load_stand(stand_path, VIBID_DISC_ZOH);
+    if (!stand || !stand_zoh) return 1;
+    const vibid_model *model = vibid_stand_model(stand), *model_zoh = vibid_stand_model(stand_zoh);
+    const double *truth = vibid_stand_true_values(stand);
+    const double fs = vibid_stand_sample_rate(stand), h = 1.0 / fs;
     const size_t N = 20000;
-    const double truth[3] = {c1, d, c2};
-    printf("paper example 1 (Bild 2): two-mass oscillator, triangular base excitation\n");
-    printf("  masses m1 = %g kg, m2 = %g kg (known); true c1 = %g N/m, d = %g N s/m, c2 = %g N/m\n", m1, m2, c1, d, c2);
-    printf("  sample rate %g Hz (h = %g s); base: triangle 5 Hz, amplitude 1 mm; %zu samples\n", fs, h, N);
-
-    vibid_model *model = example_two_mass_model(m1, m2, c1, d, c2, 0.0, VIBID_DISC_CENTRAL_DIFFERENCE);
-    if (!model) return 1;
-    double freq[2], zeta[2];
-    vibid_model_modal(model, NULL, NULL, freq, NULL, zeta, NULL, NULL, NULL);
-    printf("  natural frequencies %.3f Hz, %.3f Hz; damping ratios %.4f, %.4f\n\n", freq[0], freq[1], zeta[0], zeta[1]);
-
     vibid_model_dims dims;
     vibid_model_get_dims(model, &dims);
-    const size_t nc = dims.n_channels;
+    const size_t nc = dims.n_channels, p = dims.n_params, n = dims.n_dof;
+    double M[64];
+    if (n > 8 || vibid_model_assemble(model, truth, M, NULL, NULL, NULL, NULL, NULL) != VIBID_OK) {
+        fprintf(stderr, "%s: expected a small stand (at most 8 nodes)\n", stand_path);
+        return 1;
+    }
+    printf("paper example 1 (Bild 2): two-mass oscillator, triangular base excitation\n");
+    printf("  stand %s from %s\n  masses (known):", vibid_stand_name(stand), stand_path);
+    for (size_t i = 0; i < n; ++i) {
+        const char *name = "";
+        vibid_model_node_name(model, i, &name);
+        printf(" %s = %g kg", name, M[i + i * n]);
+    }
+    printf("\n  true values:");
+    for (size_t i = 0; i < p; ++i) {
+        vibid_param_info pi;
+        vibid_model_param_info(model, i, &pi);
+        printf(" %s = %g", pi.name, truth[i]);
+    }
+    printf("\n  sample rate %g Hz (h = %g s); base: triangle 5 Hz, amplitude 1 mm; %zu samples\n", fs, h, N);
+    double freq[8], zeta[8];
+    vibid_model_modal(model, truth, NULL, freq, NULL, zeta, NULL, NULL, NULL);
+    printf("  natural frequencies %.3f Hz, %.3f Hz; damping ratios %.4f, %.4f\n\n", freq[0], freq[1], zeta[0], zeta[1]);
+
     double *rec[4];
     for (int i = 0; i < 4; ++i) {
         rec[i] = malloc(N * nc * sizeof(double));
         if (!rec[i]) return 1;
     }
     stand_sim_config sc = {h, N, 20, 0, 1e-3, 5.0, 0.0, 0.0};
-    if (stand_sim_run(model, NULL, &sc, rec[0]) != 0) return 1;
+    if (stand_sim_run(model, truth, &sc, rec[0]) != 0) return 1;
     sc.hold = 1;
-    if (stand_sim_run(model, NULL, &sc, rec[1]) != 0) return 1;
+    if (stand_sim_run(model, truth, &sc, rec[1]) != 0) return 1;
     uint64_t seed = 20240601u;
     memcpy(rec[2], rec[0], N * nc * sizeof(double));
     memcpy(rec[3], rec[1], N * nc * sizeof(double));
@@ -84,7 +106,7 @@ int main(int argc, char **argv) {
         perror(path);
         return 1;
     }
-    fprintf(csv, "case,N,c1,c1_se,d,d_se,c2,c2_se\n");
+    example_csv_header(csv, model);
     int rc = 0;
     for (size_t i = 0; i < sizeof cases / sizeof cases[0]; ++i) {
         const example_case *c = &cases[i];
@@ -94,18 +116,15 @@ int main(int argc, char **argv) {
                c->estimator == VIBID_ESTIMATOR_LS ? "batch LS" : c->estimator == VIBID_ESTIMATOR_IV ? "batch IV" : "RLS",
                c->prefilter_hz > 0 ? " + 150 Hz pre-filter" : "", c->held ? "held" : "continuous",
                c->noisy ? "1 % noise" : "noise-free");
-        if (example_run_case(c, model, h, r, N, checkpoints, ncp, truth, csv, NULL) != 0) rc = 1;
+        const vibid_model *mc = c->disc == VIBID_DISC_ZOH ? model_zoh : model;
+        if (example_run_case(c, mc, h, r, N, checkpoints, ncp, truth, csv, NULL) != 0) rc = 1;
         printf("\n");
     }
     fclose(csv);
     printf("tracks written to %s\n", path);
-    char cmd[3072];
-    snprintf(cmd, sizeof cmd,
-             "command -v gnuplot >/dev/null 2>&1 && gnuplot -e \"csv='%s/example1_tracks.csv'; png='%s/example1_tracks.png'; "
-             "params='c1 d c2'; truths='2.5e5 300 1.5e6'\" '%s' && echo 'plot written to %s/example1_tracks.png'",
-             outdir, outdir, VIBID_EXAMPLES_DIR "/plot_tracks.gp", outdir);
-    if (system(cmd) != 0) printf("(gnuplot not run: no plot)\n");
+    example_plot(outdir, "example1", model, truth);
     for (int i = 0; i < 4; ++i) free(rec[i]);
-    vibid_model_destroy(model);
+    vibid_stand_destroy(stand);
+    vibid_stand_destroy(stand_zoh);
     return rc;
 }

@@ -1,29 +1,25 @@
 /* paper_example2: the nonlinear two-mass oscillator of the paper's Bild 3 / (4.2):
  * example 1 plus the cubic spring eps (x2 - s)^3 between m2 and the base, eps = 2000.
- * Units mm, N, s, t (tonne): with them the paper's numbers give the same linear dynamics
- * as example 1 in SI, and eps = 2000 N/mm^3 matters at deflections of several mm. The
- * base amplitude (40 mm) is chosen so that the cubic force is a few percent of the linear
- * one at the peaks (printed below). ZOH does not apply (nonlinear): central differences
- * only. The rest as in example 1 (m1 = 10 t, m2 = 20 t, 2 kHz).
  *
- * Stand: m1 -- (c1, d) -- m2 -- c2 -- base s(t). True d = 300 N s/m, c1 = 2.5e5 N/m,
- * c2 = 1.5e6 N/m (the paper's values). The paper gives no masses and no sample rate:
- *   m1 = 10 kg, m2 = 20 kg: natural frequencies 22.7 Hz and 48.3 Hz with damping ratios
- *     of a few percent, a realistic small test stand;
- *   f_a = 2 kHz (h = 0.5 ms): 41 samples per period of the highest mode, so central
- *     differences are biased by about (omega h)^2 / 12 = 0.2 %, well inside the 1 %
- *     target, and the ZOH logarithm is far from ambiguity (48 Hz << 1 kHz Nyquist);
- *   base: triangle wave, 5 Hz, amplitude 1 mm; its odd harmonics (15, 25, 35, 45 Hz, ...)
- *     fall near both modes, so every parameter is excited.
- * Two records of 20,000 samples are simulated (RK4, 20 substeps per sample): the base
- * following the continuous triangle (an analogue experiment, what central differences
- * approximate) and the base held over each sample interval (a DAC-driven shaker, the ZOH
- * assumption (1.10)). Each is used noise-free and with white noise of 1 % of each
- * channel's RMS on x1, x2 and s.
+ * Stand: read from examples/stands/paper_example2.cfg with the shared loader (as
+ * vibid-sim and vibidd read it): m1 -- (c1, d) -- m2 -- (c2, eps) -- base s(t), true
+ * values c1 = 2.5e5, d = 300, c2 = 1.5e6, eps = 2000 (the file's true_value fields).
+ * Units mm, N, s, t (tonne): with them the paper's numbers give the same linear dynamics
+ * as example 1 in SI (m1 = 10 t, m2 = 20 t: 22.7 Hz and 48.3 Hz), and eps = 2000 N/mm^3
+ * matters at deflections of several mm. Sample rate 2 kHz (the file's), as example 1.
+ * ZOH does not apply (nonlinear): central differences only.
+ *
+ * Base: triangle wave, 5 Hz, amplitude BASE_AMPLITUDE_MM (default 40 mm, --amplitude to
+ * change). The cubic term is identified from the part of the spring force that is not
+ * linear in the deflection, so its relative error scales roughly with
+ * noise / (eps r^2 / c2): the largest deflection and the cubic/linear force ratio there
+ * are printed. One record of 20,000 samples (RK4, 20 substeps per sample), used
+ * noise-free and with white noise of 1 % of each channel's RMS on x1, x2 and s.
  *
  * Output: a table of estimates against N per case, example2_tracks.csv, and (if gnuplot
  * is found at run time) example2_tracks.png via plot_tracks.gp.
- * Usage: paper_example1 [output-directory]
+ * Usage: paper_example2 [--stand FILE] [--amplitude MM] [output-directory]
+ *   FILE defaults to the in-tree examples/stands/paper_example2.cfg.
  */
 #include "support/example_common.h"
 #include "support/stand_sim.h"
@@ -33,48 +29,91 @@
 #include <stdlib.h>
 #include <string.h>
 
+#ifndef BASE_AMPLITUDE_MM
+#define BASE_AMPLITUDE_MM 40.0
+#endif
+
 int main(int argc, char **argv) {
-    const char *outdir = argc > 1 ? argv[1] : ".";
-    const double m1 = 10.0, m2 = 20.0, d = 300.0, c1 = 2.5e5, c2 = 1.5e6;
-    const double fs = 2000.0, h = 1.0 / fs;
+    /* --amplitude is this example's own option; the rest is shared with example 1. */
+    double amp = BASE_AMPLITUDE_MM;
+    char *args[16];
+    int nargs = 0;
+    for (int i = 0; i < argc && nargs < 16; ++i) {
+        if (i > 0 && !strcmp(argv[i], "--amplitude") && i + 1 < argc) {
+            char *end = NULL;
+            amp = strtod(argv[++i], &end);
+            if (!end || *end || !(amp > 0.0) || !isfinite(amp)) {
+                fprintf(stderr, "--amplitude: '%s' is not a positive number of mm\n", argv[i]);
+                return 2;
+            }
+        } else {
+            args[nargs++] = argv[i];
+        }
+    }
+    const char *outdir, *stand_path;
+    if (example_parse_args(nargs, args, VIBID_EXAMPLES_DIR "/stands/paper_example2.cfg", &stand_path, &outdir) != 0)
+        return 2;
+    vibid_stand *stand = example_load_stand(stand_path, VIBID_DISC_CENTRAL_DIFFERENCE);
+    if (!stand) return 1;
+    const vibid_model *model = vibid_stand_model(stand);
+    const double *truth = vibid_stand_true_values(stand);
+    const double fs = vibid_stand_sample_rate(stand), h = 1.0 / fs;
     const size_t N = 20000;
-    const double eps = 2000.0, amp = 40.0;
-    const double truth[4] = {c1, d, c2, eps};
-    printf("paper example 2 (Bild 3, (4.2)): two-mass oscillator with cubic spring, units mm N s t\n");
-    printf("  masses m1 = %g t, m2 = %g t (known); true c1 = %g N/mm, d = %g N s/mm, c2 = %g N/mm, eps = %g N/mm^3\n", m1, m2, c1, d, c2, eps);
-    printf("  sample rate %g Hz (h = %g s); base: triangle 5 Hz, amplitude 40 mm; %zu samples\n", fs, h, N);
-
-    vibid_model *model = example_two_mass_model(m1, m2, c1, d, c2, eps, VIBID_DISC_CENTRAL_DIFFERENCE);
-    if (!model) return 1;
-    double freq[2], zeta[2];
-    vibid_model_modal(model, NULL, NULL, freq, NULL, zeta, NULL, NULL, NULL);
-    printf("  natural frequencies %.3f Hz, %.3f Hz; damping ratios %.4f, %.4f\n\n", freq[0], freq[1], zeta[0], zeta[1]);
-
     vibid_model_dims dims;
     vibid_model_get_dims(model, &dims);
-    const size_t nc = dims.n_channels;
-    double *rec[4];
-    for (int i = 0; i < 4; ++i) {
+    const size_t nc = dims.n_channels, p = dims.n_params, n = dims.n_dof;
+    const size_t ch_x2 = vibid_stand_find_channel(stand, "x2"), ch_s = vibid_stand_find_channel(stand, "s");
+    double M[64];
+    size_t i_c2 = p, i_eps = p;
+    for (size_t i = 0; i < p; ++i) {
+        vibid_param_info pi;
+        vibid_model_param_info(model, i, &pi);
+        if (!strcmp(pi.name, "c2")) i_c2 = i;
+        if (!strcmp(pi.name, "eps")) i_eps = i;
+    }
+    if (n > 8 || ch_x2 == (size_t)-1 || ch_s == (size_t)-1 || i_c2 == p || i_eps == p ||
+        vibid_model_assemble(model, truth, M, NULL, NULL, NULL, NULL, NULL) != VIBID_OK) {
+        fprintf(stderr, "%s: expected the stand of example 2 (channels x2 and s, unknowns c2 and eps)\n", stand_path);
+        return 1;
+    }
+    printf("paper example 2 (Bild 3, (4.2)): two-mass oscillator with cubic spring, units mm N s t\n");
+    printf("  stand %s from %s\n  masses (known):", vibid_stand_name(stand), stand_path);
+    for (size_t i = 0; i < n; ++i) {
+        const char *name = "";
+        vibid_model_node_name(model, i, &name);
+        printf(" %s = %g t", name, M[i + i * n]);
+    }
+    printf("\n  true values:");
+    for (size_t i = 0; i < p; ++i) {
+        vibid_param_info pi;
+        vibid_model_param_info(model, i, &pi);
+        printf(" %s = %g", pi.name, truth[i]);
+    }
+    printf("\n  sample rate %g Hz (h = %g s); base: triangle 5 Hz, amplitude %g mm; %zu samples\n", fs, h, amp, N);
+    double freq[8], zeta[8];
+    vibid_model_modal(model, truth, NULL, freq, NULL, zeta, NULL, NULL, NULL);
+    printf("  linear part: natural frequencies %.3f Hz, %.3f Hz; damping ratios %.4f, %.4f\n", freq[0], freq[1],
+           zeta[0], zeta[1]);
+
+    double *rec[2];
+    for (int i = 0; i < 2; ++i) {
         rec[i] = malloc(N * nc * sizeof(double));
         if (!rec[i]) return 1;
     }
     stand_sim_config sc = {h, N, 20, 0, amp, 5.0, 0.0, 0.0};
-    if (stand_sim_run(model, NULL, &sc, rec[0]) != 0) return 1;
+    if (stand_sim_run(model, truth, &sc, rec[0]) != 0) return 1;
     {
         double rmax = 0.0;
         for (size_t k = 0; k < N; ++k) {
-            double r = fabs(rec[0][k + N] - rec[0][k + 2 * N]);
+            double r = fabs(rec[0][k + ch_x2 * N] - rec[0][k + ch_s * N]);
             if (r > rmax) rmax = r;
         }
         printf("  largest spring deflection |x2 - s| = %.3g mm: cubic/linear force there = %.2f %%\n\n", rmax,
-               100.0 * eps * rmax * rmax / c2);
+               100.0 * truth[i_eps] * rmax * rmax / truth[i_c2]);
     }
-    memcpy(rec[1], rec[0], N * nc * sizeof(double)); /* no held-base record: ZOH does not apply */
     uint64_t seed = 20240601u;
-    memcpy(rec[2], rec[0], N * nc * sizeof(double));
-    memcpy(rec[3], rec[1], N * nc * sizeof(double));
-    stand_sim_add_noise(rec[2], N, nc, 0.01, &seed);
-    stand_sim_add_noise(rec[3], N, nc, 0.01, &seed);
+    memcpy(rec[1], rec[0], N * nc * sizeof(double));
+    stand_sim_add_noise(rec[1], N, nc, 0.01, &seed);
 
     static const size_t checkpoints[] = {10, 20, 50, 100, 200, 500, 1000, 2000, 5000, 10000, 20000};
     const size_t ncp = sizeof checkpoints / sizeof checkpoints[0];
@@ -93,28 +132,20 @@ int main(int argc, char **argv) {
         perror(path);
         return 1;
     }
-    fprintf(csv, "case,N,c1,c1_se,d,d_se,c2,c2_se,eps,eps_se\n");
+    example_csv_header(csv, model);
     int rc = 0;
     for (size_t i = 0; i < sizeof cases / sizeof cases[0]; ++i) {
         const example_case *c = &cases[i];
-        const double *r = rec[(c->noisy ? 2 : 0) + (c->held ? 1 : 0)];
-        printf("case %s: %s, %s%s, %s base, %s\n", c->name,
-               c->disc == VIBID_DISC_ZOH ? "ZOH (1.16) + matrix log" : "central differences (1.17)",
+        printf("case %s: central differences (1.17), %s%s, continuous base, %s\n", c->name,
                c->estimator == VIBID_ESTIMATOR_LS ? "batch LS" : c->estimator == VIBID_ESTIMATOR_IV ? "batch IV" : "RLS",
-               c->prefilter_hz > 0 ? " + 150 Hz pre-filter" : "", c->held ? "held" : "continuous",
-               c->noisy ? "1 % noise" : "noise-free");
-        if (example_run_case(c, model, h, r, N, checkpoints, ncp, truth, csv, NULL) != 0) rc = 1;
+               c->prefilter_hz > 0 ? " + 150 Hz pre-filter" : "", c->noisy ? "1 % noise" : "noise-free");
+        if (example_run_case(c, model, h, rec[c->noisy ? 1 : 0], N, checkpoints, ncp, truth, csv, NULL) != 0) rc = 1;
         printf("\n");
     }
     fclose(csv);
     printf("tracks written to %s\n", path);
-    char cmd[3072];
-    snprintf(cmd, sizeof cmd,
-             "command -v gnuplot >/dev/null 2>&1 && gnuplot -e \"csv='%s/example2_tracks.csv'; png='%s/example2_tracks.png'; "
-             "params='c1 d c2 eps'; truths='2.5e5 300 1.5e6 2000'\" '%s' && echo 'plot written to %s/example2_tracks.png'",
-             outdir, outdir, VIBID_EXAMPLES_DIR "/plot_tracks.gp", outdir);
-    if (system(cmd) != 0) printf("(gnuplot not run: no plot)\n");
-    for (int i = 0; i < 4; ++i) free(rec[i]);
-    vibid_model_destroy(model);
+    example_plot(outdir, "example2", model, truth);
+    for (int i = 0; i < 2; ++i) free(rec[i]);
+    vibid_stand_destroy(stand);
     return rc;
 }

@@ -15,7 +15,7 @@ cd "$(dirname "$0")/.."
 
 root=${VIBID_BUILD_ROOT:-build}
 venv="$root/venv"
-pins=(cantools==40.7.1 pymodbus==3.6.9 python-can==4.6.1)
+pins=(cantools==40.7.1 pymodbus==3.6.9 pyserial==3.5 python-can==4.6.1)
 stamp="$venv/.vibid-pins"
 want="${pins[*]}"
 

@@ -119,6 +119,7 @@ static int open_source(vd_daemon *d, char *err, size_t cap)
         sc.rcvbuf_bytes = cfg->rcvbuf_bytes;
         sc.hw_timestamps = cfg->hw_timestamps;
         sc.batch = cfg->can_batch;
+        sc.sample_period_s = 1.0 / cfg->sample_rate;
         d->src = vibid_source_open(&vibid_source_socketcan_ops, &sc, &de);
         break;
     }
@@ -293,7 +294,7 @@ static void *acq_main(void *arg)
 static const char *fault_name(vibid_fault_code c)
 {
     static const char *const n[] = {"none",      "bad_line",  "unknown_id", "short_frame", "nonfinite", "duplicate",
-                                    "late",      "bus_error", "dropped",    "poll",        "link"};
+                                    "late",      "bus_error", "dropped",    "poll",        "link",       "corrupt"};
     return (unsigned)c < sizeof n / sizeof n[0] ? n[c] : "fault";
 }
 
@@ -406,6 +407,8 @@ static void write_status(vd_daemon *d, const char *state, double now)
       (unsigned long long)ss.polls, (unsigned long long)ss.failed_polls, (unsigned long long)ss.timeouts,
       (unsigned long long)ss.link_losses, (unsigned long long)ss.reconnects, (unsigned long long)ss.overruns);
     S("jitter_mean_s=%.9g\njitter_std_s=%.3g\n", ss.jitter.mean_s, ss.jitter.std_s);
+    for (unsigned c = 1; c <= (unsigned)VIBID_FAULT_CORRUPT; c++) /* faults by kind */
+        S("faults_%s=%llu\n", fault_name((vibid_fault_code)c), (unsigned long long)d->faults_by_code[c]);
     S("rows=%llu\nestimate_failures=%llu\nnonfinite_samples=%llu\n", (unsigned long long)d->est.rows,
       (unsigned long long)d->est.est_errors, (unsigned long long)d->est.push_errors);
     S("latency_us_p50=%.1f\nlatency_us_p99=%.1f\n", vd_daemon_latency_us(d, 0.5), vd_daemon_latency_us(d, 0.99));

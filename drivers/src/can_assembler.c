@@ -27,6 +27,8 @@ struct vibid_can_assembler {
     const vibid_dbc_message *trigger_msg;
     bool counter_mode;
     unsigned counter_bits;
+    double period_s;     /* nominal h; 0 = no plausibility check */
+    uint32_t slack;      /* missing samples tolerated beyond 2 dt / h */
     /* open sample */
     bool have_current, current_done;
     uint64_t k, cur_raw;
@@ -202,6 +204,26 @@ fail:
 
 void vibid_can_assembler_destroy(vibid_can_assembler *a) { free(a); }
 
+bool vibid_can_assembler_set_timing(vibid_can_assembler *a, double period_s, uint32_t slack_samples)
+{
+    if (!a || !(period_s >= 0.0) || !isfinite(period_s))
+        return false;
+    a->period_s = period_s;
+    a->slack = slack_samples ? slack_samples : VIBID_CAN_ASSEMBLER_DEFAULT_SLACK;
+    return true;
+}
+
+/* true when skipping delta - 1 samples is possible in the time since the open sample
+ * began (see can_assembler.h). Frame times going backwards count as no time. */
+static bool jump_plausible(const vibid_can_assembler *a, uint64_t delta, int64_t t_ns)
+{
+    if (!(a->period_s > 0.0) || delta <= 1)
+        return true;
+    double dt = t_ns > a->t_ns ? (double)(t_ns - a->t_ns) * 1e-9 : 0.0;
+    double allowed = (double)a->slack + 2.0 * dt / a->period_s;
+    return (double)(delta - 1) <= allowed;
+}
+
 static void emit_sample(vibid_can_assembler *a)
 {
     vibid_record *r = push_rec(a, VIBID_REC_SAMPLE);
@@ -360,6 +382,17 @@ void vibid_can_assembler_push(vibid_can_assembler *a, const vibid_can_frame *f)
             uint64_t mod_mask = (UINT64_C(1) << a->counter_bits) - 1u;
             uint64_t delta = (raw - a->cur_raw) & mod_mask;
             uint64_t half = UINT64_C(1) << (a->counter_bits - 1);
+            if (delta != 0 && delta < half && !jump_plausible(a, delta, f->t_ns)) {
+                a->st.corrupt_counters++;
+                fault(a, VIBID_FAULT_CORRUPT, a->k,
+                      "%s: counter %llu jumps %llu samples after %.6f s (at most %.0f possible): corrupt "
+                      "counter, frame ignored",
+                      v->msg->name, (unsigned long long)raw, (unsigned long long)delta,
+                      (double)(f->t_ns > a->t_ns ? f->t_ns - a->t_ns : 0) * 1e-9,
+                      1.0 + (double)a->slack +
+                          2.0 * (double)(f->t_ns > a->t_ns ? f->t_ns - a->t_ns : 0) * 1e-9 / a->period_s);
+                return;
+            }
             if (delta != 0 && delta < half) {
                 close_current(a);
                 if (delta > 1)

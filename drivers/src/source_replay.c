@@ -145,6 +145,7 @@ static vibid_drv_status replay_open(vibid_source *src, const void *config, vibid
     r->as = vibid_can_assembler_create(cfg->dbc, &src->chanmap, err);
     if (!r->as)
         return err ? err->status : VIBID_DRV_E_ARG;
+    vibid_can_assembler_set_timing(r->as, cfg->sample_period_s, 0); /* validated above */
     r->cd = vibid_candump_reader_open(r->path, err);
     if (!r->cd)
         return err ? err->status : VIBID_DRV_E_IO;

@@ -158,6 +158,9 @@ static vibid_drv_status sc_open(vibid_source *src, const void *config, vibid_drv
     s->as = vibid_can_assembler_create(cfg->dbc, &src->chanmap, err);
     if (!s->as)
         return err ? err->status : VIBID_DRV_E_ARG;
+    if (!vibid_can_assembler_set_timing(s->as, cfg->sample_period_s, 0))
+        return vibid_drv_fail(err, VIBID_DRV_E_RANGE, "SocketCAN %s: sample period %g s invalid", s->iface,
+                              cfg->sample_period_s);
     unsigned b = s->info.batch;
     s->msgs = calloc(b, sizeof *s->msgs);
     s->iov = calloc(b, sizeof *s->iov);

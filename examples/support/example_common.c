@@ -1,8 +1,10 @@
 /* example_common.c: see example_common.h. */
 #include "example_common.h"
 
+#include <libconfig.h>
 #include <math.h>
 #include <stdlib.h>
+#include <string.h>
 
 static int ok(vibid_status s, const char *what) {
     if (s != VIBID_OK) {
@@ -12,27 +14,85 @@ static int ok(vibid_status s, const char *what) {
     return 1;
 }
 
-vibid_model *example_two_mass_model(double m1, double m2, double c1, double d, double c2, double cubic_eps,
-                                    vibid_discretization disc) {
-    vibid_model *m = vibid_model_create();
-    size_t n1 = 0, n2 = 0;
-    if (!m) return NULL;
-    int good = ok(vibid_model_add_node(m, "m1", m1, 0, &n1), "node m1") &&
-               ok(vibid_model_add_node(m, "m2", m2, 0, &n2), "node m2") &&
-               ok(vibid_model_add_element(m, "c1", VIBID_ELEMENT_SPRING, n1, n2, c1, 1), "c1") &&
-               ok(vibid_model_add_element(m, "d", VIBID_ELEMENT_DAMPER, n1, n2, d, 1), "d") &&
-               ok(vibid_model_add_element(m, "c2", VIBID_ELEMENT_SPRING, n2, VIBID_BASE, c2, 1), "c2");
-    if (good && cubic_eps != 0.0)
-        good = ok(vibid_model_add_element(m, "eps", VIBID_ELEMENT_CUBIC_SPRING, n2, VIBID_BASE, cubic_eps, 1), "eps");
-    good = good && ok(vibid_model_set_measured(m, n1, VIBID_MEASURE_DISPLACEMENT), "measure m1") &&
-           ok(vibid_model_set_measured(m, n2, VIBID_MEASURE_DISPLACEMENT), "measure m2") &&
-           ok(vibid_model_set_measured(m, VIBID_BASE, VIBID_MEASURE_DISPLACEMENT), "measure base") &&
-           ok(vibid_model_set_discretization(m, disc), "discretization") && ok(vibid_model_finalize(m), "finalize");
-    if (!good) {
-        vibid_model_destroy(m);
+vibid_stand *example_load_stand(const char *path, int disc_override) {
+    vibid_stand_error err;
+    vibid_stand *st = vibid_stand_load(path, &err);
+    if (!st) {
+        fprintf(stderr, "%s\n", err.text);
         return NULL;
     }
-    return m;
+    vibid_model_dims dims;
+    if (disc_override < 0 || !ok(vibid_model_get_dims(vibid_stand_model(st), &dims), "model dims") ||
+        (int)dims.discretization == disc_override)
+        return st;
+    vibid_stand_destroy(st);
+    /* Same file, discretization field replaced in memory, same loader. */
+    config_t cfg;
+    config_init(&cfg);
+    st = NULL;
+    if (!config_read_file(&cfg, path)) {
+        fprintf(stderr, "%s:%d: %s\n", path, config_error_line(&cfg), config_error_text(&cfg));
+    } else {
+        config_setting_t *g = config_lookup(&cfg, "stand");
+        config_setting_t *d = g ? config_setting_get_member(g, "discretization") : NULL;
+        if (g && !d) d = config_setting_add(g, "discretization", CONFIG_TYPE_STRING);
+        if (!d || !config_setting_set_string(d, disc_override == VIBID_DISC_ZOH ? "zoh" : "central_difference"))
+            fprintf(stderr, "%s: cannot set stand.discretization\n", path);
+        else if (!(st = vibid_stand_from_setting(g, path, &err)))
+            fprintf(stderr, "%s\n", err.text);
+    }
+    config_destroy(&cfg);
+    return st;
+}
+
+int example_parse_args(int argc, char **argv, const char *default_stand, const char **stand_path,
+                       const char **outdir) {
+    *stand_path = default_stand;
+    *outdir = ".";
+    int positional = 0;
+    for (int i = 1; i < argc; ++i) {
+        if (!strcmp(argv[i], "--stand") && i + 1 < argc) {
+            *stand_path = argv[++i];
+        } else if (argv[i][0] == '-' || positional++) {
+            fprintf(stderr, "usage: %s [--stand FILE] [output-directory]\n  default stand file: %s\n", argv[0],
+                    default_stand);
+            return -1;
+        } else {
+            *outdir = argv[i];
+        }
+    }
+    return 0;
+}
+
+void example_csv_header(FILE *csv, const vibid_model *model) {
+    vibid_model_dims dims;
+    if (!ok(vibid_model_get_dims(model, &dims), "model dims")) return;
+    fprintf(csv, "case,N");
+    for (size_t i = 0; i < dims.n_params; ++i) {
+        vibid_param_info pi;
+        if (ok(vibid_model_param_info(model, i, &pi), "param info")) fprintf(csv, ",%s,%s_se", pi.name, pi.name);
+    }
+    fprintf(csv, "\n");
+}
+
+void example_plot(const char *outdir, const char *tag, const vibid_model *model, const double *truth) {
+    vibid_model_dims dims;
+    if (!ok(vibid_model_get_dims(model, &dims), "model dims")) return;
+    char params[512] = "", truths[512] = "";
+    size_t lp = 0, lt = 0;
+    for (size_t i = 0; i < dims.n_params; ++i) {
+        vibid_param_info pi;
+        if (!ok(vibid_model_param_info(model, i, &pi), "param info")) return;
+        lp += (size_t)snprintf(params + lp, sizeof params - lp, "%s%s", i ? " " : "", pi.name);
+        lt += (size_t)snprintf(truths + lt, sizeof truths - lt, "%s%.10g", i ? " " : "", truth[i]);
+        if (lp >= sizeof params || lt >= sizeof truths) return;
+    }
+    char cmd[4096];
+    snprintf(cmd, sizeof cmd,
+             "command -v gnuplot >/dev/null 2>&1 && gnuplot -e \"csv='%s/%s_tracks.csv'; png='%s/%s_tracks.png'; "
+             "params='%s'; truths='%s'\" '%s' && echo 'plot written to %s/%s_tracks.png'",
+             outdir, tag, outdir, tag, params, truths, VIBID_EXAMPLES_DIR "/plot_tracks.gp", outdir, tag);
+    if (system(cmd) != 0) printf("(gnuplot not run: no plot)\n");
 }
 
 int example_run_case(const example_case *c, const vibid_model *model, double h, const double *record,
@@ -43,32 +103,27 @@ int example_run_case(const example_case *c, const vibid_model *model, double h, 
     cfg.estimator = c->estimator;
     cfg.prefilter_hz = c->prefilter_hz;
     if (c->iv_lag) cfg.iv_lag = c->iv_lag;
-    vibid_model *local = vibid_model_clone(model);
-    if (!local) return -1;
-    /* The case picks the discretization: rebuild the frozen model with it. */
     vibid_model_dims dims;
-    vibid_model_get_dims(model, &dims);
-    vibid_ident *id = NULL;
+    if (!ok(vibid_model_get_dims(model, &dims), "model dims")) return -1;
     if (dims.discretization != c->disc) {
-        vibid_model_destroy(local);
-        double eps = 0.0, th[4] = {0};
-        vibid_model_nominal(model, th);
-        if (dims.n_params == 4) eps = th[3];
-        /* masses from the assembled M */
-        double M[4];
-        vibid_model_assemble(model, NULL, M, NULL, NULL, NULL, NULL, NULL);
-        local = example_two_mass_model(M[0], M[3], th[0], th[1], th[2], eps, c->disc);
-        if (!local) return -1;
+        fprintf(stderr, "case %s: the model's discretization is not the case's\n", c->name);
+        return -1;
     }
+    const vibid_model *local = model;
+    vibid_ident *id = NULL;
     id = vibid_ident_create(local, &cfg);
     if (!id) {
         fprintf(stderr, "case %s: %s\n", c->name, vibid_last_error());
-        vibid_model_destroy(local);
         return -1;
     }
     size_t nc = 0, p = 0;
     vibid_ident_dims(id, &nc, &p);
     double sample[16], theta[8], se[8];
+    if (nc > 16 || p > 8) {
+        fprintf(stderr, "case %s: %zu channels, %zu unknowns: at most 16 and 8 here\n", c->name, nc, p);
+        vibid_ident_destroy(id);
+        return -1;
+    }
     size_t next = 0;
     int rc = 0;
     printf("  %-22s %7s", c->name, "N");
@@ -105,6 +160,5 @@ int example_run_case(const example_case *c, const vibid_model *model, double h, 
         }
     }
     vibid_ident_destroy(id);
-    vibid_model_destroy(local);
     return rc;
 }

@@ -4,14 +4,26 @@
 #define EXAMPLE_COMMON_H
 
 #include <stdio.h>
+#include <vibid/stand_file.h>
 #include <vibid/vibid.h>
 
-/* The stand of the paper's examples 1 and 2: nodes m1, m2 (known masses), elements
- * c1 (spring m1-m2), d (damper m1-m2), c2 (spring m2-base) and, when cubic_eps != 0,
- * eps (cubic spring m2-base); unknowns c1, d, c2 (, eps) in that order with the given
- * nominal (true) values. Displacements of m1, m2 and the base are measured. */
-vibid_model *example_two_mass_model(double m1, double m2, double c1, double d, double c2, double cubic_eps,
-                                    vibid_discretization disc);
+/* Loads a stand file with the shared loader (vibid_stand, docs/stand-file.md) and, when
+ * disc_override >= 0, with its discretization replaced by that vibid_discretization
+ * (the stand file names one; a study compares both on the same stand). Errors are
+ * printed to stderr with file, line and field. NULL on failure. */
+vibid_stand *example_load_stand(const char *path, int disc_override);
+
+/* Sets *stand_path and *outdir from "[--stand FILE] [output-directory]"; defaults: the
+ * given in-tree stand file and ".". Returns 0, or -1 after printing the usage. */
+int example_parse_args(int argc, char **argv, const char *default_stand, const char **stand_path,
+                       const char **outdir);
+
+/* Writes the CSV header "case,N,<param>,<param>_se,..." with the model's parameter names. */
+void example_csv_header(FILE *csv, const vibid_model *model);
+
+/* Plots <outdir>/<tag>_tracks.csv to <tag>_tracks.png with examples/plot_tracks.gp if
+ * gnuplot is installed (parameter names from the model, truth p values). */
+void example_plot(const char *outdir, const char *tag, const vibid_model *model, const double *truth);
 
 typedef struct example_case {
     const char *name;          /* CSV/plot key, e.g. "noisy_cd_ls" */
@@ -23,7 +35,7 @@ typedef struct example_case {
     int held;                  /* 1: the record with the base held over each interval (ZOH) */
 } example_case;
 
-/* Runs one case on a record (n_samples x n_channels, column-major), estimating at each
+/* Runs one case on a record, with model (its discretization must be c->disc) (n_samples x n_channels, column-major), estimating at each
  * of the n_checkpoints sample counts; prints a table row per checkpoint and appends
  * CSV rows "case,N,<param>,<param>_se..." to csv. truth: true values (p).
  * mean_abs_rel_out (p, may be NULL): |estimate - truth| / |truth| at the last checkpoint. */

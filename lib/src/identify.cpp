@@ -33,6 +33,7 @@ struct vibid_ident {
     vibid_rls *rls = nullptr;
     std::size_t n = 0, p = 0, p_reg = 0, m = 0, q = 0, n_channels = 0;
     bool zoh = false;
+    bool has_prior = false;  // RLS started from vibid_ident_set_prior
     // Per-sample scratch (sized in create).
     std::vector<double> x, y, rows_x, rows_w;
     std::vector<double> ring;  // IV: the last iv_lag + 1 regressors x (p_reg * m each)
@@ -262,6 +263,64 @@ VIBID_API vibid_status vibid_ident_dims(const vibid_ident *ident, size_t *n_chan
     return VIBID_OK;
 }
 
+VIBID_API vibid_status vibid_ident_set_prior(vibid_ident *ident, const double *theta0, const double *P0) {
+    VIBID_GUARD(
+        if (!ident) throw_error(VIBID_E_NULL_ARGUMENT, "ident is NULL");
+        if (!ident->rls)
+            throw_error(VIBID_E_STATE, "start values are for the RLS estimator only (LS and IV are batch estimators)");
+        vibid_ident &id = *ident;
+        const std::size_t p = id.p;
+        if (!id.zoh) {
+            // Central differences: the regression parameters are the physical ones.
+            if (theta0) {
+                std::size_t bad = 0;
+                while (bad < p && std::isfinite(theta0[bad])) ++bad;
+                if (bad < p) throw_error(VIBID_E_NONFINITE, "theta0[%zu] = %g is not finite", bad, theta0[bad]);
+                check_status(vibid_rls_set_prior(id.rls, theta0, P0), "prior");
+            } else {
+                // Nominal values; p is small for a stand, the stack buffer avoids allocating.
+                double nominal[256];
+                if (p > 256) throw_error(VIBID_E_DIMENSION, "more than 256 unknowns: pass theta0");
+                check_status(vibid_model_nominal(&id.model, nominal), "nominal values");
+                check_status(vibid_rls_set_prior(id.rls, nominal, P0), "prior");
+            }
+            id.has_prior = true;
+            return VIBID_OK;
+        }
+        if (P0)
+            throw_error(VIBID_E_OUT_OF_RANGE,
+                        "ZOH: P0 refers to the difference form (1.16), not to the physical parameters: pass NULL");
+        std::vector<double> th(p);
+        if (theta0)
+            std::copy(theta0, theta0 + p, th.begin());
+        else
+            check_status(vibid_model_nominal(&id.model, th.data()), "nominal values");
+        for (std::size_t i = 0; i < p; ++i)
+            if (!std::isfinite(th[i])) throw_error(VIBID_E_NONFINITE, "theta0[%zu] = %g is not finite", i, th[i]);
+        // Physical parameters -> (1.16): Theta^T = [A1 A2 B1 B0] = [-Dt -Ct B1t B2t]
+        // with the base as the last input column (as the regressor builds it).
+        const Eigen::Index n = static_cast<Eigen::Index>(id.n), r = static_cast<Eigen::Index>(id.model.inputs.size());
+        const Eigen::Index rz = static_cast<Eigen::Index>((id.p_reg - 2 * id.n) / 2);
+        MatrixXd M(n, n), D(n, n), C(n, n), B(n, std::max<Eigen::Index>(r, 1)), Bz(n, rz);
+        VectorXd cb(n);
+        check_status(vibid_model_assemble(&id.model, th.data(), M.data(), D.data(), C.data(), r ? B.data() : nullptr,
+                                          nullptr, cb.data()),
+                     "assemble");
+        if (r) Bz.leftCols(r) = B.leftCols(r);
+        if (rz > r) Bz.col(r) = cb;
+        MatrixXd Dt(n, n), Ct(n, n), B1(n, rz), B2(n, rz);
+        check_status(vibid_second_order_form(id.n, static_cast<std::size_t>(rz), M.data(), D.data(), C.data(),
+                                             rz ? Bz.data() : nullptr, id.cfg.sample_time, Dt.data(), Ct.data(),
+                                             rz ? B1.data() : nullptr, rz ? B2.data() : nullptr),
+                     "ZOH difference form of theta0");
+        MatrixXd ThT(n, 2 * n + 2 * rz);
+        ThT << -Dt, -Ct, B1, B2;
+        const MatrixXd Th = ThT.transpose();
+        check_status(vibid_rls_set_prior(id.rls, Th.data(), nullptr), "prior");
+        id.has_prior = true;
+        return VIBID_OK;);
+}
+
 // Real-time path for every estimator: no exceptions, no allocation.
 VIBID_API vibid_status vibid_ident_push(vibid_ident *ident, const double *channels) {
     if (!ident || !channels) return VIBID_FAIL(VIBID_E_NULL_ARGUMENT, "ident and channels are required");
@@ -329,7 +388,7 @@ VIBID_API vibid_status vibid_ident_estimate(vibid_ident *ident, double *theta, d
         MatrixXd cov_reg = MatrixXd::Zero(P, P);  // Cov(vec Theta), vec column-major
         vibid_lsq_info li{};
         vibid_ident_info out{};
-        if (id.n_rows <= pr)
+        if (id.n_rows <= pr && !(id.rls && id.has_prior))
             throw_error(VIBID_E_INSUFFICIENT_DATA, "%llu equations for %zu regressors: push more samples", id.n_rows, pr);
         if (id.lsq) {
             vibid_status s = vibid_lsq_solve(id.lsq, Th.data(), &li);

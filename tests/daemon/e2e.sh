@@ -332,23 +332,36 @@ modbus_restart)
     note "$(check_final tracks.csv 1.0)"
     ;;
 sim_can_faults)
-    # issue 7 test 4: frames dropped (1 %) and duplicated (1 %) by vibid-sim in its candump
-    # output (its own DBC), replayed. Corrupted payload bits (--corrupt) are NOT tested
-    # here: a flipped bit in the 16-bit sample counter makes the CAN assembler declare a
-    # jump of up to 32767 samples (reported to drivers/; real CAN's CRC never lets such a
-    # frame through). Corrupted log lines are tested in gaps_faults.
+    # issue 7 test 4: frames dropped (1 %), duplicated (1 %) and corrupted (0.1 %: one
+    # random payload bit flipped) by vibid-sim in its candump output (its own DBC),
+    # replayed. A flipped bit in the 16-bit SampleCounter used to declare a jump of up to
+    # 32767 samples; the CAN assembler now judges a jump against the frame times and the
+    # nominal period (drivers/include/vibid_drivers/can_assembler.h) and reports it as a
+    # "corrupt" fault instead. Corrupted log lines are tested in gaps_faults.
     [ -x "$SIM" ] || fail "vibid-sim not built"
     "$SIM" -c "$STAND" -s "$SIMCFG" --duration 20 --candump cap.log --epoch 1700000000 --drop 0.01 \
-        --duplicate 0.01 --fast -q 2> sim.err || fail "vibid-sim: $(cat sim.err)"
+        --duplicate 0.01 --corrupt 0.001 --fast 2> sim.err || fail "vibid-sim: $(cat sim.err)"
+    corrupted=$(sed -n 's/.*CAN frames: .* \([0-9]*\) corrupted$/\1/p' sim.err)
+    [ -n "$corrupted" ] && [ "$corrupted" -gt 0 ] || fail "vibid-sim did not report corrupted frames: $(cat sim.err)"
     config_candump v.cfg ""
     sed -i "s#dbc = \"$DBC\"; counter = \"Counter\";#dbc = \"$SRC/sim/paper_example1.dbc\"; counter = \"SampleCounter\";#;
             s/signal = \"X1\"; message = \"Sample_A\"/signal = \"x1\"/; s/signal = \"X2\"; message = \"Sample_B\"/signal = \"x2\"/;
             s/signal = \"S\"; message = \"Sample_C\"/signal = \"s\"/" v.cfg
     timeout 60 "$VIBIDD" -c v.cfg 2> log || fail "vibidd: $(cat log)"
     samples=$(status_val samples status); missing=$(status_val missing_samples status)
-    note "samples $samples, gaps $(status_val gaps status), missing $missing, faults $(status_val faults status)"
+    corrupt=$(status_val faults_corrupt status)
+    note "sim: $(grep 'CAN frames' sim.err)"
+    note "samples $samples, gaps $(status_val gaps status), missing $missing, faults $(status_val faults status)" \
+         "(corrupt counters $corrupt, duplicates $(status_val faults_duplicate status), late $(status_val faults_late status))"
+    # Every sample index is accounted for exactly once: a corrupt counter taken as a jump
+    # would add thousands of phantom missing samples here.
     [ $((samples + missing)) -eq 40000 ] || fail "samples + missing = $((samples + missing)) != 40000"
     [ "$(status_val faults status)" -gt 100 ] || fail "duplicates not reported as faults"
+    # Corrupt-counter faults: at least one (a quarter of the flipped bits land in the
+    # counter, most of those far beyond the 16-sample slack), never more than the frames
+    # the simulator corrupted.
+    [ -n "$corrupt" ] && [ "$corrupt" -ge 1 ] && [ "$corrupt" -le "$corrupted" ] ||
+        fail "faults_corrupt = '$corrupt', want 1..$corrupted (frames corrupted by vibid-sim)"
     note "$(check_final tracks.csv 1.0)"
     ;;
 sim_diagnostics)

@@ -13,6 +13,10 @@ FIFO at base 1000, data offset 64, K = 500 records of W = 6 registers.
 --schedule RUN,PAUSE,RUN,...  seconds serving / not listening (connections closed), each
 restart is a new FIFO session (S = 0, new session id). The process exits after the
 schedule (and never later than --max-time). Prints "READY <port>" when first listening.
+
+--serial DEVICE serves Modbus RTU (pymodbus serial server, pyserial) on DEVICE, e.g. one
+end of a pseudo-terminal pair, instead of TCP; --port is then ignored (pass 0), the
+schedule's first phase only is used and "READY 0" is printed once the port is open.
 """
 import argparse
 import asyncio
@@ -23,7 +27,8 @@ import sys
 import time
 
 from pymodbus.datastore import ModbusSequentialDataBlock, ModbusServerContext, ModbusSlaveContext
-from pymodbus.server import ModbusTcpServer
+from pymodbus.framer import Framer
+from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 
 BASE, DOFF, K, C = 1000, 64, 500, 3
 W = 1 + 2 + 1 + 2
@@ -86,6 +91,8 @@ async def main():
     ap.add_argument("--schedule", default="2")
     ap.add_argument("--period-ns", type=int, default=1000000)
     ap.add_argument("--max-time", type=float, default=30.0)
+    ap.add_argument("--serial", default="")
+    ap.add_argument("--baud", type=int, default=115200)
     args = ap.parse_args()
     phases = [float(x) for x in args.schedule.split(",")]
     block = ModbusSequentialDataBlock(0, [0] * (BASE + DOFF + K * W + 16))
@@ -97,7 +104,11 @@ async def main():
             await asyncio.sleep(dur)
             continue
         fifo.restart()
-        server = ModbusTcpServer(ctx, address=("127.0.0.1", args.port))
+        if args.serial:
+            server = ModbusSerialServer(ctx, framer=Framer.RTU, port=args.serial, baudrate=args.baud,
+                                        bytesize=8, parity="N", stopbits=1)
+        else:
+            server = ModbusTcpServer(ctx, address=("127.0.0.1", args.port))
         task = asyncio.create_task(server.serve_forever())
         await asyncio.sleep(0.05)
         if i == 0:
@@ -109,7 +120,7 @@ async def main():
         await server.shutdown()
         await asyncio.wait_for(task, 2)
         print("PHASE", i, "served", fifo.S, "samples", flush=True)
-        if time.monotonic() >= deadline:
+        if time.monotonic() >= deadline or args.serial:
             break
     print("DONE", flush=True)
 

@@ -157,6 +157,161 @@ static void test_counter_mode(void **state)
     vibid_dbc_destroy(dbc);
 }
 
+/* Counter plausibility. One message with a 16-bit counter like vibid-sim's frames,
+ * h = 1 ms, default slack (16 samples): a missing count beyond 16 + 2 dt/h is a
+ * corrupted counter (FAULT, frame ignored); genuine gaps whose time advanced stay GAPs. */
+static const char dbc16_text[] = "BO_ 300 C: 8 S\n SG_ Cnt : 0|16@1+ (1,0) [0|65535] \"\" X\n"
+                                 " SG_ Y : 16|32@1- (1,0) [0|0] \"m\" X\nSIG_VALTYPE_ 300 Y : 1;\n";
+
+static vibid_can_frame frame16(uint16_t cnt, float y, int64_t t)
+{
+    vibid_can_frame f;
+    memset(&f, 0, sizeof f);
+    f.id = 300;
+    f.len = 8;
+    f.t_ns = t;
+    memcpy(f.data, &cnt, 2); /* little endian host */
+    memcpy(f.data + 2, &y, 4);
+    return f;
+}
+
+static vibid_can_assembler *make16(vibid_dbc **dbc, vibid_chanmap *map)
+{
+    vibid_drv_error err = {0};
+    *dbc = vibid_dbc_parse(dbc16_text, sizeof dbc16_text - 1, "t16.dbc", &err);
+    assert_non_null(*dbc);
+    memset(map, 0, sizeof *map);
+    map->n = 1;
+    strcpy(map->ch[0].name, "y");
+    strcpy(map->ch[0].ref, "Y");
+    strcpy(map->counter, "Cnt");
+    vibid_can_assembler *a = vibid_can_assembler_create(*dbc, map, &err);
+    assert_non_null(a);
+    return a;
+}
+
+static void test_counter_plausibility(void **state)
+{
+    (void)state;
+    vibid_dbc *dbc;
+    vibid_chanmap map;
+    vibid_can_assembler *a = make16(&dbc, &map);
+    assert_false(vibid_can_assembler_set_timing(a, -1e-3, 0));
+    assert_false(vibid_can_assembler_set_timing(a, NAN, 0));
+    assert_true(vibid_can_assembler_set_timing(a, 1e-3, 0));
+    const int64_t h = 1000000; /* 1 ms */
+    vibid_record r[16];
+    vibid_can_frame f;
+    for (int k = 0; k < 10; k++) { /* samples 0..9, one per ms */
+        f = frame16((uint16_t)k, (float)k, k * h);
+        vibid_can_assembler_push(a, &f);
+        assert_int_equal(drain(a, r, 16), 1);
+        assert_int_equal(r[0].kind, VIBID_REC_SAMPLE);
+    }
+    /* sample 10's frame with bit 10 of the counter flipped: 10 ^ 0x400 = 1034, a jump of
+     * 1025 samples 1 ms after sample 9 (at most 1 + 16 + 2 possible) */
+    f = frame16(10 ^ 0x400, 10.0f, 10 * h);
+    vibid_can_assembler_push(a, &f);
+    size_t n = drain(a, r, 16);
+    assert_int_equal(n, 1);
+    assert_int_equal(r[0].kind, VIBID_REC_FAULT);
+    assert_int_equal(r[0].fault, VIBID_FAULT_CORRUPT);
+    assert_int_equal(r[0].index, 9);
+    assert_non_null(strstr(r[0].text, "corrupt counter"));
+    /* sample 11 arrives correctly: sample 10 (whose frame was corrupt) is a 1-sample GAP */
+    f = frame16(11, 11.0f, 11 * h);
+    vibid_can_assembler_push(a, &f);
+    n = drain(a, r, 16);
+    assert_int_equal(n, 2);
+    assert_int_equal(r[0].kind, VIBID_REC_GAP);
+    assert_int_equal(r[0].index, 10);
+    assert_int_equal(r[0].count, 1);
+    assert_int_equal(r[1].kind, VIBID_REC_SAMPLE);
+    assert_int_equal(r[1].index, 11);
+    assert_true(r[1].values[0] == 11.0);
+    /* genuine outage: 500 ms later the counter says 511 (499 missing <= 16 + 1000) */
+    f = frame16(511, 511.0f, 511 * h);
+    vibid_can_assembler_push(a, &f);
+    n = drain(a, r, 16);
+    assert_int_equal(n, 2);
+    assert_int_equal(r[0].kind, VIBID_REC_GAP);
+    assert_int_equal(r[0].index, 12);
+    assert_int_equal(r[0].count, 499);
+    assert_int_equal(r[1].index, 511);
+    /* near the bound (16 + 2 * 10 = 36 missing allowed 10 ms after sample 511): 35
+     * missing is a GAP, */
+    f = frame16(511 + 36, 0.0f, 521 * h);
+    vibid_can_assembler_push(a, &f);
+    n = drain(a, r, 16);
+    assert_int_equal(n, 2);
+    assert_int_equal(r[0].kind, VIBID_REC_GAP);
+    assert_int_equal(r[0].count, 35);
+    assert_int_equal(r[1].index, 547);
+    /* ... 37 missing 10 ms later is not */
+    f = frame16(547 + 38, 0.0f, 531 * h);
+    vibid_can_assembler_push(a, &f);
+    n = drain(a, r, 16);
+    assert_int_equal(n, 1);
+    assert_int_equal(r[0].fault, VIBID_FAULT_CORRUPT);
+    /* a frame time going backwards counts as no elapsed time: a jump of 2 is within the
+     * slack, a jump of 18 (17 missing) is not */
+    f = frame16(547 + 18, 0.0f, 500 * h);
+    vibid_can_assembler_push(a, &f);
+    n = drain(a, r, 16);
+    assert_int_equal(n, 1);
+    assert_int_equal(r[0].fault, VIBID_FAULT_CORRUPT);
+    f = frame16(547 + 2, 0.0f, 500 * h);
+    vibid_can_assembler_push(a, &f);
+    n = drain(a, r, 16);
+    assert_int_equal(n, 2);
+    assert_int_equal(r[0].kind, VIBID_REC_GAP);
+    assert_int_equal(r[0].count, 1);
+    assert_int_equal(r[1].index, 549);
+    /* 20000 ahead after 100 ms: corrupt */
+    f = frame16(549 + 20000, 0.0f, 600 * h);
+    vibid_can_assembler_push(a, &f);
+    n = drain(a, r, 16);
+    assert_int_equal(n, 1);
+    assert_int_equal(r[0].fault, VIBID_FAULT_CORRUPT);
+    vibid_can_assembler_stats st;
+    vibid_can_assembler_stats_get(a, &st);
+    assert_int_equal(st.corrupt_counters, 4);
+    assert_int_equal(st.gaps, 4);
+    assert_int_equal(st.missing_samples, 1 + 499 + 35 + 1);
+    vibid_can_assembler_destroy(a);
+    vibid_dbc_destroy(dbc);
+
+    /* genuine gap across the 16-bit wrap: 65530 -> 5 after 11 ms is 10 missing */
+    a = make16(&dbc, &map);
+    assert_true(vibid_can_assembler_set_timing(a, 1e-3, 0));
+    f = frame16(65530, 0.0f, 0);
+    vibid_can_assembler_push(a, &f);
+    f = frame16(5, 0.0f, 11 * h);
+    vibid_can_assembler_push(a, &f);
+    n = drain(a, r, 16);
+    assert_int_equal(n, 3);
+    assert_int_equal(r[1].kind, VIBID_REC_GAP);
+    assert_int_equal(r[1].index, 65531);
+    assert_int_equal(r[1].count, 10);
+    assert_int_equal(r[2].index, 65541);
+    vibid_can_assembler_destroy(a);
+    vibid_dbc_destroy(dbc);
+
+    /* without timing (h = 0) the same corrupt frame is still taken as a 1024-sample
+     * jump: the check is what turns it into a fault */
+    a = make16(&dbc, &map);
+    f = frame16(9, 0.0f, 9 * h);
+    vibid_can_assembler_push(a, &f);
+    f = frame16(10 ^ 0x400, 0.0f, 10 * h);
+    vibid_can_assembler_push(a, &f);
+    n = drain(a, r, 16);
+    assert_int_equal(n, 3);
+    assert_int_equal(r[1].kind, VIBID_REC_GAP);
+    assert_int_equal(r[1].count, 1024);
+    vibid_can_assembler_destroy(a);
+    vibid_dbc_destroy(dbc);
+}
+
 static void test_config_errors(void **state)
 {
     (void)state;
@@ -182,6 +337,7 @@ int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_counter_mode),
+        cmocka_unit_test(test_counter_plausibility),
         cmocka_unit_test(test_config_errors),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);

@@ -10,6 +10,15 @@
  * current sample is a DUPLICATE; both are reported and ignored (the first value wins).
  * "Older/newer" is decided modulo 2^n by half the range, so wrap-around is handled.
  *
+ * Counter plausibility (after vibid_can_assembler_set_timing with period h > 0): a
+ * forward jump of d samples that arrives only dt after the open sample's first frame
+ * is accepted as a genuine gap only if d - 1 <= slack + 2 dt / h, i.e. the sender
+ * cannot have skipped more samples than twice the elapsed time holds (factor 2 and
+ * slack absorb receive jitter and bursty senders). A larger jump is a corrupted
+ * counter (one flipped bit of a 16-bit counter jumps by up to 32768): a FAULT record
+ * VIBID_FAULT_CORRUPT for that frame, which contributes nothing and moves nothing.
+ * Without timing (h = 0, the default) every forward jump is a GAP as before.
+ *
  * Trigger mode (chanmap.trigger set, no counter): the trigger message opens sample
  * k+1 (closing sample k as above); other messages fill the open sample.
  *
@@ -39,6 +48,7 @@ typedef struct vibid_can_assembler_stats {
     uint64_t frames, samples, gaps, missing_samples, incomplete_samples;
     uint64_t duplicates, late, unknown_ids, short_frames, nonfinite;
     uint64_t error_frames, bus_off, ctrl_overflow, restarts, dropped;
+    uint64_t corrupt_counters; /* implausible counter jumps (FAULT, frame ignored) */
     vibid_jitter_stats jitter;
 } vibid_can_assembler_stats;
 
@@ -47,6 +57,12 @@ typedef struct vibid_can_assembler_stats {
 vibid_can_assembler *vibid_can_assembler_create(const vibid_dbc *dbc, const vibid_chanmap *map,
                                                 vibid_drv_error *err);
 void vibid_can_assembler_destroy(vibid_can_assembler *a);
+/* Enables the counter plausibility check (counter mode only). period_s: nominal
+ * sample period h in s (> 0, finite; 0 disables the check); slack_samples: extra
+ * missing samples tolerated beyond 2 dt / h (0 selects the default,
+ * VIBID_CAN_ASSEMBLER_DEFAULT_SLACK). Returns false on an invalid period. */
+#define VIBID_CAN_ASSEMBLER_DEFAULT_SLACK 16u
+bool vibid_can_assembler_set_timing(vibid_can_assembler *a, double period_s, uint32_t slack_samples);
 /* Feeds one frame. Produced records are queued; read them with _pop. No allocation. */
 void vibid_can_assembler_push(vibid_can_assembler *a, const vibid_can_frame *frame);
 /* Reports frames lost before they reached us (SO_RXQ_OVFL, candump DROPCOUNT). */

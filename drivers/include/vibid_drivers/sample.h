@@ -29,7 +29,9 @@ typedef enum vibid_fault_code {
     VIBID_FAULT_BUS_ERROR,    /* CAN error frame */
     VIBID_FAULT_DROPPED,      /* frames dropped by the kernel/logger (count in `count`) */
     VIBID_FAULT_POLL,         /* failed Modbus poll */
-    VIBID_FAULT_LINK          /* connection lost / re-established */
+    VIBID_FAULT_LINK,         /* connection lost / re-established */
+    VIBID_FAULT_CORRUPT       /* implausible content, e.g. a CAN sample counter jumping further than
+                                 the elapsed time allows (frame not used) */
 } vibid_fault_code;
 
 typedef struct vibid_record {

@@ -46,7 +46,9 @@ typedef struct vibid_source_replay_config {
     bool paced;                  /* false: as fast as possible */
     double speed;                /* paced: 1.0 = recorded pace, 2.0 = twice as fast; > 0 */
     double sample_period_s;      /* CSV: h; required without time_column (t_k = k h);
-                                    with it optional (gap detection); 0 = unknown */
+                                    with it optional (gap detection); candump: the
+                                    counter plausibility check (can_assembler.h);
+                                    0 = unknown */
 } vibid_source_replay_config;
 
 extern const vibid_source_ops vibid_source_replay_ops;

@@ -48,6 +48,8 @@ typedef struct vibid_source_socketcan_config {
     bool accept_all_ids;       /* no id filters: other ids arrive as UNKNOWN_ID faults */
     unsigned batch;            /* frames per recvmmsg, 1..256; 0 = 64 */
     uint32_t err_mask;         /* CAN_ERR_* classes; 0 = VIBID_SOCKETCAN_DEFAULT_ERR_MASK */
+    double sample_period_s;    /* nominal h in s for the counter plausibility check
+                                  (can_assembler.h); 0 = no check */
     /* Tests only: use_fd = true reads from this already-open datagram socket (e.g. one
      * end of an AF_UNIX socketpair carrying can_frame / canfd_frame bytes) instead of
      * opening CAN_RAW; the receive, cmsg and assembly path is the same. */

@@ -78,6 +78,28 @@ VIBID_API void vibid_ident_destroy(vibid_ident *ident);
 /* Number of channels per sample and of unknowns (for sizing arrays). */
 VIBID_API vibid_status vibid_ident_dims(const vibid_ident *ident, size_t *n_channels, size_t *n_params);
 
+/* Start values for the RLS estimator (cfg.estimator == VIBID_ESTIMATOR_RLS), e.g. the
+ * last identification of the stand kept by the daemon. Also the state that
+ * vibid_ident_reset returns to from now on. The RLS residual statistics restart; the
+ * sample counts, the difference window and the pre-filter keep running. With a prior set,
+ * vibid_ident_estimate answers from the first sample on (the prior stands in for the
+ * missing equations).
+ *   theta0 p physical parameters in the model's parameter order and the model's units
+ *          (vibid_model_param_info: N/m, N s/m, kg, N/m^3, gain units, ...), finite.
+ *          NULL: the model's nominal values (vibid_model_nominal).
+ *   P0     p x p symmetric positive definite start value of the RLS matrix P (column-
+ *          major), in the same parameter order; its units are those of theta_i theta_j
+ *          divided by the equation error's squared unit (N^2 for force equations): the
+ *          covariance of theta0 is sigma_e^2 P0. NULL: alpha^-1 I (cfg.rls_alpha), the
+ *          default start. Central differences only: with ZOH the estimator runs on the
+ *          difference form (1.16), so theta0 is mapped there (vibid_second_order_form)
+ *          and P0 must be NULL (VIBID_E_OUT_OF_RANGE otherwise).
+ * VIBID_E_STATE for the batch estimators (LS, IV: they have no start value),
+ * VIBID_E_NONFINITE / VIBID_E_OUT_OF_RANGE / VIBID_E_NUMERICAL for bad theta0 or P0 (as
+ * vibid_rls_set_prior); on any error the identification is left unchanged. Not a
+ * per-sample call: may allocate. */
+VIBID_API vibid_status vibid_ident_set_prior(vibid_ident *ident, const double *theta0, const double *P0);
+
 /* One sample: channels in the model's layout (model.h). Allocates nothing (all
  * estimators). Non-finite input: VIBID_E_NONFINITE, sample ignored, the difference
  * window restarts (a gap costs the next 2 samples). */

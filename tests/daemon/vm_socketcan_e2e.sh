@@ -1,0 +1,177 @@
+#!/bin/sh
+# daemon.e2e.vm_socketcan (issue 7, end-to-end test 2): SocketCAN for real.
+# In the qemu (TCG) VM of tests/drivers/vm_socketcan.sh (Debian's kernel package, its
+# can/can-raw/can-dev/vcan modules, busybox; helpers in tests/drivers/vm_kernel.sh):
+#  - vibidd identifies the paper's example 1 live from vcan0 (daemon/examples/
+#    socketcan.cfg adapted: sim's own DBC, no SCHED_FIFO/mlockall, local outputs),
+#  - can-utils' candump -l records the same bus,
+#  - both are started (vibidd's status file says "running") before vibid-sim sends
+#    20 s of the paper's example 1 (tests/daemon/data/sim_steady.cfg, 2 kHz, classic
+#    frames, paced in real time) on vcan0; then vibidd gets SIGTERM (drain, exit 0);
+#  - vibidd --replay of candump's log runs the same pipeline on the recording.
+# Checks (host side): live and replay each have samples + missing = every sample the
+# simulator sent, no kernel drops; final c1, d, c2 of each within 1 % of the truth
+# (issue 7); live and replay final estimates agree within 1e-4 relative. Why 1e-4: both
+# saw the same frame sequence from the first frame on (the estimator uses sample
+# indices and the nominal h, not receive times), so they should agree to the printed
+# precision of the tracks; 1e-4 is far below the 1 % accuracy asked, yet would catch any
+# sample lost, duplicated or decoded differently on one side.
+# Usage: vm_socketcan_e2e.sh WORKDIR VIBIDD VIBID_SIM SOURCE_DIR [TIMEOUT_S]
+# Fails (exit 1) with a clear message if anything is missing (kernel package download,
+# qemu, busybox-static, can-utils); never skips.
+set -u
+work=$1
+abs() { echo "$(cd "$(dirname "$1")" && pwd)/$(basename "$1")"; }
+vibidd=$(abs "$2")
+sim=$(abs "$3")
+src=$(cd "$4" && pwd)
+timeout_s=${5:-300}
+fail() { echo "FAIL [vm_socketcan e2e]: $*" >&2; exit 1; }
+. "$src/tests/drivers/vm_kernel.sh"
+for t in qemu-system-x86_64 apt-get apt-cache dpkg cpio gzip xz candump flock python3; do
+  command -v $t >/dev/null 2>&1 || fail "'$t' not found (Debian: scripts/install-deps.sh --test installs can-utils qemu-system-x86 busybox-static cpio)"
+done
+busybox=/bin/busybox
+[ -x "$busybox" ] && file -L "$busybox" 2>/dev/null | grep -q "statically linked" || busybox=$(command -v busybox)
+[ -n "$busybox" ] && ldd "$busybox" 2>&1 | grep -q "not a dynamic" || fail "a static busybox is needed (Debian: busybox-static)"
+[ -x "$vibidd" ] || fail "vibidd not built ($vibidd)"
+[ -x "$sim" ] || fail "vibid-sim not built ($sim)"
+mkdir -p "$work" || fail "cannot create $work"
+cd "$work" || exit 1
+
+# Kernel cache shared with drivers.vm_socketcan (same build tree).
+vm_fetch_kernel "$work/../../drivers/vm/cache"
+
+rm -rf root && mkdir -p root/bin root/data root/proc root/sys root/dev root/tmp root/run
+cp "$busybox" root/bin/busybox
+vm_add_can_modules root
+vm_add_binary root "$vibidd" "$sim" "$(command -v candump)"
+cp "$src/examples/stands/paper_example1.cfg" root/data/stand.cfg || fail "stand file missing"
+cp "$src/tests/daemon/data/sim_steady.cfg" root/data/sim.cfg || fail "sim_steady.cfg missing"
+cp "$src/sim/paper_example1.dbc" root/data/sim.dbc || fail "sim/paper_example1.dbc missing"
+for side in live replay; do
+  cat > root/data/$side.cfg <<EOF
+# daemon/examples/socketcan.cfg adapted for the VM: vibid-sim's own DBC, outputs in /tmp/$side
+stand = "/data/stand.cfg";
+source = {
+  kind = "socketcan";
+  interface = "vcan0";
+  dbc = "/data/sim.dbc";
+  counter = "SampleCounter";
+  rcvbuf = 4194304;
+  channels = (
+    { name = "x1"; quantity = "displacement";      node = 0; unit = "m"; signal = "x1"; },
+    { name = "x2"; quantity = "displacement";      node = 1; unit = "m"; signal = "x2"; },
+    { name = "s";  quantity = "base_displacement"; node = 0; unit = "m"; signal = "s"; }
+  );
+};
+acquisition = { ring_size = 65536; };
+estimator = { method = "rls"; prefilter_hz = 200.0; decimation = 200; };
+outputs = {
+  tracks = { path = "/tmp/$side/tracks.csv"; flush_interval = 1.0; };
+  status = { path = "/tmp/$side/status"; interval = 0.2; };
+};
+EOF
+done
+cat > root/init <<'INIT'
+#!/bin/busybox sh
+/bin/busybox --install -s /bin
+export PATH=/bin LD_LIBRARY_PATH=/lib/x86_64-linux-gnu
+mount -t proc proc /proc; mount -t sysfs sys /sys; mount -t devtmpfs dev /dev 2>/dev/null
+echo "VIBID-BOOTED uptime $(cut -d' ' -f1 /proc/uptime)"
+for m in can can-raw can-dev vcan; do insmod /mod/$m.ko || echo "VIBID-FAIL insmod $m"; done
+ip link add dev vcan0 type vcan && ip link set up vcan0 || echo "VIBID-FAIL ip link vcan0"
+mkdir -p /tmp/live /tmp/replay /tmp/cd
+cd /tmp/cd && candump -l vcan0 &
+cp=$!
+cd /tmp/live
+vibidd -c /data/live.cfg 2> /tmp/live/err &
+vp=$!
+i=0
+until grep -q '^state=running' /tmp/live/status 2>/dev/null; do
+  i=$((i + 1)); [ $i -gt 100 ] && { echo "VIBID-FAIL vibidd did not start: $(cat /tmp/live/err)"; break; }
+  sleep 0.1
+done
+echo "VIBID-SIM start uptime $(cut -d' ' -f1 /proc/uptime)"
+vibid-sim -c /data/stand.cfg -s /data/sim.cfg --can vcan0 --duration 20 2> /tmp/sim.err ||
+  echo "VIBID-FAIL vibid-sim: $(tail -3 /tmp/sim.err)"
+echo "VIBID-SIM end uptime $(cut -d' ' -f1 /proc/uptime)"
+sed 's/^/VIBIDSIM /' /tmp/sim.err
+sleep 1
+kill -TERM $vp; wait $vp; echo "VIBID live-exit $?"
+kill -INT $cp; wait $cp
+log=$(ls /tmp/cd/candump-*.log | head -n 1)
+echo "VIBID candump-lines $(wc -l < "$log")"
+cd /tmp/replay
+vibidd -c /data/replay.cfg --replay "$log" 2> /tmp/replay/err; echo "VIBID replay-exit $?"
+for side in live replay; do
+  for k in samples missing_samples gaps faults source_dropped_frames source_frames; do
+    echo "VIBIDST $side $k $(sed -n "s/^$k=//p" /tmp/$side/status)"
+  done
+  echo "VIBIDROWS $side $(wc -l < /tmp/$side/tracks.csv)"
+  echo "VIBIDLAST $side $(tail -n 1 /tmp/$side/tracks.csv)"
+  grep -v "source fault" /tmp/$side/err | tail -n 3 | sed "s/^/VIBIDERR $side /"
+done
+echo "VIBID-DONE uptime $(cut -d' ' -f1 /proc/uptime)"
+poweroff -f
+INIT
+chmod +x root/init
+(cd root && find . | cpio -o -H newc 2>/dev/null | gzip -1) > initrd.gz || fail "cpio of the initramfs failed"
+
+start=$(date +%s)
+timeout -k 5 "$timeout_s" qemu-system-x86_64 -accel tcg -m 512 -nographic -no-reboot -smp 1 \
+  -kernel "$VM_VMLINUZ" -initrd initrd.gz -append "console=ttyS0 quiet panic=-1 rdinit=/init" \
+  -nic none > console.log 2>&1
+rc=$?
+end=$(date +%s)
+tr -d '\r' < console.log > console.txt
+grep -E "^VIBID" console.txt | head -60
+echo "qemu exit $rc after $((end - start)) s (kernel $(basename "$VM_VMLINUZ"))"
+{ [ $rc -eq 124 ] || [ $rc -eq 137 ]; } && fail "VM did not finish within $timeout_s s (qemu killed); console: $work/console.txt"
+grep -q "^VIBID-DONE" console.txt || fail "VM run did not complete; console: $work/console.txt"
+grep -q "^VIBID-FAIL" console.txt && fail "in the VM: $(grep '^VIBID-FAIL' console.txt)"
+
+st() { awk -v s="$1" -v k="$2" '$1 == "VIBIDST" && $2 == s && $3 == k { print $4 }' console.txt; }
+ok=1
+bad() { echo "FAIL [vm_socketcan e2e]: $*" >&2; ok=0; }
+[ "$(awk '$1 == "VIBID" && $2 == "live-exit" { print $3 }' console.txt)" = 0 ] || bad "live vibidd did not exit 0 on SIGTERM"
+[ "$(awk '$1 == "VIBID" && $2 == "replay-exit" { print $3 }' console.txt)" = 0 ] || bad "vibidd --replay did not exit 0"
+# 20 s at the stand's 2 kHz = 40000 samples sent (3 classic frames each)
+for side in live replay; do
+  n=$(st $side samples); m=$(st $side missing_samples)
+  [ -n "$n" ] && [ -n "$m" ] && [ $((n + m)) -eq 40000 ] || bad "$side: samples $n + missing $m != 40000"
+  [ "${m:-1}" -eq 0 ] || bad "$side: $m samples missing"
+  [ "$(st $side source_dropped_frames)" = 0 ] || bad "$side: frames dropped: $(st $side source_dropped_frames)"
+done
+python3 - console.txt <<'PY' || ok=0
+import sys
+last = {}
+for line in open(sys.argv[1]):
+    p = line.split()
+    if len(p) == 3 and p[0] == "VIBIDLAST":
+        last[p[1]] = p[2].split(",")
+truth = {"c1": 2.5e5, "d": 300.0, "c2": 1.5e6}
+cols = {"c1": 2, "d": 4, "c2": 6}  # 0-based columns of tracks.csv (as tests/daemon/e2e.sh check_final)
+bad = False
+est = {}
+for side in ("live", "replay"):
+    if side not in last:
+        print("FAIL: no final tracks row from the %s run" % side, file=sys.stderr)
+        sys.exit(1)
+    est[side] = {k: float(last[side][c]) for k, c in cols.items()}
+    for k, v in est[side].items():
+        e = 100 * (v - truth[k]) / truth[k]
+        print("%s: %s = %.6g (%+.3f %% of truth)" % (side, k, v, e))
+        if abs(e) > 1.0:
+            print("FAIL: %s final %s off by %.3f %% (> 1 %%)" % (side, k, e), file=sys.stderr)
+            bad = True
+for k in truth:
+    r = abs(est["live"][k] - est["replay"][k]) / abs(est["replay"][k])
+    print("live vs replay: %s relative difference %.3g (tolerance 1e-4)" % (k, r))
+    if r > 1e-4:
+        print("FAIL: live and replay final %s differ by %.3g relative (> 1e-4)" % (k, r), file=sys.stderr)
+        bad = True
+sys.exit(1 if bad else 0)
+PY
+[ $ok -eq 1 ] || fail "checks failed; console: $work/console.txt"
+echo "PASS: vibidd live on vcan0 in the VM and vibidd --replay of candump -l's recording agree and are within 1 % of the truth"

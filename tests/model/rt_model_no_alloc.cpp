@@ -1,0 +1,291 @@
+// rt_model_no_alloc.cpp: the per-sample paths of the model layer allocate nothing:
+// vibid_model_forces, vibid_regressor_push and vibid_ident_push / vibid_ident_push_block
+// (issue 3: "per-sample regressor building allocates nothing").
+//
+// Same machinery as tests/lib/rt_no_alloc.cpp: linked against vibid_rtcheck (the library
+// built with EIGEN_RUNTIME_NO_MALLOC and assertions on) with
+// -Wl,--wrap=malloc,--wrap=calloc,--wrap=realloc, so every malloc/calloc/realloc made by
+// the library's objects or this file goes through the counters below; operator new is
+// replaced too. Inside the armed window Eigen's own check is switched off as well
+// (set_is_malloc_allowed(false)): an Eigen heap allocation aborts the test. The first
+// test proves that both detectors fire.
+//
+// Covered: central differences (displacement, acceleration, cubic spring, unknown
+// input gain; with and without the pre-filter) and ZOH (1.16); the LS, IV and RLS
+// estimators; the NaN gap path of every push. The estimates are not checked here
+// (tests/model/test_model.c does that), only that the calls succeed and allocate nothing.
+
+// Must see the same Eigen inline functions as the library objects (compiled -UNDEBUG):
+// see tests/lib/rt_no_alloc.cpp.
+#undef NDEBUG
+
+#include <Eigen/Core>
+
+#include <cmath>
+#include <csignal>
+#include <cstddef>
+#include <cstdio>
+#include <cstdlib>
+#include <new>
+#include <vector>
+
+#include <fcntl.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+extern "C" {
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stdint.h>
+#include <cmocka.h>
+}
+
+#include <vibid/identify.h>
+#include <vibid/model.h>
+#include <vibid/regressor.h>
+
+namespace {
+// Plain globals: the test is single-threaded and the hooks must not allocate.
+bool armed = false;
+std::size_t n_alloc = 0;
+
+void arm() {
+    n_alloc = 0;
+    Eigen::internal::set_is_malloc_allowed(false);
+    armed = true;
+}
+
+std::size_t disarm() {
+    armed = false;
+    Eigen::internal::set_is_malloc_allowed(true);
+    return n_alloc;
+}
+}  // namespace
+
+extern "C" {
+void *__real_malloc(std::size_t size);
+void *__real_calloc(std::size_t n, std::size_t size);
+void *__real_realloc(void *ptr, std::size_t size);
+
+void *__wrap_malloc(std::size_t size) {
+    if (armed) ++n_alloc;
+    return __real_malloc(size);
+}
+void *__wrap_calloc(std::size_t n, std::size_t size) {
+    if (armed) ++n_alloc;
+    return __real_calloc(n, size);
+}
+void *__wrap_realloc(void *ptr, std::size_t size) {
+    if (armed) ++n_alloc;
+    return __real_realloc(ptr, size);
+}
+}
+
+// operator new lives in libstdc++.so, whose malloc calls --wrap cannot see: replace it.
+void *operator new(std::size_t size) {
+    if (armed) ++n_alloc;
+    if (void *p = __real_malloc(size ? size : 1)) return p;
+    throw std::bad_alloc();
+}
+void *operator new[](std::size_t size) { return ::operator new(size); }
+void *operator new(std::size_t size, const std::nothrow_t &) noexcept {
+    if (armed) ++n_alloc;
+    return __real_malloc(size ? size : 1);
+}
+void *operator new[](std::size_t size, const std::nothrow_t &tag) noexcept { return ::operator new(size, tag); }
+void operator delete(void *p) noexcept { std::free(p); }
+void operator delete[](void *p) noexcept { std::free(p); }
+void operator delete(void *p, std::size_t) noexcept { std::free(p); }
+void operator delete[](void *p, std::size_t) noexcept { std::free(p); }
+
+namespace {
+
+void test_counters_fire(void **state) {
+    (void)state;
+    // Volatile function pointers keep the compiler from eliding the allocations.
+    void *(*volatile do_malloc)(std::size_t) = std::malloc;
+    void *(*volatile do_new)(std::size_t) = static_cast<void *(*)(std::size_t)>(&::operator new);
+    arm();
+    void *a = do_malloc(16);
+    void *b = do_new(16);
+    const std::size_t n = disarm();
+    std::free(a);
+    ::operator delete(b);
+    assert_int_equal(n, 2);
+
+    // Eigen's check: a child that allocates a matrix while forbidden must abort.
+    const pid_t pid = fork();
+    assert_true(pid >= 0);
+    if (pid == 0) {
+        const int devnull = open("/dev/null", O_WRONLY);
+        if (devnull >= 0) dup2(devnull, STDERR_FILENO);  // the assertion message is expected
+        Eigen::internal::set_is_malloc_allowed(false);
+        Eigen::MatrixXd m(64, 64);
+        m.setZero();
+        _exit(m(0, 0) == 0.0 ? 0 : 1);
+    }
+    int status = 0;
+    assert_int_equal(waitpid(pid, &status, 0), pid);
+    assert_true(WIFSIGNALED(status) && WTERMSIG(status) == SIGABRT);
+}
+
+// Two-mass stand with everything the per-sample paths distinguish. cubic = true: central
+// differences with a cubic spring m2-base, an accelerometer on m2 and an input of unknown
+// gain on m1. cubic = false: the linear stand (ZOH needs a linear model and displacements).
+vibid_model *make_model(bool cubic, vibid_discretization disc) {
+    vibid_model *m = vibid_model_create();
+    assert_non_null(m);
+    std::size_t n1 = 0, n2 = 0;
+    assert_int_equal(vibid_model_add_node(m, "m1", 10.0, 0, &n1), VIBID_OK);
+    assert_int_equal(vibid_model_add_node(m, "m2", 20.0, 0, &n2), VIBID_OK);
+    assert_int_equal(vibid_model_add_element(m, "c1", VIBID_ELEMENT_SPRING, n1, n2, 2.5e5, 1), VIBID_OK);
+    assert_int_equal(vibid_model_add_element(m, "d", VIBID_ELEMENT_DAMPER, n1, n2, 300.0, 1), VIBID_OK);
+    assert_int_equal(vibid_model_add_element(m, "c2", VIBID_ELEMENT_SPRING, n2, VIBID_BASE, 1.5e6, 1), VIBID_OK);
+    assert_int_equal(vibid_model_set_measured(m, n1, VIBID_MEASURE_DISPLACEMENT), VIBID_OK);
+    assert_int_equal(vibid_model_set_measured(m, VIBID_BASE, VIBID_MEASURE_DISPLACEMENT), VIBID_OK);
+    if (cubic) {
+        assert_int_equal(vibid_model_add_element(m, "eps", VIBID_ELEMENT_CUBIC_SPRING, n2, VIBID_BASE, 2e9, 1),
+                         VIBID_OK);
+        assert_int_equal(vibid_model_add_input(m, "u", n1, 3.0, 1, nullptr), VIBID_OK);
+        assert_int_equal(vibid_model_set_measured(m, n2, VIBID_MEASURE_DISPLACEMENT | VIBID_MEASURE_ACCELERATION),
+                         VIBID_OK);
+    } else {
+        assert_int_equal(vibid_model_set_measured(m, n2, VIBID_MEASURE_DISPLACEMENT), VIBID_OK);
+    }
+    assert_int_equal(vibid_model_set_discretization(m, disc), VIBID_OK);
+    assert_int_equal(vibid_model_finalize(m), VIBID_OK);
+    return m;
+}
+
+// Deterministic, well-scaled channel values (any finite data exercise the same code).
+double value(std::size_t k, std::size_t c) {
+    return 1e-3 * std::sin(0.037 * static_cast<double>(k) * (1.0 + 0.31 * static_cast<double>(c)) + 0.7 * static_cast<double>(c));
+}
+
+void test_forces_no_alloc(void **state) {
+    (void)state;
+    vibid_model *m = make_model(true, VIBID_DISC_CENTRAL_DIFFERENCE);
+    const double theta[5] = {2.5e5, 300.0, 1.5e6, 2e9, 3.0};
+    double f[2] = {0, 0}, y[2], yd[2], base[2], u[1];
+    double fsum = 0.0;
+    std::size_t bad_status = 0;
+    arm();
+    for (std::size_t k = 0; k < 1000; ++k) {
+        y[0] = value(k, 0);
+        y[1] = value(k, 1);
+        yd[0] = value(k, 2);
+        yd[1] = value(k, 3);
+        base[0] = value(k, 4);
+        base[1] = value(k, 5);
+        u[0] = value(k, 6);
+        if (vibid_model_forces(m, (k % 2) ? theta : nullptr, y, yd, base, u, f) != VIBID_OK) ++bad_status;
+        fsum += std::fabs(f[0]) + std::fabs(f[1]);
+    }
+    // Error path: the message is formatted into a fixed buffer.
+    if (vibid_model_forces(m, theta, y, yd, nullptr, u, f) != VIBID_E_NULL_ARGUMENT) ++bad_status;
+    const std::size_t n = disarm();
+    assert_int_equal(bad_status, 0);
+    assert_int_equal(n, 0);
+    assert_true(fsum > 0.0);  // the calls computed something
+    vibid_model_destroy(m);
+}
+
+void run_regressor(const vibid_model *m, double prefilter_hz) {
+    vibid_regressor *g = vibid_regressor_create(m, 5e-4, prefilter_hz);
+    assert_non_null(g);
+    vibid_regressor_dims d{};
+    assert_int_equal(vibid_regressor_get_dims(g, &d), VIBID_OK);
+    vibid_model_dims md{};
+    assert_int_equal(vibid_model_get_dims(m, &md), VIBID_OK);
+    std::vector<double> x(d.n_regressors * d.n_equations), y(d.n_equations * d.n_outputs), ch(md.n_channels);
+    std::size_t bad_status = 0, n_ready = 0;
+    arm();
+    for (std::size_t k = 0; k < 500; ++k) {
+        for (std::size_t c = 0; c < ch.size(); ++c) ch[c] = value(k, c);
+        if (k == 250) ch[0] = NAN;  // gap: VIBID_E_NONFINITE, then a restart
+        int ready = 0;
+        const vibid_status s = vibid_regressor_push(g, ch.data(), x.data(), y.data(), &ready);
+        if (s != (k == 250 ? VIBID_E_NONFINITE : VIBID_OK)) ++bad_status;
+        if (k == 250 && vibid_regressor_reset(g) != VIBID_OK) ++bad_status;
+        n_ready += static_cast<std::size_t>(ready);
+    }
+    const std::size_t n = disarm();
+    assert_int_equal(bad_status, 0);
+    assert_int_equal(n, 0);
+    // 499 good samples in two runs (250 + 249), each run's first 2 fill the window.
+    assert_int_equal(n_ready, 499 - 4);
+    vibid_regressor_destroy(g);
+}
+
+void test_regressor_no_alloc(void **state) {
+    (void)state;
+    vibid_model *cd = make_model(true, VIBID_DISC_CENTRAL_DIFFERENCE);
+    vibid_model *zoh = make_model(false, VIBID_DISC_ZOH);
+    run_regressor(cd, 0.0);
+    run_regressor(cd, 150.0);
+    run_regressor(zoh, 0.0);
+    run_regressor(zoh, 150.0);
+    vibid_model_destroy(cd);
+    vibid_model_destroy(zoh);
+}
+
+void run_ident(const vibid_model *m, vibid_estimator est, double prefilter_hz) {
+    vibid_ident_config cfg;
+    vibid_ident_config_init(&cfg, 5e-4);
+    cfg.estimator = est;
+    cfg.prefilter_hz = prefilter_hz;
+    cfg.forgetting = est == VIBID_ESTIMATOR_RLS ? 0.999 : 1.0;
+    if (est == VIBID_ESTIMATOR_IV) cfg.iv_lag = prefilter_hz > 0 ? 30 : 3;
+    vibid_ident *id = vibid_ident_create(m, &cfg);
+    assert_non_null(id);
+    std::size_t nc = 0, p = 0;
+    assert_int_equal(vibid_ident_dims(id, &nc, &p), VIBID_OK);
+    const std::size_t nk = 400;
+    std::vector<double> ch(nc), block(nk * nc);
+    for (std::size_t k = 0; k < nk; ++k)
+        for (std::size_t c = 0; c < nc; ++c) block[k + c * nk] = value(k + 1000, c);
+    std::size_t bad_status = 0;
+    arm();
+    for (std::size_t k = 0; k < 600; ++k) {
+        for (std::size_t c = 0; c < nc; ++c) ch[c] = value(k, c);
+        if (k == 300) ch[nc - 1] = INFINITY;
+        if (vibid_ident_push(id, ch.data()) != (k == 300 ? VIBID_E_NONFINITE : VIBID_OK)) ++bad_status;
+    }
+    if (vibid_ident_push_block(id, nk, block.data()) != VIBID_OK) ++bad_status;
+    if (vibid_ident_push(id, nullptr) != VIBID_E_NULL_ARGUMENT) ++bad_status;
+    const std::size_t n = disarm();
+    assert_int_equal(bad_status, 0);
+    assert_int_equal(n, 0);
+    // The samples arrived: 599 good ones pushed singly plus the block.
+    std::vector<double> theta(p);
+    vibid_ident_info info{};
+    const vibid_status s = vibid_ident_estimate(id, theta.data(), nullptr, &info);
+    assert_true(s == VIBID_OK || s == VIBID_E_NOT_IDENTIFIABLE || s == VIBID_E_NUMERICAL);
+    if (s == VIBID_OK) assert_true(info.n_samples == 599 + nk);
+    vibid_ident_destroy(id);
+}
+
+void test_ident_no_alloc(void **state) {
+    (void)state;
+    vibid_model *cd = make_model(true, VIBID_DISC_CENTRAL_DIFFERENCE);
+    vibid_model *zoh = make_model(false, VIBID_DISC_ZOH);
+    for (vibid_estimator est : {VIBID_ESTIMATOR_LS, VIBID_ESTIMATOR_IV, VIBID_ESTIMATOR_RLS})
+        for (double pf : {0.0, 150.0}) {
+            run_ident(cd, est, pf);
+            run_ident(zoh, est, pf);
+        }
+    vibid_model_destroy(cd);
+    vibid_model_destroy(zoh);
+}
+
+}  // namespace
+
+int main(void) {
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_counters_fire),
+        cmocka_unit_test(test_forces_no_alloc),
+        cmocka_unit_test(test_regressor_no_alloc),
+        cmocka_unit_test(test_ident_no_alloc),
+    };
+    return cmocka_run_group_tests(tests, nullptr, nullptr);
+}
