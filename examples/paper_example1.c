@@ -36,8 +36,9 @@ int main(int argc, char **argv) {
     if (example_parse_args(argc, argv, VIBID_EXAMPLES_DIR "/stands/paper_example1.cfg", &stand_path, &outdir) != 0)
         return 2;
     vibid_stand *stand = example_load_stand(stand_path, VIBID_DISC_CENTRAL_DIFFERENCE);
+    if (!stand) return 1;
     vibid_stand *stand_zoh = example_load_stand(stand_path, VIBID_DISC_ZOH);
-    if (!stand || !stand_zoh) return 1;
+    if (!stand_zoh) return 1;
     const vibid_model *model = vibid_stand_model(stand), *model_zoh = vibid_stand_model(stand_zoh);
     const double *truth = vibid_stand_true_values(stand);
     const double fs = vibid_stand_sample_rate(stand), h = 1.0 / fs;

@@ -88,6 +88,7 @@ void example_plot(const char *outdir, const char *tag, const vibid_model *model,
         if (lp >= sizeof params || lt >= sizeof truths) return;
     }
     char cmd[4096];
+    fflush(stdout); /* keep our table ahead of gnuplot's message */
     snprintf(cmd, sizeof cmd,
              "command -v gnuplot >/dev/null 2>&1 && gnuplot -e \"csv='%s/%s_tracks.csv'; png='%s/%s_tracks.png'; "
              "params='%s'; truths='%s'\" '%s' && echo 'plot written to %s/%s_tracks.png'",

@@ -41,8 +41,21 @@ void set_last_error(const char *function, const char *format, ...) noexcept __at
 // Throws Error with a printf-style message (for create/solve paths, not real time).
 [[noreturn]] void throw_error(vibid_status status, const char *format, ...) __attribute__((format(printf, 2, 3)));
 
+// The entry point a guard is running on this thread (nullptr outside any guard), so
+// that VIBID_FAIL inside a guarded lambda names the API function, not "operator()".
+const char *&current_entry() noexcept;
+
+struct EntryScope {
+    explicit EntryScope(const char *function) noexcept : previous(current_entry()) { current_entry() = function; }
+    ~EntryScope() { current_entry() = previous; }
+    EntryScope(const EntryScope &) = delete;
+    EntryScope &operator=(const EntryScope &) = delete;
+    const char *previous;
+};
+
 template <class F>
 vibid_status guard(const char *function, F &&body) noexcept {
+    EntryScope scope(function);
     try {
         return body();
     } catch (const Error &e) {

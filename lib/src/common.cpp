@@ -3,6 +3,7 @@
 
 #include <cstdarg>
 #include <cstdio>
+#include <cstring>
 
 namespace {
 // 512 bytes hold any message we format; longer ones are truncated, never overflow.
@@ -18,7 +19,14 @@ void vformat_last_error(const char *function, const char *format, va_list args) 
 
 namespace vibid {
 
+const char *&current_entry() noexcept {
+    thread_local const char *entry = nullptr;
+    return entry;
+}
+
 void set_last_error(const char *function, const char *format, ...) noexcept {
+    // __func__ inside a guarded lambda is "operator()": name the API entry point instead.
+    if (function && current_entry() && std::strcmp(function, "operator()") == 0) function = current_entry();
     va_list args;
     va_start(args, format);
     vformat_last_error(function, format, args);
