@@ -125,8 +125,14 @@ sed -i "s/@DUR@/$dur/; s/@SIMLIMIT@/$((timeout_s / 2))/" root/init
 chmod +x root/init
 (cd root && find . | cpio -o -H newc 2>/dev/null | gzip -1) > initrd.gz || fail "cpio of the initramfs failed"
 
+# The initramfs is unpacked into RAM: 512 MB suffice for the normal build, but the
+# sanitizer build's binaries (with libasan/libubsan) are several times larger, so the VM
+# gets 384 MB plus twice the unpacked payload, at least 512 MB.
+payload_mb=$(du -sm root | cut -f1)
+vm_mb=$((384 + 2 * payload_mb))
+(( vm_mb < 512 )) && vm_mb=512
 start=$(date +%s)
-timeout -k 5 "$timeout_s" qemu-system-x86_64 -accel tcg -m 512 -nographic -no-reboot -smp 1 \
+timeout -k 5 "$timeout_s" qemu-system-x86_64 -accel tcg -m "$vm_mb" -nographic -no-reboot -smp 1 \
   -kernel "$VM_VMLINUZ" -initrd initrd.gz -append "console=ttyS0 quiet panic=-1 rdinit=/init" \
   -nic none > console.log 2>&1
 rc=$?
