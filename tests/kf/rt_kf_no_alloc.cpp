@@ -43,84 +43,9 @@ extern "C" {
 #include <vibid/io_form.h>
 #include <vibid/kf_rls.h>
 
-namespace {
-// Plain globals: the test is single-threaded and the hooks must not allocate.
-bool armed = false;
-std::size_t n_alloc = 0;
-
-void arm() {
-    n_alloc = 0;
-    Eigen::internal::set_is_malloc_allowed(false);
-    armed = true;
-}
-
-std::size_t disarm() {
-    armed = false;
-    Eigen::internal::set_is_malloc_allowed(true);
-    return n_alloc;
-}
-}  // namespace
-
-extern "C" {
-void *__real_malloc(std::size_t size);
-void *__real_calloc(std::size_t n, std::size_t size);
-void *__real_realloc(void *ptr, std::size_t size);
-
-void *__wrap_malloc(std::size_t size) {
-    if (armed) ++n_alloc;
-    return __real_malloc(size);
-}
-void *__wrap_calloc(std::size_t n, std::size_t size) {
-    if (armed) ++n_alloc;
-    return __real_calloc(n, size);
-}
-void *__wrap_realloc(void *ptr, std::size_t size) {
-    if (armed) ++n_alloc;
-    return __real_realloc(ptr, size);
-}
-}
-
-// operator new lives in libstdc++.so, whose malloc calls --wrap cannot see: replace it.
-void *operator new(std::size_t size) {
-    if (armed) ++n_alloc;
-    if (void *p = __real_malloc(size ? size : 1)) return p;
-    throw std::bad_alloc();
-}
-void *operator new[](std::size_t size) { return ::operator new(size); }
-void *operator new(std::size_t size, const std::nothrow_t &) noexcept {
-    if (armed) ++n_alloc;
-    return __real_malloc(size ? size : 1);
-}
-void *operator new[](std::size_t size, const std::nothrow_t &tag) noexcept { return ::operator new(size, tag); }
-void operator delete(void *p) noexcept { std::free(p); }
-void operator delete[](void *p) noexcept { std::free(p); }
-void operator delete(void *p, std::size_t) noexcept { std::free(p); }
-void operator delete[](void *p, std::size_t) noexcept { std::free(p); }
+#include "../support/rt_alloc_counter.hpp"
 
 namespace {
-
-void test_counters_fire(void **state) {
-    (void)state;
-    void *(*volatile do_malloc)(std::size_t) = std::malloc;
-    arm();
-    void *a = do_malloc(16);
-    const std::size_t n = disarm();
-    std::free(a);
-    assert_int_equal(n, 1);
-    const pid_t pid = fork();
-    assert_true(pid >= 0);
-    if (pid == 0) {
-        const int devnull = open("/dev/null", O_WRONLY);
-        if (devnull >= 0) dup2(devnull, STDERR_FILENO);  // the assertion message is expected
-        Eigen::internal::set_is_malloc_allowed(false);
-        Eigen::MatrixXd m(64, 64);
-        m.setZero();
-        _exit(m(0, 0) == 0.0 ? 0 : 1);
-    }
-    int status = 0;
-    waitpid(pid, &status, 0);
-    assert_false(WIFEXITED(status) && WEXITSTATUS(status) == 0);
-}
 
 double value(std::size_t k, std::size_t i) { return std::sin(0.37 * static_cast<double>(k) + 1.3 * static_cast<double>(i)); }
 

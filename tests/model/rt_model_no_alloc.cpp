@@ -44,90 +44,9 @@ extern "C" {
 #include <vibid/model.h>
 #include <vibid/regressor.h>
 
-namespace {
-// Plain globals: the test is single-threaded and the hooks must not allocate.
-bool armed = false;
-std::size_t n_alloc = 0;
-
-void arm() {
-    n_alloc = 0;
-    Eigen::internal::set_is_malloc_allowed(false);
-    armed = true;
-}
-
-std::size_t disarm() {
-    armed = false;
-    Eigen::internal::set_is_malloc_allowed(true);
-    return n_alloc;
-}
-}  // namespace
-
-extern "C" {
-void *__real_malloc(std::size_t size);
-void *__real_calloc(std::size_t n, std::size_t size);
-void *__real_realloc(void *ptr, std::size_t size);
-
-void *__wrap_malloc(std::size_t size) {
-    if (armed) ++n_alloc;
-    return __real_malloc(size);
-}
-void *__wrap_calloc(std::size_t n, std::size_t size) {
-    if (armed) ++n_alloc;
-    return __real_calloc(n, size);
-}
-void *__wrap_realloc(void *ptr, std::size_t size) {
-    if (armed) ++n_alloc;
-    return __real_realloc(ptr, size);
-}
-}
-
-// operator new lives in libstdc++.so, whose malloc calls --wrap cannot see: replace it.
-void *operator new(std::size_t size) {
-    if (armed) ++n_alloc;
-    if (void *p = __real_malloc(size ? size : 1)) return p;
-    throw std::bad_alloc();
-}
-void *operator new[](std::size_t size) { return ::operator new(size); }
-void *operator new(std::size_t size, const std::nothrow_t &) noexcept {
-    if (armed) ++n_alloc;
-    return __real_malloc(size ? size : 1);
-}
-void *operator new[](std::size_t size, const std::nothrow_t &tag) noexcept { return ::operator new(size, tag); }
-void operator delete(void *p) noexcept { std::free(p); }
-void operator delete[](void *p) noexcept { std::free(p); }
-void operator delete(void *p, std::size_t) noexcept { std::free(p); }
-void operator delete[](void *p, std::size_t) noexcept { std::free(p); }
+#include "../support/rt_alloc_counter.hpp"
 
 namespace {
-
-void test_counters_fire(void **state) {
-    (void)state;
-    // Volatile function pointers keep the compiler from eliding the allocations.
-    void *(*volatile do_malloc)(std::size_t) = std::malloc;
-    void *(*volatile do_new)(std::size_t) = static_cast<void *(*)(std::size_t)>(&::operator new);
-    arm();
-    void *a = do_malloc(16);
-    void *b = do_new(16);
-    const std::size_t n = disarm();
-    std::free(a);
-    ::operator delete(b);
-    assert_int_equal(n, 2);
-
-    // Eigen's check: a child that allocates a matrix while forbidden must abort.
-    const pid_t pid = fork();
-    assert_true(pid >= 0);
-    if (pid == 0) {
-        const int devnull = open("/dev/null", O_WRONLY);
-        if (devnull >= 0) dup2(devnull, STDERR_FILENO);  // the assertion message is expected
-        Eigen::internal::set_is_malloc_allowed(false);
-        Eigen::MatrixXd m(64, 64);
-        m.setZero();
-        _exit(m(0, 0) == 0.0 ? 0 : 1);
-    }
-    int status = 0;
-    assert_int_equal(waitpid(pid, &status, 0), pid);
-    assert_true(WIFSIGNALED(status) && WTERMSIG(status) == SIGABRT);
-}
 
 // Two-mass stand with everything the per-sample paths distinguish. cubic = true: central
 // differences with a cubic spring m2-base, an accelerometer on m2 and an input of unknown
