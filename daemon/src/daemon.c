@@ -210,7 +210,7 @@ static void *acq_main(void *arg)
         int64_t t_rx = mono_ns();
         atomic_fetch_add_explicit(&d->acq_reads, 1, memory_order_relaxed);
         for (size_t i = 0; i < n; i++) {
-            item->rec = recs[i];
+            vibid_record_copy(&item->rec, &recs[i]);
             item->t_rx_ns = t_rx;
             if (pending_overflow) {
                 vd_item f;

@@ -47,7 +47,9 @@ bool vd_ring_push(vd_ring *r, const vd_item *item)
             return false;
         }
     }
-    r->slots[head & r->mask] = *item;
+    vd_item *slot = &r->slots[head & r->mask];
+    vibid_record_copy(&slot->rec, &item->rec); /* only the used part of the ~460-byte record */
+    slot->t_rx_ns = item->t_rx_ns;
     atomic_store_explicit(&r->head, head + 1, memory_order_release);
     uint64_t fill = head + 1 - r->tail_cache;
     if (fill > atomic_load_explicit(&r->high_water, memory_order_relaxed))

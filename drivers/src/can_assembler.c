@@ -447,7 +447,7 @@ bool vibid_can_assembler_pop(vibid_can_assembler *a, vibid_record *rec)
 {
     if (!a || !rec || a->q_len == 0)
         return false;
-    *rec = a->q[a->q_head];
+    vibid_record_copy(rec, &a->q[a->q_head]);
     a->q_head = (a->q_head + 1) % QUEUE_LEN;
     a->q_len--;
     return true;

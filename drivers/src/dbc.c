@@ -330,7 +330,7 @@ static vibid_drv_status parse_sg(parser *ps)
         s.n_mux_ranges = 1;
     }
     vibid_drv_status st = VIBID_DRV_E_SYNTAX;
-    uint64_t start, len;
+    uint64_t start = 0, len = 0; /* set by the parser before use; initialised for -O3 -Wmaybe-uninitialized */
     double factor, offset, mn, mx;
     char *unit = NULL;
     if (!expect(ps, ':')) {

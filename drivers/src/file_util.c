@@ -65,40 +65,101 @@ void vibid_line_reader_init_mem(vibid_line_reader *lr, const char *data, size_t 
     lr->mem_len = len;
 }
 
+/* Hands out the line s[0, n) (its '\n' already consumed): cut to VIBID_LINE_MAX and
+ * flagged when longer, CR before the end dropped, NUL-terminated. s[n] must be writable
+ * (it is the '\n' or the spare byte after the data) unless the line is copied. */
+static int emit(vibid_line_reader *lr, char *s, size_t n, bool cut, const char **line, size_t *len, bool *too_long)
+{
+    if (n > VIBID_LINE_MAX) {
+        memcpy(lr->buf, s, VIBID_LINE_MAX);
+        s = lr->buf;
+        n = VIBID_LINE_MAX;
+        cut = true;
+    }
+    if (n > 0 && s[n - 1] == '\r' && !cut)
+        n--;
+    s[n] = '\0';
+    lr->line++;
+    *line = s;
+    *len = n;
+    *too_long = cut;
+    return 1;
+}
+
+/* Moves the unread tail to the front of the chunk and reads more behind it.
+ * Returns the bytes read (0 at end of file) or -1 on a read error. */
+static long refill(vibid_line_reader *lr)
+{
+    size_t keep = lr->end - lr->pos;
+    if (lr->pos > 0 && keep > 0)
+        memmove(lr->chunk, lr->chunk + lr->pos, keep);
+    lr->pos = 0;
+    lr->end = keep;
+    size_t got = fread(lr->chunk + keep, 1, VIBID_LINE_CHUNK - keep, lr->fp);
+    if (got == 0 && ferror(lr->fp))
+        return -1;
+    lr->end += got;
+    return (long)got;
+}
+
+static int next_from_file(vibid_line_reader *lr, const char **line, size_t *len, bool *too_long)
+{
+    size_t scanned = 0; /* bytes after pos already known to hold no '\n' */
+    for (;;) {
+        char *s = lr->chunk + lr->pos;
+        char *nl = memchr(s + scanned, '\n', lr->end - lr->pos - scanned);
+        if (nl) {
+            lr->pos += (size_t)(nl - s) + 1;
+            return emit(lr, s, (size_t)(nl - s), false, line, len, too_long);
+        }
+        scanned = lr->end - lr->pos;
+        if (scanned > VIBID_LINE_MAX) {
+            /* Over-long line: keep its head, skip the rest up to and including '\n'. */
+            memcpy(lr->buf, s, VIBID_LINE_MAX);
+            lr->pos = lr->end;
+            for (;;) {
+                long got = refill(lr);
+                if (got < 0)
+                    return -1;
+                if (got == 0)
+                    break;
+                nl = memchr(lr->chunk, '\n', lr->end);
+                if (nl) {
+                    lr->pos = (size_t)(nl - lr->chunk) + 1;
+                    break;
+                }
+                lr->pos = lr->end;
+            }
+            return emit(lr, lr->buf, VIBID_LINE_MAX, true, line, len, too_long);
+        }
+        long got = refill(lr);
+        if (got < 0)
+            return -1;
+        if (got == 0) {
+            if (lr->end == lr->pos)
+                return 0;
+            /* last line without '\n': chunk has a spare byte for its NUL */
+            size_t n = lr->end - lr->pos;
+            s = lr->chunk + lr->pos;
+            lr->pos = lr->end;
+            return emit(lr, s, n, false, line, len, too_long);
+        }
+    }
+}
+
 int vibid_line_reader_next(vibid_line_reader *lr, const char **line, size_t *len, bool *too_long)
 {
-    size_t n = 0;
-    bool any = false;
     *too_long = false;
-    for (;;) {
-        int c;
-        if (lr->fp) {
-            c = getc_unlocked(lr->fp); /* one reader per FILE: no locking needed */
-            if (c == EOF) {
-                if (ferror(lr->fp))
-                    return -1;
-                break;
-            }
-        } else {
-            if (lr->mem_pos >= lr->mem_len)
-                break;
-            c = (unsigned char)lr->mem[lr->mem_pos++];
-        }
-        any = true;
-        if (c == '\n')
-            break;
-        if (n < VIBID_LINE_MAX)
-            lr->buf[n++] = (char)c;
-        else
-            *too_long = true; /* keep consuming to the end of the line */
-    }
-    if (!any)
+    if (lr->fp)
+        return next_from_file(lr, line, len, too_long);
+    if (lr->mem_pos >= lr->mem_len)
         return 0;
-    if (n > 0 && lr->buf[n - 1] == '\r' && !*too_long)
-        n--;
-    lr->buf[n] = '\0';
-    lr->line++;
-    *line = lr->buf;
-    *len = n;
-    return 1;
+    const char *s = lr->mem + lr->mem_pos;
+    size_t left = lr->mem_len - lr->mem_pos;
+    const char *nl = memchr(s, '\n', left);
+    size_t n = nl ? (size_t)(nl - s) : left;
+    lr->mem_pos += nl ? n + 1 : n;
+    size_t keep = n < VIBID_LINE_MAX ? n : VIBID_LINE_MAX;
+    memcpy(lr->buf, s, keep); /* the input is const: NUL-terminate a copy */
+    return emit(lr, lr->buf, n > VIBID_LINE_MAX ? VIBID_LINE_MAX : n, n > VIBID_LINE_MAX, line, len, too_long);
 }

@@ -14,14 +14,18 @@
 /* Reads all of path (at most max bytes) into a NUL-terminated malloc'd buffer. */
 char *vibid_read_whole_file(const char *path, size_t max, size_t *len, vibid_drv_error *err);
 
-#define VIBID_LINE_MAX 1024 /* longest line kept; longer ones are flagged too_long */
+#define VIBID_LINE_MAX 1024    /* longest line kept; longer ones are flagged too_long */
+#define VIBID_LINE_CHUNK 65536 /* file mode reads this many bytes at a time (one fread per ~1500
+                                  candump lines instead of one getc per byte) */
 
 typedef struct vibid_line_reader {
     FILE *fp;             /* file mode; NULL in memory mode */
     const char *mem;      /* memory mode */
     size_t mem_len, mem_pos;
     unsigned long line;   /* number of the line last returned, 1-based */
-    char buf[VIBID_LINE_MAX + 1];
+    size_t pos, end;      /* file mode: unread bytes are chunk[pos, end) */
+    char chunk[VIBID_LINE_CHUNK + 1]; /* +1: room for the NUL after a last unterminated line */
+    char buf[VIBID_LINE_MAX + 1];     /* cut lines and memory-mode lines are copied here */
 } vibid_line_reader;
 
 void vibid_line_reader_init_file(vibid_line_reader *lr, FILE *fp);

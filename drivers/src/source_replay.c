@@ -173,8 +173,7 @@ static void drain_assembler(replay *r, unsigned long line)
             memcpy(tmp, rec.text, sizeof tmp);
             rec_text(&rec, "%s (at %s:%lu)", tmp, r->base, line);
         }
-        vibid_record *slot = rec_queue_push(&r->q, rec.kind);
-        *slot = rec;
+        vibid_record_copy(rec_queue_push(&r->q, rec.kind), &rec); /* space checked above */
     }
 }
 
@@ -333,7 +332,7 @@ static vibid_drv_status replay_read(vibid_source *src, vibid_record *recs, size_
                 sleep_until_mono(deadline);
             }
         }
-        recs[k] = *head;
+        vibid_record_copy(&recs[k], head);
         vibid_source_stats_count(&r->st, &recs[k], &r->last_sample_t);
         rec_queue_drop_head(&r->q);
         k++;

@@ -8,6 +8,7 @@
 #include <cmocka.h>
 
 #include <pthread.h>
+#include <stdio.h>
 #include <string.h>
 
 #include "ring.h"
@@ -75,6 +76,7 @@ static void *producer(void *arg)
     stress *s = arg;
     vd_item it;
     memset(&it, 0, sizeof it);
+    it.rec.n_values = VIBID_DRV_MAX_CHANNELS; /* the ring copies only the used values: use all */
     for (uint64_t i = 0; i < STRESS_N; i++) {
         it.rec.index = i;
         it.rec.values[0] = (double)i; /* payload checked too: a torn copy would show */
@@ -129,6 +131,45 @@ static void run_stress(int drop)
     vd_ring_destroy(s.r);
 }
 
+/* The ring copies a record's used part only (vibid_record_copy): a sample's n_values
+ * values and an empty text, a gap's or fault's text; a slot's earlier content must not
+ * leak into these fields. */
+static void test_copies_what_a_record_carries(void **state)
+{
+    (void)state;
+    vd_ring *r = vd_ring_create(2);
+    vd_item big, out;
+    memset(&big, 0, sizeof big);
+    big.rec.kind = VIBID_REC_FAULT;
+    big.rec.n_values = 0;
+    snprintf(big.rec.text, sizeof big.rec.text, "x.log:7: bad line");
+    for (int round = 0; round < 2; round++) { /* fill both slots with a fault first */
+        assert_true(vd_ring_push(r, &big));
+        assert_true(vd_ring_pop(r, &out));
+        assert_string_equal(out.rec.text, "x.log:7: bad line");
+    }
+    vd_item smp;
+    memset(&smp, 0, sizeof smp);
+    smp.rec.kind = VIBID_REC_SAMPLE;
+    smp.rec.index = 42;
+    smp.rec.t_ns = 123456789;
+    smp.rec.n_values = 3;
+    smp.rec.values[0] = 1.5;
+    smp.rec.values[1] = -2.25;
+    smp.rec.values[2] = 1e-9;
+    smp.t_rx_ns = 99;
+    assert_true(vd_ring_push(r, &smp));
+    assert_true(vd_ring_pop(r, &out));
+    assert_int_equal(out.rec.kind, VIBID_REC_SAMPLE);
+    assert_int_equal(out.rec.index, 42);
+    assert_int_equal(out.rec.t_ns, 123456789);
+    assert_int_equal(out.rec.n_values, 3);
+    assert_true(out.rec.values[0] == 1.5 && out.rec.values[1] == -2.25 && out.rec.values[2] == 1e-9);
+    assert_string_equal(out.rec.text, ""); /* not the fault text the slot held */
+    assert_int_equal(out.t_rx_ns, 99);
+    vd_ring_destroy(r);
+}
+
 static void test_stress_retry(void **state)
 {
     (void)state;
@@ -146,6 +187,7 @@ int main(void)
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_create_bounds),
         cmocka_unit_test(test_fifo_and_overflow),
+        cmocka_unit_test(test_copies_what_a_record_carries),
         cmocka_unit_test(test_stress_retry),
         cmocka_unit_test(test_stress_drop),
     };

@@ -7,6 +7,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 
 #include <cmocka.h>
 #include <vibid_drivers/candump.h>
@@ -209,6 +210,61 @@ static void test_writer_exact_bytes(void **state)
     remove(path);
 }
 
+/* The file reader reads 64 KiB chunks: lines across a chunk boundary, a line longer than a
+ * chunk (cut and reported, the reader resynchronises at its newline), CRLF, a blank line
+ * and an unterminated last line must come out exactly as from the in-memory reader. */
+static void test_file_reader_chunks(void **state)
+{
+    (void)state;
+    char path[] = "/tmp/vibid_candump_chunks_XXXXXX";
+    int fd = mkstemp(path);
+    assert_true(fd >= 0);
+    FILE *f = fdopen(fd, "w");
+    assert_non_null(f);
+    const int n_before = 1500; /* 1500 lines of 46 bytes = 69 KB: one straddles the first chunk end */
+    for (int i = 0; i < n_before; i++)
+        fprintf(f, "(1700000000.%06d) vcan0 100#%016X\n", i, (unsigned)i);
+    fputc('(', f); /* one line of 70,000 bytes: longer than a chunk */
+    for (int i = 0; i < 70000; i++)
+        fputc('7', f);
+    fputs("\n(1700000001.000000) vcan0 101#11\r\n\n(1700000002.000000) vcan0 102#22", f);
+    assert_int_equal(fclose(f), 0);
+
+    vibid_drv_error err = {0};
+    vibid_candump_reader *r = vibid_candump_reader_open(path, &err);
+    assert_non_null(r);
+    vibid_candump_entry e;
+    for (int i = 0; i < n_before; i++) {
+        assert_int_equal(vibid_candump_reader_next(r, &e), VIBID_DRV_OK);
+        assert_int_equal(e.kind, VIBID_CANDUMP_FRAME);
+        assert_int_equal((int)e.line, i + 1);
+        assert_true(e.frame.t_ns == 1700000000000000000LL + 1000LL * i);
+        assert_int_equal(e.frame.data[7], i & 0xFF);
+        assert_int_equal(e.frame.data[6], (i >> 8) & 0xFF);
+    }
+    assert_int_equal(vibid_candump_reader_next(r, &e), VIBID_DRV_OK);
+    assert_int_equal(e.kind, VIBID_CANDUMP_BAD_LINE);
+    assert_int_equal((int)e.line, n_before + 1);
+    assert_non_null(strstr(e.text, "line longer than"));
+    assert_int_equal(vibid_candump_reader_next(r, &e), VIBID_DRV_OK); /* CRLF line */
+    assert_int_equal(e.kind, VIBID_CANDUMP_FRAME);
+    assert_int_equal((int)e.line, n_before + 2);
+    assert_int_equal(e.frame.id, 0x101);
+    assert_int_equal(e.frame.len, 1);
+    assert_int_equal(vibid_candump_reader_next(r, &e), VIBID_DRV_OK); /* after the blank line */
+    assert_int_equal((int)e.line, n_before + 4);
+    assert_int_equal(e.frame.id, 0x102);
+    assert_int_equal(e.frame.data[0], 0x22);
+    assert_int_equal(vibid_candump_reader_next(r, &e), VIBID_DRV_E_EOF);
+    assert_int_equal(vibid_candump_reader_next(r, &e), VIBID_DRV_E_EOF); /* stays at the end */
+    vibid_candump_stats st;
+    vibid_candump_reader_stats(r, &st);
+    assert_int_equal(st.frames, n_before + 2);
+    assert_int_equal(st.bad_lines, 1);
+    vibid_candump_reader_close(r);
+    unlink(path);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -216,6 +272,7 @@ int main(void)
         cmocka_unit_test(test_bad_lines),
         cmocka_unit_test(test_reader_counts_and_locates),
         cmocka_unit_test(test_writer_exact_bytes),
+        cmocka_unit_test(test_file_reader_chunks),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -4,7 +4,9 @@
 #ifndef VIBID_DRIVERS_SAMPLE_H
 #define VIBID_DRIVERS_SAMPLE_H
 
+#include <stddef.h>
 #include <stdint.h>
+#include <string.h>
 
 #include <vibid_drivers/channel_map.h>
 
@@ -44,6 +46,22 @@ typedef struct vibid_record {
     double values[VIBID_DRV_MAX_CHANNELS]; /* in channel-map order, physical units */
     char text[160];           /* GAP/FAULT: reason, with file:line when from a file */
 } vibid_record;
+
+/* Copies what a record of its kind carries: the header, the n_values used values and, for
+ * a GAP or FAULT, the text (a SAMPLE's text is set empty). values[n_values..] of *dst are
+ * left as they were. A record is ~460 bytes of which a 3-channel sample uses ~60; the
+ * replay path copies each record about five times, so whole-struct copies cost more than
+ * the parsing. n_values must be <= VIBID_DRV_MAX_CHANNELS (it is clamped). */
+static inline void vibid_record_copy(vibid_record *dst, const vibid_record *src)
+{
+    size_t nv = src->n_values <= VIBID_DRV_MAX_CHANNELS ? src->n_values : VIBID_DRV_MAX_CHANNELS;
+    memcpy(dst, src, offsetof(vibid_record, values) + nv * sizeof(double));
+    dst->n_values = (uint32_t)nv;
+    if (src->kind == VIBID_REC_SAMPLE)
+        dst->text[0] = '\0';
+    else
+        memcpy(dst->text, src->text, sizeof dst->text);
+}
 
 /* Jitter statistics of the intervals between consecutive emitted samples. */
 typedef struct vibid_jitter_stats {

@@ -1,0 +1,144 @@
+#!/usr/bin/env bash
+# Benchmark of vibidd on the paper's example 1 (3 channels, 3 unknowns, RLS with the
+# 200 Hz pre-filter, one track row per 200 samples). Prints figures; never passes or
+# fails on time. usage: bench/bench_vibidd.sh BUILD_DIR [SECONDS]
+#  1. Replay throughput from a candump log and from a CSV capture (SECONDS of 2 kHz data),
+#     as fast as possible, wall clock including start-up, best of 3: with the daemon's two
+#     threads free to use both cores, and pinned to one core (taskset), the issue's measure.
+#     Baseline in the same run: bench_replay_source (fgets line count = I/O floor, candump
+#     parse, DBC decoding + sample assembly without the estimator).
+#  2. Paced replay delivering 1 kHz and 10 kHz sample by sample (the 2 kHz capture at
+#     --speed 0.5 and 5; each sample is handed to the acquisition thread at its time, as
+#     CAN frames arrive): CPU use and the daemon's latency from the source handing the
+#     sample over to the estimate updated with it, median and p99 (1 us histogram).
+#  3. Live acquisition from vibid-sim over Modbus TCP on loopback (FIFO mode) at 1 kHz and
+#     10 kHz: CPU use of vibidd and of the simulator, latency from the poll response
+#     received to the estimate updated (p50/p99), samples, gaps.
+set -u
+BUILD=$(cd "${1:?usage: bench_vibidd.sh BUILD_DIR [SECONDS]}" && pwd)
+DUR=${2:-60}
+SRC=$(cd "$(dirname "$0")/.." && pwd)
+VIBIDD=$BUILD/daemon/vibidd
+SIM=$BUILD/sim/vibid-sim
+GEN=$BUILD/tests/daemon/vd_gen_capture
+STAND=$SRC/examples/stands/paper_example1.cfg
+DBC=$SRC/tests/daemon/data/example1.dbc
+W=$(mktemp -d /tmp/vd_bench_XXXXXX)
+trap 'kill $(jobs -p) 2>/dev/null; rm -rf "$W"' EXIT
+cd "$W"
+"$GEN" "$STAND" --duration "$DUR" --noise 0.001 --csv cap.csv --candump cap.log 2>/dev/null || exit 1
+N=$((DUR * 2000))
+cat > chanmap.cfg <<CFG
+counter = "Counter";
+channels = (
+  { name = "x1"; quantity = "displacement"; node = 0; signal = "X1"; message = "Sample_A"; },
+  { name = "x2"; quantity = "displacement"; node = 1; signal = "X2"; message = "Sample_B"; },
+  { name = "s";  quantity = "base_displacement"; node = 0; signal = "S"; message = "Sample_C"; } );
+CFG
+cat > cd.cfg <<CFG
+stand = "$STAND";
+source = { kind = "replay"; file = "cap.log"; dbc = "$DBC"; counter = "Counter";
+  channels = (
+    { name = "x1"; quantity = "displacement"; node = 0; signal = "X1"; message = "Sample_A"; },
+    { name = "x2"; quantity = "displacement"; node = 1; signal = "X2"; message = "Sample_B"; },
+    { name = "s";  quantity = "base_displacement"; node = 0; signal = "S"; message = "Sample_C"; } ); };
+estimator = { method = "rls"; prefilter_hz = 200.0; decimation = 200; };
+outputs = { tracks = { path = "tracks.csv"; }; status = { path = "status"; interval = 0.5; }; };
+CFG
+sed 's/file = "cap.log"; dbc = [^;]*; counter = "Counter";/file = "cap.csv"; time_column = "t";/;
+     s/signal = "X1"; message = "Sample_A"/column = "x1"/; s/signal = "X2"; message = "Sample_B"/column = "x2"/;
+     s/signal = "S"; message = "Sample_C"/column = "s"/' cd.cfg > csv.cfg
+
+ns() { date +%s%N; }
+# cpu_of PID -> "user_ticks sys_ticks"
+cpu_of() { awk '{ print $14, $15 }' "/proc/$1/stat"; }
+status_get() { sed -n "s/^$1=//p" "$2"; }
+
+echo "vibidd benchmark: paper example 1, $N samples ($DUR s at 2 kHz), $(nproc) CPUs, $(uname -r), load $(cut -d' ' -f1-3 /proc/loadavg)"
+echo "1. replay throughput (best of 3, wall clock incl. start-up)"
+for kind in cd csv; do
+    for pin in both one; do
+        best=0
+        for _ in 1 2 3; do
+            rm -f tracks.csv
+            t0=$(ns)
+            if [ $pin = one ]; then
+                taskset -c 0 "$VIBIDD" -c $kind.cfg --log-level error || exit 1
+            else
+                "$VIBIDD" -c $kind.cfg --log-level error || exit 1
+            fi
+            t1=$(ns)
+            r=$(awk -v n=$N -v ns=$((t1 - t0)) 'BEGIN { printf "%.0f", n / (ns * 1e-9) }')
+            [ "$r" -gt "$best" ] && best=$r
+        done
+        printf "   %-13s %-19s %'10d samples/s = %5.0fx real time at 2 kHz\n" \
+            "$([ $kind = cd ] && echo "candump log" || echo "CSV capture")" \
+            "$([ $pin = one ] && echo "(pinned, 1 core):" || echo "(2 cores):")" "$best" \
+            "$(awk -v r="$best" 'BEGIN { print r / 2000 }')"
+    done
+done
+samples=$(status_get samples status)
+echo "   (last run: $samples samples estimated, $(status_get rows status) track rows)"
+echo "   baseline, same capture, one thread, no estimator:"
+"$BUILD/bench/bench_replay_source" cap.log "$DBC" chanmap.cfg 2000 3 | sed -n '2,$p' | sed 's/^/ /'
+
+echo "2. paced replay, sample by sample (CPU over 10 s; latency from the daemon's histogram)"
+for rate in 1000 10000; do
+    speed=$(awk -v r=$rate 'BEGIN { print r / 2000 }')
+    secs=$(awk -v d="$DUR" -v s="$speed" 'BEGIN { t = d / s - 2; print (t > 10 ? 10 : t) }')
+    rm -f tracks.csv status
+    "$VIBIDD" -c cd.cfg --pace --speed "$speed" --log-level error &
+    pid=$!
+    sleep 1
+    read -r u0 s0 < <(cpu_of $pid)
+    t0=$(ns)
+    sleep "$secs"
+    read -r u1 s1 < <(cpu_of $pid)
+    t1=$(ns)
+    kill -TERM $pid
+    wait $pid
+    awk -v du=$((u1 - u0)) -v ds=$((s1 - s0)) -v hz="$(getconf CLK_TCK)" -v ns=$((t1 - t0)) -v rate=$rate \
+        -v p50="$(status_get latency_us_p50 status)" -v p99="$(status_get latency_us_p99 status)" \
+        'BEGIN { w = ns * 1e-9; printf "   %5d samples/s: CPU %4.1f %% of one core (user %.1f, sys %.1f); latency p50 %s us, p99 %s us\n",
+                 rate, 100 * (du + ds) / hz / w, 100 * du / hz / w, 100 * ds / hz / w, p50, p99 }'
+done
+
+echo "3. live: vibid-sim -> Modbus TCP (loopback, FIFO mode) -> vibidd (CPU over 10 s)"
+for rate in 1000 10000; do
+    sed "s/sample_rate = 2000.0;/sample_rate = $rate.0;/" "$STAND" > stand_$rate.cfg
+    rm -f sim.out status tracks.csv
+    "$SIM" -c stand_$rate.cfg -s "$SRC/examples/demo/loopback_sim.cfg" --modbus 127.0.0.1:0 --duration 40 -q \
+        > sim.out 2> sim.log &
+    sim=$!
+    port=
+    for _ in $(seq 100); do
+        port=$(sed -n 's/.*listening on 127.0.0.1:\([0-9]*\).*/\1/p' sim.out)
+        [ -n "$port" ] && break
+        sleep 0.1
+    done
+    [ -n "$port" ] || { echo "vibid-sim did not start: $(cat sim.log)"; exit 1; }
+    sed -e "s|^stand = .*|stand = \"$W/stand_$rate.cfg\";|" -e "s|tcp://127.0.0.1:[0-9]*|tcp://127.0.0.1:$port|" \
+        -e 's|record = { path = "raw.csv"; };||' -e 's|poll_period = 0.02;|poll_period = 0.005;|' \
+        "$SRC/daemon/examples/modbus_fifo.cfg" > live.cfg
+    sed -i 's|path = "vibidd.status"|path = "status"; interval = 0.5|' live.cfg
+    "$VIBIDD" -c live.cfg --log-level error &
+    pid=$!
+    sleep 3
+    read -r u0 s0 < <(cpu_of $pid)
+    read -r su0 ss0 < <(cpu_of $sim)
+    t0=$(ns)
+    sleep 10
+    read -r u1 s1 < <(cpu_of $pid)
+    read -r su1 ss1 < <(cpu_of $sim)
+    t1=$(ns)
+    kill -TERM $pid
+    wait $pid
+    kill -TERM $sim 2>/dev/null
+    wait $sim 2>/dev/null
+    awk -v du=$((u1 - u0)) -v ds=$((s1 - s0)) -v sd=$((su1 - su0 + ss1 - ss0)) -v hz="$(getconf CLK_TCK)" \
+        -v ns=$((t1 - t0)) -v rate=$rate -v p50="$(status_get latency_us_p50 status)" \
+        -v p99="$(status_get latency_us_p99 status)" -v n="$(status_get samples status)" \
+        -v gaps="$(status_get gaps status)" -v fp="$(status_get source_failed_polls status)" \
+        'BEGIN { w = ns * 1e-9; printf "   %5d samples/s: vibidd CPU %4.1f %% (user %.1f, sys %.1f), vibid-sim %4.1f %%; latency p50 %s us, p99 %s us; %s samples, %s gaps, %s failed polls\n",
+                 rate, 100 * (du + ds) / hz / w, 100 * du / hz / w, 100 * ds / hz / w, 100 * sd / hz / w, p50, p99, n, gaps, fp }'
+done
