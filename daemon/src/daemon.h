@@ -55,6 +55,7 @@ typedef struct vd_daemon {
     vd_notify notify;
     int efd;
     pthread_t acq_thread, est_thread;
+    pthread_t main_thread;          /* runs vd_daemon_run; woken with VD_WAKE_SIGNAL when done */
     bool acq_started, est_started;
 
     _Atomic int stop_acq, acq_done, est_done, reopen, fatal;
