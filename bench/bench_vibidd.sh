@@ -11,9 +11,11 @@
 #     --speed 0.5 and 5; each sample is handed to the acquisition thread at its time, as
 #     CAN frames arrive): CPU use and the daemon's latency from the source handing the
 #     sample over to the estimate updated with it, median and p99 (1 us histogram).
-#  3. Live acquisition from vibid-sim over Modbus TCP on loopback (FIFO mode) at 1 kHz and
-#     10 kHz: CPU use of vibidd and of the simulator, latency from the poll response
-#     received to the estimate updated (p50/p99), samples, gaps.
+#  3. Live acquisition from vibid-sim over Modbus TCP on loopback (FIFO mode, 1 ms polls) at
+#     1 kHz and 10 kHz: CPU use of vibidd and of the simulator, latency from the poll
+#     response received to the estimate updated (p50/p99), samples, gaps.
+#  2 and 3 run with acquisition.handoff_spin = 0 (the estimation thread sleeps when the ring
+#  is empty) and 1000 us (it busy-waits first), to show what the thread wake-up costs.
 set -u
 BUILD=$(cd "${1:?usage: bench_vibidd.sh BUILD_DIR [SECONDS]}" && pwd)
 DUR=${2:-60}
@@ -82,12 +84,15 @@ echo "   (last run: $samples samples estimated, $(status_get rows status) track 
 echo "   baseline, same capture, one thread, no estimator:"
 "$BUILD/bench/bench_replay_source" cap.log "$DBC" chanmap.cfg 2000 3 | sed -n '2,$p' | sed 's/^/ /'
 
-echo "2. paced replay, sample by sample (CPU over 10 s; latency from the daemon's histogram)"
+echo "2. paced replay, sample by sample (CPU over 10 s; latency from the daemon's histogram);"
+echo "   handoff_spin = estimation thread busy-waits this long (us) before sleeping"
+sed 's/^estimator = /acquisition = { handoff_spin = 1000; };\nestimator = /' cd.cfg > cd_spin.cfg
 for rate in 1000 10000; do
+  for spin in 0 1000; do
     speed=$(awk -v r=$rate 'BEGIN { print r / 2000 }')
     secs=$(awk -v d="$DUR" -v s="$speed" 'BEGIN { t = d / s - 2; print (t > 10 ? 10 : t) }')
     rm -f tracks.csv status
-    "$VIBIDD" -c cd.cfg --pace --speed "$speed" --log-level error &
+    "$VIBIDD" -c "$([ $spin = 0 ] && echo cd.cfg || echo cd_spin.cfg)" --pace --speed "$speed" --log-level error &
     pid=$!
     sleep 1
     read -r u0 s0 < <(cpu_of $pid)
@@ -97,14 +102,16 @@ for rate in 1000 10000; do
     t1=$(ns)
     kill -TERM $pid
     wait $pid
-    awk -v du=$((u1 - u0)) -v ds=$((s1 - s0)) -v hz="$(getconf CLK_TCK)" -v ns=$((t1 - t0)) -v rate=$rate \
+    awk -v du=$((u1 - u0)) -v ds=$((s1 - s0)) -v hz="$(getconf CLK_TCK)" -v ns=$((t1 - t0)) -v rate=$rate -v spin=$spin \
         -v p50="$(status_get latency_us_p50 status)" -v p99="$(status_get latency_us_p99 status)" \
-        'BEGIN { w = ns * 1e-9; printf "   %5d samples/s: CPU %4.1f %% of one core (user %.1f, sys %.1f); latency p50 %s us, p99 %s us\n",
-                 rate, 100 * (du + ds) / hz / w, 100 * du / hz / w, 100 * ds / hz / w, p50, p99 }'
+        'BEGIN { w = ns * 1e-9; printf "   %5d samples/s, handoff_spin %4d: CPU %5.1f %% of one core (user %.1f, sys %.1f); latency p50 %s us, p99 %s us\n",
+                 rate, spin, 100 * (du + ds) / hz / w, 100 * du / hz / w, 100 * ds / hz / w, p50, p99 }'
+  done
 done
 
-echo "3. live: vibid-sim -> Modbus TCP (loopback, FIFO mode) -> vibidd (CPU over 10 s)"
-for rate in 1000 10000; do
+echo "3. live: vibid-sim -> Modbus TCP (loopback, FIFO mode, 1 ms polls) -> vibidd (CPU over 10 s)"
+for rate_spin in 1000:0 1000:1000 10000:0 10000:1000; do
+    rate=${rate_spin%:*} spin=${rate_spin#*:}
     sed "s/sample_rate = 2000.0;/sample_rate = $rate.0;/" "$STAND" > stand_$rate.cfg
     rm -f sim.out status tracks.csv
     "$SIM" -c stand_$rate.cfg -s "$SRC/examples/demo/loopback_sim.cfg" --modbus 127.0.0.1:0 --duration 40 -q \
@@ -118,7 +125,8 @@ for rate in 1000 10000; do
     done
     [ -n "$port" ] || { echo "vibid-sim did not start: $(cat sim.log)"; exit 1; }
     sed -e "s|^stand = .*|stand = \"$W/stand_$rate.cfg\";|" -e "s|tcp://127.0.0.1:[0-9]*|tcp://127.0.0.1:$port|" \
-        -e 's|record = { path = "raw.csv"; };||' -e 's|poll_period = 0.02;|poll_period = 0.005;|' \
+        -e 's|record = { path = "raw.csv"; };||' -e 's|poll_period = 0.02;|poll_period = 0.001;|' \
+        -e "s|realtime_priority = 0;|realtime_priority = 0; handoff_spin = $spin;|" \
         "$SRC/daemon/examples/modbus_fifo.cfg" > live.cfg
     sed -i 's|path = "vibidd.status"|path = "status"; interval = 0.5|' live.cfg
     "$VIBIDD" -c live.cfg --log-level error &
@@ -136,9 +144,9 @@ for rate in 1000 10000; do
     kill -TERM $sim 2>/dev/null
     wait $sim 2>/dev/null
     awk -v du=$((u1 - u0)) -v ds=$((s1 - s0)) -v sd=$((su1 - su0 + ss1 - ss0)) -v hz="$(getconf CLK_TCK)" \
-        -v ns=$((t1 - t0)) -v rate=$rate -v p50="$(status_get latency_us_p50 status)" \
+        -v ns=$((t1 - t0)) -v rate=$rate -v spin=$spin -v p50="$(status_get latency_us_p50 status)" \
         -v p99="$(status_get latency_us_p99 status)" -v n="$(status_get samples status)" \
         -v gaps="$(status_get gaps status)" -v fp="$(status_get source_failed_polls status)" \
-        'BEGIN { w = ns * 1e-9; printf "   %5d samples/s: vibidd CPU %4.1f %% (user %.1f, sys %.1f), vibid-sim %4.1f %%; latency p50 %s us, p99 %s us; %s samples, %s gaps, %s failed polls\n",
-                 rate, 100 * (du + ds) / hz / w, 100 * du / hz / w, 100 * ds / hz / w, 100 * sd / hz / w, p50, p99, n, gaps, fp }'
+        'BEGIN { w = ns * 1e-9; printf "   %5d samples/s, handoff_spin %4d: vibidd CPU %5.1f %% (user %.1f, sys %.1f), vibid-sim %4.1f %%; latency p50 %s us, p99 %s us; %s samples, %s gaps, %s failed polls\n",
+                 rate, spin, 100 * (du + ds) / hz / w, 100 * du / hz / w, 100 * ds / hz / w, 100 * sd / hz / w, p50, p99, n, gaps, fp }'
 done

@@ -504,8 +504,8 @@ static int load_source(ctx *c, config_t *cf)
     return 0;
 }
 
-static const char *const acq_known[] = {"ring_size", "read_batch", "read_timeout", "realtime_priority",
-                                        "lock_memory", NULL};
+static const char *const acq_known[] = {"ring_size",   "read_batch",   "read_timeout", "realtime_priority",
+                                        "lock_memory", "handoff_spin", NULL};
 static const char *const est_known[] = {"method",  "forgetting", "prefilter_hz", "rls_alpha", "iv_lag",
                                         "decimation", "warmup_samples", "start_values", NULL};
 static const char *const out_known[] = {"tracks", "influx", "record", "status", NULL};
@@ -537,6 +537,9 @@ static int load_acquisition(ctx *c, config_t *cf)
     if (get_int(c, g, "acquisition", "realtime_priority", 0, 0, 99, &v))
         return -1;
     cfg->rt_priority = (int)v;
+    if (get_int(c, g, "acquisition", "handoff_spin", 0, 0, 10000, &v))
+        return -1;
+    cfg->handoff_spin_us = (unsigned)v;
     return get_bool(c, g, "acquisition", "lock_memory", false, &cfg->lock_memory);
 }
 
@@ -874,8 +877,10 @@ void vd_config_print(const vd_config *cfg, FILE *o)
     fprintf(o, "};\n");
     fprintf(o,
             "acquisition = {\n  ring_size = %u;\n  read_batch = %u;\n  read_timeout = %d;  # ms\n"
-            "  realtime_priority = %d;  # 0 = SCHED_OTHER\n  lock_memory = %s;\n};\n",
-            cfg->ring_size, cfg->read_batch, cfg->read_timeout_ms, cfg->rt_priority, yes(cfg->lock_memory));
+            "  realtime_priority = %d;  # 0 = SCHED_OTHER\n  lock_memory = %s;\n"
+            "  handoff_spin = %u;  # us the estimation thread busy-waits before sleeping\n};\n",
+            cfg->ring_size, cfg->read_batch, cfg->read_timeout_ms, cfg->rt_priority, yes(cfg->lock_memory),
+            cfg->handoff_spin_us);
     fprintf(o,
             "estimator = {\n  method = \"%s\";\n  forgetting = %s;\n  prefilter_hz = %s;\n  rls_alpha = %s;\n"
             "  iv_lag = %u;\n  decimation = %u;\n  warmup_samples = %u;\n};\n",

@@ -94,6 +94,8 @@ typedef struct vd_config {
     int read_timeout_ms;
     int rt_priority;             /* 0 = SCHED_OTHER */
     bool lock_memory;
+    unsigned handoff_spin_us;    /* estimation thread busy-waits this long for a record before
+                                    sleeping on the eventfd; 0 = sleep at once */
 
     /* estimator */
     vibid_estimator method;

@@ -72,6 +72,8 @@ static void test_range_error(void **state)
                  "0 outside [1, 10000000]");
     expect_error("range3.cfg", STAND SOURCE "estimator = { prefilter_hz = 2000.0; };\n",
                  ":12: estimator.prefilter_hz:", "outside [0, 900]");
+    expect_error("range4.cfg", STAND SOURCE "acquisition = { handoff_spin = 20000; };\n",
+                 ":12: acquisition.handoff_spin:", "20000 outside [0, 10000]");
 }
 
 static void test_type_error(void **state)
