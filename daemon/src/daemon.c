@@ -103,6 +103,7 @@ static int open_replay(vd_daemon *d, const char *path, int format, bool paced, d
     }
     d->rec_chanmap = rc.chanmap;
     d->file_source = true;
+    d->measure_latency = paced;
     return 0;
 }
 
@@ -159,6 +160,7 @@ static int open_source(vd_daemon *d, char *err, size_t cap)
         return -1;
     }
     d->rec_chanmap = cfg->chanmap;
+    d->measure_latency = true;
     return 0;
 }
 
@@ -511,11 +513,13 @@ static void process(vd_daemon *d, const vd_item *it)
     vd_row row;
     int due = vd_est_record(&d->est, rec, &row);
     if (rec->kind == VIBID_REC_SAMPLE) {
-        int64_t lat = (mono_ns() - it->t_rx_ns) / 1000;
-        if (lat < 0)
-            lat = 0;
-        d->lat_hist[lat < VD_LAT_BUCKETS ? lat : VD_LAT_BUCKETS - 1]++;
-        d->lat_n++;
+        if (d->measure_latency) {
+            int64_t lat = (mono_ns() - it->t_rx_ns) / 1000;
+            if (lat < 0)
+                lat = 0;
+            d->lat_hist[lat < VD_LAT_BUCKETS ? lat : VD_LAT_BUCKETS - 1]++;
+            d->lat_n++;
+        }
         vd_writers_sample(&d->w, rec);
     }
     if (due) {

@@ -47,6 +47,9 @@ typedef struct vd_daemon {
     vibid_source *src;
     vibid_chanmap rec_chanmap; /* the source's channels (replay of a recording: columns) */
     bool file_source;          /* replay: wait on a full ring instead of dropping */
+    bool measure_latency;      /* live or paced: receipt -> estimate histogram; an unpaced
+                                  replay has no receipt time worth measuring (records wait
+                                  in a full ring by design) */
     vd_ring *ring;
     vd_est est;
     vd_writers w;
