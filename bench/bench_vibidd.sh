@@ -17,39 +17,41 @@
 #  2 and 3 run with acquisition.handoff_spin = 0 (the estimation thread sleeps when the ring
 #  is empty) and 1000 us (it busy-waits first), to show what the thread wake-up costs.
 set -u
-BUILD=$(cd "${1:?usage: bench_vibidd.sh BUILD_DIR [SECONDS]}" && pwd)
+BUILD=$(cd "${1:?usage: bench_vibidd.sh BUILD_DIR [SECONDS]}" && pwd) # needs vibidd, vibid-sim, bench/ (build/release has them)
 DUR=${2:-60}
 SRC=$(cd "$(dirname "$0")/.." && pwd)
 VIBIDD=$BUILD/daemon/vibidd
 SIM=$BUILD/sim/vibid-sim
-GEN=$BUILD/tests/daemon/vd_gen_capture
 STAND=$SRC/examples/stands/paper_example1.cfg
-DBC=$SRC/tests/daemon/data/example1.dbc
+DBC=$SRC/sim/paper_example1.dbc
 W=$(mktemp -d /tmp/vd_bench_XXXXXX)
 trap 'kill $(jobs -p) 2>/dev/null; rm -rf "$W"' EXIT
 cd "$W"
-"$GEN" "$STAND" --duration "$DUR" --noise 0.001 --csv cap.csv --candump cap.log 2>/dev/null || exit 1
+# The capture: vibid-sim's frames of example 1 with the demo's excitation (5 Hz triangle,
+# 60 dB sensor noise), as candump log and CSV.
+"$SIM" -c "$STAND" -s "$SRC/examples/demo/loopback_sim.cfg" --duration "$DUR" --fast --epoch 1700000000 \
+    --candump cap.log --csv cap.csv -q || exit 1
 N=$((DUR * 2000))
 cat > chanmap.cfg <<CFG
-counter = "Counter";
+counter = "SampleCounter";
 channels = (
-  { name = "x1"; quantity = "displacement"; node = 0; signal = "X1"; message = "Sample_A"; },
-  { name = "x2"; quantity = "displacement"; node = 1; signal = "X2"; message = "Sample_B"; },
-  { name = "s";  quantity = "base_displacement"; node = 0; signal = "S"; message = "Sample_C"; } );
+  { name = "x1"; quantity = "displacement"; node = 0; signal = "x1"; },
+  { name = "x2"; quantity = "displacement"; node = 1; signal = "x2"; },
+  { name = "s";  quantity = "base_displacement"; node = 0; signal = "s"; } );
 CFG
 cat > cd.cfg <<CFG
 stand = "$STAND";
-source = { kind = "replay"; file = "cap.log"; dbc = "$DBC"; counter = "Counter";
+source = { kind = "replay"; file = "cap.log"; dbc = "$DBC"; counter = "SampleCounter";
   channels = (
-    { name = "x1"; quantity = "displacement"; node = 0; signal = "X1"; message = "Sample_A"; },
-    { name = "x2"; quantity = "displacement"; node = 1; signal = "X2"; message = "Sample_B"; },
-    { name = "s";  quantity = "base_displacement"; node = 0; signal = "S"; message = "Sample_C"; } ); };
+    { name = "x1"; quantity = "displacement"; node = 0; signal = "x1"; },
+    { name = "x2"; quantity = "displacement"; node = 1; signal = "x2"; },
+    { name = "s";  quantity = "base_displacement"; node = 0; signal = "s"; } ); };
 estimator = { method = "rls"; prefilter_hz = 200.0; decimation = 200; };
 outputs = { tracks = { path = "tracks.csv"; }; status = { path = "status"; interval = 0.5; }; };
 CFG
-sed 's/file = "cap.log"; dbc = [^;]*; counter = "Counter";/file = "cap.csv"; time_column = "t";/;
-     s/signal = "X1"; message = "Sample_A"/column = "x1"/; s/signal = "X2"; message = "Sample_B"/column = "x2"/;
-     s/signal = "S"; message = "Sample_C"/column = "s"/' cd.cfg > csv.cfg
+sed 's/file = "cap.log"; dbc = [^;]*; counter = "SampleCounter";/file = "cap.csv"; time_column = "t";/;
+     s/signal = "x1"/column = "x1"/; s/signal = "x2"/column = "x2"/;
+     s/signal = "s"/column = "s"/' cd.cfg > csv.cfg
 
 ns() { date +%s%N; }
 # cpu_of PID -> "user_ticks sys_ticks"
@@ -80,7 +82,8 @@ for kind in cd csv; do
     done
 done
 samples=$(status_get samples status)
-echo "   (last run: $samples samples estimated, $(status_get rows status) track rows)"
+echo "   (last run: $samples samples estimated, $(status_get rows status) track rows; c1 $(status_get estimate.c1 status)," \
+     "d $(status_get estimate.d status), c2 $(status_get estimate.c2 status); truth 2.5e5, 300, 1.5e6)"
 echo "   baseline, same capture, one thread, no estimator:"
 "$BUILD/bench/bench_replay_source" cap.log "$DBC" chanmap.cfg 2000 3 | sed -n '2,$p' | sed 's/^/ /'
 
