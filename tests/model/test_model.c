@@ -326,6 +326,53 @@ static void test_modal_analytic(void **state) {
     assert_float_equal(re[2] * re[3], -1.0, 1e-9); /* out of phase */
 }
 
+/* vibid_model_modal's standard errors (delta method, central differences of the modal
+ * solution) against the analytic first-order propagation for one mass on a spring and a
+ * damper to ground, unknowns d and c (model order: as added):
+ *   f = sqrt(c/m) / 2 pi          df/dc = f / (2 c),  df/dd = 0
+ *   zeta = d / (2 sqrt(c m))      dzeta/dd = zeta / d, dzeta/dc = -zeta / (2 c)
+ * with a full covariance (correlated d, c). Tolerance 1e-6 relative: the central
+ * difference with a 1e-6 relative step has truncation error ~1e-12 and rounding error
+ * ~1e-10 in the derivatives; 1e-6 leaves room and still catches a wrong term. The
+ * frequency and damping values themselves must match to 1e-10. */
+static void test_modal_standard_errors(void **state) {
+    (void)state;
+    const double m = 2.0, d = 40.0, c = 8.0e4;
+    vibid_model *mod = vibid_model_create();
+    size_t a;
+    assert_int_equal(vibid_model_add_node(mod, "m1", m, 0, &a), VIBID_OK);
+    assert_int_equal(vibid_model_add_element(mod, "d", VIBID_ELEMENT_DAMPER, a, VIBID_GROUND, d, 1), VIBID_OK);
+    assert_int_equal(vibid_model_add_element(mod, "c", VIBID_ELEMENT_SPRING, a, VIBID_GROUND, c, 1), VIBID_OK);
+    assert_int_equal(vibid_model_add_input(mod, "f", a, 1.0, 0, NULL), VIBID_OK);
+    assert_int_equal(vibid_model_finalize(mod), VIBID_OK);
+    vibid_param_info p0, p1;
+    assert_int_equal(vibid_model_param_info(mod, 0, &p0), VIBID_OK);
+    assert_int_equal(vibid_model_param_info(mod, 1, &p1), VIBID_OK);
+    assert_string_equal(p0.name, "d");
+    assert_string_equal(p1.name, "c");
+    const double theta[2] = {d, c};
+    const double sd = 2.0, sc = 800.0, rho = 0.3;
+    const double cov[4] = {sd * sd, rho * sd * sc, rho * sd * sc, sc * sc}; /* symmetric */
+    double f, fse, z, zse;
+    assert_int_equal(vibid_model_modal(mod, theta, cov, &f, &fse, &z, &zse, NULL, NULL), VIBID_OK);
+    const double f_true = sqrt(c / m) / (2 * M_PI), z_true = d / (2 * sqrt(c * m));
+    assert_float_equal(f, f_true, 1e-10 * f_true);
+    assert_float_equal(z, z_true, 1e-10 * z_true);
+    const double Jf[2] = {0.0, f_true / (2 * c)}, Jz[2] = {z_true / d, -z_true / (2 * c)};
+    double vf = 0, vz = 0;
+    for (int i = 0; i < 2; ++i)
+        for (int j = 0; j < 2; ++j) {
+            vf += Jf[i] * cov[i + 2 * j] * Jf[j];
+            vz += Jz[i] * cov[i + 2 * j] * Jz[j];
+        }
+    assert_float_equal(fse, sqrt(vf), 1e-6 * sqrt(vf));
+    assert_float_equal(zse, sqrt(vz), 1e-6 * sqrt(vz));
+    /* without a covariance the standard errors are 0 (documented) */
+    assert_int_equal(vibid_model_modal(mod, theta, NULL, &f, &fse, &z, &zse, NULL, NULL), VIBID_OK);
+    assert_true(fse == 0.0 && zse == 0.0);
+    vibid_model_destroy(mod);
+}
+
 /* vibid_zoh then vibid_zoh_inverse returns A and B to rounding (1e-9 relative);
  * second_order_form then second_order_to_continuous returns M^-1 C, M^-1 D, M^-1 B. */
 static void test_discretization_round_trip(void **state) {
@@ -410,6 +457,7 @@ int main(void) {
         cmocka_unit_test(test_ident_prior_zoh),
         cmocka_unit_test(test_bad_input),
         cmocka_unit_test(test_modal_analytic),
+        cmocka_unit_test(test_modal_standard_errors),
         cmocka_unit_test(test_discretization_round_trip),
         cmocka_unit_test(test_loader),
     };

@@ -37,7 +37,7 @@ VIBID_API vibid_status vibid_modal(size_t n, const double *M, const double *D, c
  * se = sqrt(J cov J^T) with J the central-difference Jacobian of (f, zeta) with respect
  * to theta (relative step 1e-6). Modes are matched by order, so errors are meaningful
  * when neighbouring frequencies differ by more than their errors.
- *   freq_hz, zeta n each; freq_se, zeta_se n each (may be NULL; NULL also when cov is
+ *   freq_hz, zeta n each; freq_se, zeta_se n each (may be NULL; set to 0 when cov is
  *   NULL); shape_re, shape_im n x n (may be NULL). */
 VIBID_API vibid_status vibid_model_modal(const vibid_model *model, const double *theta, const double *cov,
                                          double *freq_hz, double *freq_se, double *zeta, double *zeta_se,
