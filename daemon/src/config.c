@@ -622,10 +622,10 @@ static int load_outputs(ctx *c, config_t *cf)
         get_enum(c, r, "outputs.record", "format", 0, rf, &fi))
         return -1;
     cfg->record_format = (vd_record_format)fi;
-    if (cfg->record_format == VD_REC_CANDUMP)
+    if (cfg->record_format == VD_REC_CANDUMP && !cfg->dbc)
         return fail_at(c, config_setting_get_member(r, "format"), "outputs.record.format",
-                       "candump recording is not implemented yet (needs a DBC encoder); use \"csv\", which "
-                       "--replay reads back bit for bit");
+                       "a candump recording encodes the samples with the source's DBC: it needs a CAN source "
+                       "(socketcan, or a candump replay) with source.dbc; use \"csv\" for this source");
     config_setting_t *s = g ? config_setting_get_member(g, "status") : NULL;
     static const char *const sk[] = {"path", "interval", NULL};
     return check_known(c, s, "outputs.status", sk) ||

@@ -12,6 +12,8 @@
 #include <string.h>
 #include <sys/socket.h>
 #include <sys/stat.h>
+
+#include <vibid_drivers/candump.h>
 #include <time.h>
 #include <unistd.h>
 
@@ -202,6 +204,28 @@ int vd_format_recording_row(char *buf, size_t cap, const vibid_record *rec)
     return (int)off;
 }
 
+int vd_format_recording_frames(char *buf, size_t cap, const vibid_can_assembler *enc, const char *iface,
+                               const vibid_record *rec)
+{
+    vibid_can_frame frames[32];
+    size_t nf = 0;
+    if (vibid_can_assembler_encode(enc, rec, frames, 32, &nf, NULL) != VIBID_DRV_OK)
+        return -1;
+    /* the CSV recording's time base: the sample time rounded to the microsecond */
+    const int64_t t_ns = vd_ns_to_us(rec->t_ns) * 1000;
+    size_t off = 0;
+    for (size_t i = 0; i < nf; i++) {
+        frames[i].t_ns = t_ns;
+        int n = vibid_candump_format(buf + off, cap - off, &frames[i], iface);
+        if (n < 0 || (size_t)n + 1 >= cap - off)
+            return -1;
+        off += (size_t)n;
+        buf[off++] = '\n';
+    }
+    buf[off] = '\0';
+    return (int)off;
+}
+
 static double mono_s(void)
 {
     struct timespec ts;
@@ -257,7 +281,10 @@ static int open_files(vd_writers *w, char *err, size_t cap)
     if (cfg->influx_path[0] && !(w->influx = open_append(cfg->influx_path, NULL, 0, err, cap)))
         return -1;
     if (cfg->record_path[0]) {
-        int n = vd_format_recording_header(w->linebuf, sizeof w->linebuf, w->stand_name, cfg->sample_rate, w->chanmap);
+        int n = cfg->record_format == VD_REC_CANDUMP ? 0 /* a candump log has no header */
+                                                     : vd_format_recording_header(w->linebuf, sizeof w->linebuf,
+                                                                                  w->stand_name, cfg->sample_rate,
+                                                                                  w->chanmap);
         if (!(w->record = open_append(cfg->record_path, w->linebuf, n, err, cap)))
             return -1;
     }
@@ -271,6 +298,15 @@ int vd_writers_open(vd_writers *w, const vd_config *cfg, const vibid_chanmap *ch
     w->chanmap = chanmap;
     w->stand_name = vibid_stand_name(cfg->stand);
     w->udp_fd = -1;
+    if (cfg->record_path[0] && cfg->record_format == VD_REC_CANDUMP) {
+        vibid_drv_error de = {0};
+        w->record_encoder = cfg->dbc ? vibid_can_assembler_create(cfg->dbc, chanmap, &de) : NULL;
+        if (!w->record_encoder) {
+            snprintf(err, cap, "outputs.record (candump) %s: %s", cfg->record_path,
+                     cfg->dbc ? de.text : "no DBC to encode the samples with");
+            return -1;
+        }
+    }
     if (open_files(w, err, cap)) {
         vd_writers_close(w);
         return -1;
@@ -353,7 +389,15 @@ void vd_writers_sample(vd_writers *w, const vibid_record *rec)
 {
     if (!w->record || rec->kind != VIBID_REC_SAMPLE)
         return;
-    int n = vd_format_recording_row(w->linebuf, sizeof w->linebuf, rec);
+    int n = w->record_encoder ? vd_format_recording_frames(w->linebuf, sizeof w->linebuf, w->record_encoder,
+                                                           w->cfg->iface[0] ? w->cfg->iface : "can0", rec)
+                              : vd_format_recording_row(w->linebuf, sizeof w->linebuf, rec);
+    if (n < 0) {
+        /* cannot happen for samples decoded with the same DBC; counted and logged */
+        errno = ERANGE;
+        write_failed(w, "raw recording (a sample does not fit its DBC signals)", w->cfg->record_path);
+        return;
+    }
     emit(w, w->record, "raw recording", w->cfg->record_path, w->linebuf, n);
 }
 
@@ -391,4 +435,6 @@ void vd_writers_close(vd_writers *w)
     if (w->udp_fd >= 0)
         close(w->udp_fd);
     w->udp_fd = -1;
+    vibid_can_assembler_destroy(w->record_encoder);
+    w->record_encoder = NULL;
 }

@@ -17,6 +17,9 @@
  *           "t,<channel>...", rows "t,values" with t in s to the microsecond and values
  *           as %.17g (exact round trip). --replay reads it back; missing samples show as
  *           time steps, which the replay turns into the same gaps.
+ *           Or (format candump, CAN sources) as a candump -l log: each sample encoded
+ *           into its DBC messages with the sample counter, all frames at the sample time
+ *           to the microsecond; missing samples show as counter jumps.
  * Writes are buffered (stdio) and flushed by the caller on a bounded interval
  * (outputs.tracks.flush_interval) and at exit; every failed write is counted and
  * logged (first failure per file, then once a minute).
@@ -29,6 +32,8 @@
 
 #include <netinet/in.h>
 
+#include <vibid_drivers/can_assembler.h>
+
 #include "config.h"
 #include "estimator.h"
 
@@ -39,6 +44,7 @@ typedef struct vd_writers {
     const vibid_chanmap *chanmap; /* channels of the raw recording, in record order */
     const char *stand_name;
     FILE *tracks, *influx, *record;
+    vibid_can_assembler *record_encoder; /* candump recording: samples -> frames (source DBC) */
     int udp_fd;
     struct sockaddr_in udp_addr;
     uint64_t write_errors, udp_errors, udp_sent;
@@ -68,6 +74,10 @@ int vd_format_influx_alarm(char *buf, size_t cap, const vd_config *cfg, const ch
                            int raised, const vd_row *row, double value, double baseline, double z);
 int vd_format_recording_header(char *buf, size_t cap, const char *stand, double rate, const vibid_chanmap *map);
 int vd_format_recording_row(char *buf, size_t cap, const vibid_record *rec);
+/* candump recording: the frames of one sample (vibid_can_assembler_encode), one candump -l
+ * line each; -1 if cap is too small or a value does not fit its signal. */
+int vd_format_recording_frames(char *buf, size_t cap, const vibid_can_assembler *enc, const char *iface,
+                               const vibid_record *rec);
 /* Influx tag value escaping (commas, spaces, equals signs). */
 void vd_influx_escape_tag(char *dst, size_t cap, const char *src);
 

@@ -453,6 +453,60 @@ bool vibid_can_assembler_pop(vibid_can_assembler *a, vibid_record *rec)
     return true;
 }
 
+static uint8_t fd_length(uint8_t len)
+{
+    static const uint8_t ok[] = {8, 12, 16, 20, 24, 32, 48, 64};
+    for (size_t i = 0; i < sizeof ok; i++)
+        if (len <= ok[i])
+            return ok[i];
+    return 64;
+}
+
+vibid_drv_status vibid_can_assembler_encode(const vibid_can_assembler *a, const vibid_record *rec,
+                                            vibid_can_frame *frames, size_t cap, size_t *n, vibid_drv_error *err)
+{
+    if (!a || !rec || !frames || !n)
+        return vibid_drv_fail(err, VIBID_DRV_E_ARG, "can assembler encode: NULL argument");
+    *n = 0;
+    if (rec->kind != VIBID_REC_SAMPLE || rec->n_values != a->map->n)
+        return vibid_drv_fail(err, VIBID_DRV_E_ARG, "can assembler encode: not a sample of %zu channels",
+                              a->map->n);
+    if (cap < a->n_inv)
+        return vibid_drv_fail(err, VIBID_DRV_E_ARG, "can assembler encode: room for %zu frames, %zu needed", cap,
+                              a->n_inv);
+    for (size_t j = 0; j < a->n_inv; j++) {
+        /* the trigger message first: the assembler starts a sample with it */
+        size_t i = a->trigger <= 0 ? j : (j == 0 ? (size_t)a->trigger : (j <= (size_t)a->trigger ? j - 1 : j));
+        const involved *v = &a->inv[i];
+        vibid_can_frame *f = &frames[j];
+        memset(f, 0, sizeof *f);
+        f->t_ns = rec->t_ns;
+        f->id = v->msg->id;
+        if (v->msg->extended)
+            f->flags |= VIBID_CAN_F_EXT;
+        f->len = v->msg->length;
+        if (f->len > VIBID_CAN_MAX_DLEN) {
+            f->flags |= VIBID_CAN_F_FD;
+            f->len = fd_length(f->len);
+        }
+        if (v->counter_sig >= 0) {
+            uint64_t c = a->counter_bits >= 64 ? rec->index : rec->index & ((UINT64_C(1) << a->counter_bits) - 1u);
+            vibid_dbc_signal_put_raw(&v->msg->signals[v->counter_sig], f->data, f->len, c);
+        }
+        for (size_t k = 0; k < v->n_ch; k++) {
+            const vibid_dbc_signal *s = &v->msg->signals[v->sig_index[k]];
+            double x = rec->values[v->ch_index[k]];
+            if (vibid_dbc_signal_encode(s, x, f->data, f->len) != VIBID_DRV_OK)
+                return vibid_drv_fail(err, VIBID_DRV_E_RANGE,
+                                      "sample %llu: channel '%s' = %.17g does not fit signal %s.%s",
+                                      (unsigned long long)rec->index, a->map->ch[v->ch_index[k]].name, x,
+                                      v->msg->name, s->name);
+        }
+    }
+    *n = a->n_inv;
+    return VIBID_DRV_OK;
+}
+
 size_t vibid_can_assembler_ids(const vibid_can_assembler *a, uint32_t *ids, size_t cap)
 {
     if (!a)

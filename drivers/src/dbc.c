@@ -851,6 +851,74 @@ vibid_drv_status vibid_dbc_signal_decode(const vibid_dbc_signal *sig, const uint
     return VIBID_DRV_OK;
 }
 
+/* Frame bit (byte * 8 + bit-in-byte) of the signal's bit i, counted from its LSB.
+ * Intel: consecutive from start_bit upwards. Motorola: start_bit is the MSB; going
+ * towards the LSB the bit number falls within a byte and continues at bit 7 of the next
+ * byte (the DBC "sawtooth"), so the LSB is n-1 such steps after start_bit. */
+static unsigned frame_bit(const vibid_dbc_signal *sig, unsigned i)
+{
+    if (sig->byte_order == VIBID_DBC_INTEL)
+        return sig->start_bit + i;
+    unsigned pos = sig->start_bit;
+    for (unsigned j = sig->length - 1u; j > i; j--)
+        pos = (pos % 8u == 0u) ? pos + 15u : pos - 1u;
+    return pos;
+}
+
+vibid_drv_status vibid_dbc_signal_put_raw(const vibid_dbc_signal *sig, uint8_t *data, size_t len, uint64_t raw)
+{
+    if (!sig || (!data && len))
+        return VIBID_DRV_E_ARG;
+    if (len < sig->min_bytes)
+        return VIBID_DRV_E_SHORT;
+    /* Bit by bit: recording runs at the sample rate (a few 10^4 signals per second), and
+     * this form is the plainest inverse of vibid_dbc_signal_raw. */
+    for (unsigned i = 0; i < sig->length; i++) {
+        unsigned pos = frame_bit(sig, i);
+        uint8_t mask = (uint8_t)(1u << (pos % 8u));
+        if ((raw >> i) & 1u)
+            data[pos / 8u] |= mask;
+        else
+            data[pos / 8u] &= (uint8_t)~mask;
+    }
+    return VIBID_DRV_OK;
+}
+
+vibid_drv_status vibid_dbc_signal_encode(const vibid_dbc_signal *sig, double phys, uint8_t *data, size_t len)
+{
+    if (!sig)
+        return VIBID_DRV_E_ARG;
+    double x = (phys - sig->offset) / sig->factor;
+    uint64_t raw;
+    if (sig->value_type == VIBID_DBC_FLOAT32) {
+        float f = (float)x;
+        uint32_t b;
+        memcpy(&b, &f, sizeof b);
+        raw = b;
+    } else if (sig->value_type == VIBID_DBC_FLOAT64) {
+        memcpy(&raw, &x, sizeof raw);
+    } else {
+        unsigned n = sig->length;
+        double r = nearbyint(x);
+        if (!isfinite(r))
+            return VIBID_DRV_E_RANGE;
+        if (sig->is_signed) {
+            double lo = -ldexp(1.0, (int)n - 1), hi = ldexp(1.0, (int)n - 1); /* [lo, hi) */
+            if (!(r >= lo && r < hi))
+                return VIBID_DRV_E_RANGE;
+            int64_t s = (int64_t)r;
+            memcpy(&raw, &s, sizeof raw);
+        } else {
+            if (!(r >= 0.0 && r < ldexp(1.0, (int)n)))
+                return VIBID_DRV_E_RANGE;
+            raw = (uint64_t)r;
+        }
+        if (n < 64)
+            raw &= (UINT64_C(1) << n) - 1u;
+    }
+    return vibid_dbc_signal_put_raw(sig, data, len, raw);
+}
+
 static bool mux_selected(const vibid_dbc_signal *s, uint64_t muxval)
 {
     for (size_t i = 0; i < s->n_mux_ranges; i++)

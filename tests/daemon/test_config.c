@@ -83,6 +83,9 @@ static void test_type_error(void **state)
                  "true or false");
     expect_error("type2.cfg", STAND SOURCE "estimator = { method = \"kalman\"; };\n", ":12: estimator.method:",
                  "'kalman' is not one of ls, iv, rls");
+    /* a candump recording needs the DBC of a CAN source; this one replays CSV */
+    expect_error("rec.cfg", STAND SOURCE "outputs = { record = { path = \"r.log\"; format = \"candump\"; }; };\n",
+                 ":12: outputs.record.format:", "needs a CAN source");
 }
 
 static void test_unknown_directive(void **state)

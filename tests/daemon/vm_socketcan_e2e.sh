@@ -76,6 +76,7 @@ estimator = { method = "rls"; prefilter_hz = 200.0; decimation = 200; };
 outputs = {
   tracks = { path = "/tmp/$side/tracks.csv"; flush_interval = 1.0; };
   status = { path = "/tmp/$side/status"; interval = 0.2; };
+  $([ $side = live ] && echo 'record = { path = "/tmp/live/raw.log"; format = "candump"; };')
 };
 EOF
 done
@@ -87,7 +88,7 @@ mount -t proc proc /proc; mount -t sysfs sys /sys; mount -t devtmpfs dev /dev 2>
 echo "VIBID-BOOTED uptime $(cut -d' ' -f1 /proc/uptime)"
 for m in can can-raw can-dev vcan; do insmod /mod/$m.ko || echo "VIBID-FAIL insmod $m"; done
 ip link add dev vcan0 type vcan && ip link set up vcan0 || echo "VIBID-FAIL ip link vcan0"
-mkdir -p /tmp/live /tmp/replay /tmp/cd
+mkdir -p /tmp/live /tmp/replay /tmp/cd /tmp/rec
 cd /tmp/cd && candump -l vcan0 &
 cp=$!
 cd /tmp/live
@@ -110,6 +111,12 @@ log=$(ls /tmp/cd/candump-*.log | head -n 1)
 echo "VIBID candump-lines $(wc -l < "$log")"
 cd /tmp/replay
 vibidd -c /data/replay.cfg --replay "$log" 2> /tmp/replay/err; echo "VIBID replay-exit $?"
+# vibidd's own candump recording of the live run, replayed: the live tracks byte for byte
+cd /tmp/rec
+vibidd -c /data/replay.cfg --replay /tmp/live/raw.log --tracks /tmp/rec/tracks.csv --status /tmp/rec/status \
+  2> /tmp/rec/err; echo "VIBID rec-replay-exit $?"
+echo "VIBID rec-lines $(wc -l < /tmp/live/raw.log)"
+if cmp /tmp/live/tracks.csv /tmp/rec/tracks.csv; then echo "VIBID rec-identical yes"; else echo "VIBID rec-identical no"; fi
 for side in live replay; do
   for k in samples missing_samples gaps faults source_dropped_frames source_frames; do
     echo "VIBIDST $side $k $(sed -n "s/^$k=//p" /tmp/$side/status)"
@@ -149,6 +156,10 @@ ok=1
 bad() { echo "FAIL [vm_socketcan e2e]: $*" >&2; ok=0; }
 [ "$(awk '$1 == "VIBID" && $2 == "live-exit" { print $3 }' console.txt)" = 0 ] || bad "live vibidd did not exit 0 on SIGTERM"
 [ "$(awk '$1 == "VIBID" && $2 == "replay-exit" { print $3 }' console.txt)" = 0 ] || bad "vibidd --replay did not exit 0"
+[ "$(awk '$1 == "VIBID" && $2 == "rec-replay-exit" { print $3 }' console.txt)" = 0 ] ||
+  bad "vibidd --replay of its own candump recording did not exit 0"
+[ "$(awk '$1 == "VIBID" && $2 == "rec-identical" { print $3 }' console.txt)" = yes ] ||
+  bad "replay of vibidd's candump recording of the live run differs from the live tracks"
 # dur s at the stand's 2 kHz = 2000 dur samples sent (3 classic frames each)
 want=$((dur * 2000))
 for side in live replay; do
@@ -188,4 +199,4 @@ for k in truth:
 sys.exit(1 if bad else 0)
 PY
 [ $ok -eq 1 ] || fail "checks failed; console: $work/console.txt"
-echo "PASS: vibidd live on vcan0 in the VM and vibidd --replay of candump -l's recording agree and are within 1 % of the truth"
+echo "PASS: vibidd live on vcan0 in the VM and vibidd --replay of candump -l's recording agree and are within 1 % of the truth; the replay of vibidd's own candump recording ($(awk '$1 == "VIBID" && $2 == "rec-lines" { print $3 }' console.txt) frames) gives the live tracks byte for byte"

@@ -4,7 +4,10 @@
 #include <setjmp.h>
 #include <stdarg.h>
 #include <stddef.h>
+#include <stdbool.h>
 #include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
 
 #include <cmocka.h>
@@ -157,6 +160,120 @@ static void test_load_file_errors(void **state)
     vibid_dbc_destroy(NULL);
 }
 
+/* Encoding (vibidd's candump recording) against the decoder, which dbc_vs_cantools.py
+ * checks bit for bit against cantools: for every non-multiplexed signal of every shared
+ * DBC file (written elsewhere) and 200 pseudo-random raw values each, put_raw into a
+ * random payload must (1) read back as the same raw and (2) leave every signal that does
+ * not overlap it unchanged; and encode(decode(frame)) must reproduce the signal's bits
+ * exactly for integer signals and for float signals with factor 1, offset 0. */
+static uint64_t rng_next(uint64_t *s)
+{
+    *s ^= *s << 13;
+    *s ^= *s >> 7;
+    *s ^= *s << 17;
+    return *s;
+}
+
+static bool overlaps(const vibid_dbc_message *m, const vibid_dbc_signal *a, const vibid_dbc_signal *b)
+{
+    uint8_t fa[64] = {0}, fb[64] = {0};
+    vibid_dbc_signal_put_raw(a, fa, m->length, ~UINT64_C(0));
+    vibid_dbc_signal_put_raw(b, fb, m->length, ~UINT64_C(0));
+    for (size_t i = 0; i < m->length; i++)
+        if (fa[i] & fb[i])
+            return true;
+    return false;
+}
+
+static void test_encode_inverts_decode(void **state)
+{
+    (void)state;
+    char cmd[600];
+    snprintf(cmd, sizeof cmd, "ls %s/*.dbc", VIBID_SHARED_DBC_DIR);
+    FILE *ls = popen(cmd, "r");
+    assert_non_null(ls);
+    char path[512];
+    uint64_t seed = 0x9E3779B97F4A7C15ull;
+    size_t files = 0, signals = 0, checks = 0;
+    while (fgets(path, sizeof path, ls)) {
+        path[strcspn(path, "\n")] = '\0';
+        vibid_drv_error err = {0};
+        vibid_dbc *d = vibid_dbc_load(path, &err);
+        if (!d)
+            continue; /* files the reader refuses are covered by the cantools cross-check */
+        files++;
+        for (size_t mi = 0; mi < vibid_dbc_message_count(d); mi++) {
+            const vibid_dbc_message *m = vibid_dbc_message_at(d, mi);
+            for (size_t si = 0; si < m->n_signals; si++) {
+                const vibid_dbc_signal *sg = &m->signals[si];
+                if (sg->mux_role == VIBID_DBC_MULTIPLEXED || sg->min_bytes > m->length)
+                    continue;
+                signals++;
+                for (int rep = 0; rep < 200; rep++) {
+                    uint8_t data[64], before[64];
+                    for (size_t b = 0; b < sizeof data; b++)
+                        data[b] = (uint8_t)rng_next(&seed);
+                    memcpy(before, data, sizeof data);
+                    uint64_t raw = rng_next(&seed), got = 0;
+                    uint64_t mask = sg->length >= 64 ? ~UINT64_C(0) : (UINT64_C(1) << sg->length) - 1u;
+                    assert_int_equal(vibid_dbc_signal_put_raw(sg, data, m->length, raw), VIBID_DRV_OK);
+                    assert_int_equal(vibid_dbc_signal_raw(sg, data, m->length, &got), VIBID_DRV_OK);
+                    if (got != (raw & mask))
+                        fail_msg("%s: %s.%s: put 0x%llx, read 0x%llx", path, m->name, sg->name,
+                                 (unsigned long long)(raw & mask), (unsigned long long)got);
+                    for (size_t oi = 0; oi < m->n_signals; oi++) {
+                        const vibid_dbc_signal *o = &m->signals[oi];
+                        if (oi == si || o->min_bytes > m->length || overlaps(m, sg, o))
+                            continue;
+                        uint64_t r0, r1;
+                        vibid_dbc_signal_raw(o, before, m->length, &r0);
+                        vibid_dbc_signal_raw(o, data, m->length, &r1);
+                        if (r0 != r1)
+                            fail_msg("%s: writing %s.%s changed %s", path, m->name, sg->name, o->name);
+                    }
+                    /* encode(decode) round trip */
+                    bool exact = sg->value_type == VIBID_DBC_INTEGER || (sg->factor == 1.0 && sg->offset == 0.0);
+                    double phys;
+                    assert_int_equal(vibid_dbc_signal_decode(sg, data, m->length, &phys), VIBID_DRV_OK);
+                    bool nan_float = sg->value_type != VIBID_DBC_INTEGER && phys != phys;
+                    if (exact && !nan_float) {
+                        uint8_t again[64] = {0};
+                        vibid_drv_status st = vibid_dbc_signal_encode(sg, phys, again, m->length);
+                        if (st != VIBID_DRV_OK)
+                            fail_msg("%s: %s.%s: encode(%.17g) failed (%d)", path, m->name, sg->name, phys, st);
+                        uint64_t r2;
+                        vibid_dbc_signal_raw(sg, again, m->length, &r2);
+                        /* integers beyond 2^53 lose bits in the double: compare what a double holds */
+                        if (r2 != got && !(sg->value_type == VIBID_DBC_INTEGER && sg->length > 53))
+                            fail_msg("%s: %s.%s: raw 0x%llx -> %.17g -> raw 0x%llx", path, m->name, sg->name,
+                                     (unsigned long long)got, phys, (unsigned long long)r2);
+                    }
+                    checks++;
+                }
+            }
+        }
+        vibid_dbc_destroy(d);
+    }
+    pclose(ls);
+    print_message("encode vs decode: %zu files, %zu signals, %zu round trips\n", files, signals, checks);
+    assert_true(files >= 5 && signals >= 100); /* the shared set has 9 files, hundreds of signals */
+    /* out of range and non-finite values are refused, the payload untouched */
+    vibid_drv_error err;
+    vibid_dbc *d = parse("BO_ 1 M: 8 X\n SG_ U : 0|8@1+ (1,0) [0|0] \"\" X\n SG_ S : 8|8@1- (0.5,0) [0|0] \"\" X\n",
+                         &err);
+    assert_non_null(d);
+    const vibid_dbc_message *m = vibid_dbc_find_message(d, 1, false);
+    uint8_t data[8] = {0};
+    assert_int_equal(vibid_dbc_signal_encode(vibid_dbc_find_signal(m, "U"), 256.0, data, 8), VIBID_DRV_E_RANGE);
+    assert_int_equal(vibid_dbc_signal_encode(vibid_dbc_find_signal(m, "U"), -1.0, data, 8), VIBID_DRV_E_RANGE);
+    assert_int_equal(vibid_dbc_signal_encode(vibid_dbc_find_signal(m, "S"), 64.0, data, 8), VIBID_DRV_E_RANGE);
+    assert_int_equal(vibid_dbc_signal_encode(vibid_dbc_find_signal(m, "S"), NAN, data, 8), VIBID_DRV_E_RANGE);
+    assert_int_equal(vibid_dbc_signal_encode(vibid_dbc_find_signal(m, "S"), -64.0, data, 8), VIBID_DRV_OK);
+    assert_int_equal(data[1], 0x80);
+    assert_int_equal(data[0], 0);
+    vibid_dbc_destroy(d);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -166,6 +283,7 @@ int main(void)
         cmocka_unit_test(test_skips_unknown_and_multiline),
         cmocka_unit_test(test_syntax_errors_name_line),
         cmocka_unit_test(test_load_file_errors),
+        cmocka_unit_test(test_encode_inverts_decode),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -71,6 +71,17 @@ void vibid_can_assembler_note_drops(vibid_can_assembler *a, uint64_t dropped, co
 void vibid_can_assembler_finish(vibid_can_assembler *a);
 /* true and *rec filled while records are queued. */
 bool vibid_can_assembler_pop(vibid_can_assembler *a, vibid_record *rec);
+/* The inverse of push, for recording samples as CAN frames (vibidd's candump recording):
+ * the frames that carry sample rec (a SAMPLE record in this assembler's channel order),
+ * one per DBC message holding channels, in the order the assembler rebuilds them (the
+ * trigger message first); the counter signal (counter mode) = rec->index mod 2^bits,
+ * signals that are not channels 0; payload = the message's DBC length (CAN FD above 8
+ * bytes, rounded up to a valid FD length); t_ns = rec->t_ns, iface "". Pushing the frames
+ * back gives the same sample (same index in counter mode). *n = frames written.
+ * VIBID_DRV_E_RANGE (err names channel and signal) if a value does not fit its signal,
+ * VIBID_DRV_E_ARG if rec is not a sample of this map or cap is too small. No allocation. */
+vibid_drv_status vibid_can_assembler_encode(const vibid_can_assembler *a, const vibid_record *rec,
+                                            vibid_can_frame *frames, size_t cap, size_t *n, vibid_drv_error *err);
 /* The channel ids of the DBC messages involved (for kernel filters): up to cap
  * entries (ids with bit 31 set for extended ids); returns how many exist. */
 size_t vibid_can_assembler_ids(const vibid_can_assembler *a, uint32_t *ids, size_t cap);

@@ -109,6 +109,15 @@ vibid_drv_status vibid_dbc_signal_raw(const vibid_dbc_signal *sig, const uint8_t
  * Inf (the caller decides what a non-finite sample means). */
 vibid_drv_status vibid_dbc_signal_decode(const vibid_dbc_signal *sig, const uint8_t *data,
                                          size_t len, double *phys);
+/* The inverse, for writing frames (vibidd's candump recording): sets the signal's bits in
+ * data[0 .. len) to raw (its low sig->length bits), leaving all other bits as they are. */
+vibid_drv_status vibid_dbc_signal_put_raw(const vibid_dbc_signal *sig, uint8_t *data, size_t len, uint64_t raw);
+/* Encodes the physical value phys: raw = round((phys - offset) / factor) for integer
+ * signals (VIBID_DRV_E_RANGE when it does not fit the signal's length and signedness, or
+ * phys is not finite), the float32/float64 of (phys - offset) / factor for float signals.
+ * A value decoded from a frame with the same signal encodes back to the same bits
+ * (exactly for integers, and for floats with factor 1 and offset 0). */
+vibid_drv_status vibid_dbc_signal_encode(const vibid_dbc_signal *sig, double phys, uint8_t *data, size_t len);
 /* Decodes every signal of msg: values[i], present[i] for i < msg->n_signals (caller
  * arrays). Multiplexed signals not selected, and signals beyond a short payload, get
  * present = 0 and value NaN. Returns VIBID_DRV_E_SHORT if any signal that should be
