@@ -14,6 +14,9 @@ FIFO at base 1000, data offset 64, K = 500 records of W = 6 registers.
 restart is a new FIFO session (S = 0, new session id). The process exits after the
 schedule (and never later than --max-time). Prints "READY <port>" when first listening.
 
+--stop-after N stops producing after sample N-1 (the FIFO then holds a fixed window: a
+client's first read is deterministic).
+
 --serial DEVICE serves Modbus RTU (pymodbus serial server, pyserial) on DEVICE, e.g. one
 end of a pseudo-terminal pair, instead of TCP; --port is then ignored (pass 0), the
 schedule's first phase only is used and "READY 0" is printed once the port is open.
@@ -55,9 +58,10 @@ def values(s):
 
 
 class Fifo:
-    def __init__(self, block, period_ns):
+    def __init__(self, block, period_ns, stop_after=0):
         self.block = block
         self.period_ns = period_ns
+        self.stop_after = stop_after  # > 0: produce samples 0 .. stop_after-1, then none
         self.restart()
 
     def restart(self):
@@ -72,6 +76,8 @@ class Fifo:
 
     def advance(self):
         due = int((time.monotonic() - self.t0) * 1e9 // self.period_ns)
+        if self.stop_after:
+            due = min(due, self.stop_after)
         while self.S < due:
             s = self.S
             a, b, c = values(s)
@@ -93,11 +99,12 @@ async def main():
     ap.add_argument("--max-time", type=float, default=30.0)
     ap.add_argument("--serial", default="")
     ap.add_argument("--baud", type=int, default=115200)
+    ap.add_argument("--stop-after", type=int, default=0)
     args = ap.parse_args()
     phases = [float(x) for x in args.schedule.split(",")]
     block = ModbusSequentialDataBlock(0, [0] * (BASE + DOFF + K * W + 16))
     ctx = ModbusServerContext(slaves=ModbusSlaveContext(hr=block, zero_mode=True), single=True)
-    fifo = Fifo(block, args.period_ns)
+    fifo = Fifo(block, args.period_ns, args.stop_after)
     deadline = time.monotonic() + args.max_time
     for i, dur in enumerate(phases):
         if i % 2 == 1:  # pause: nobody listening

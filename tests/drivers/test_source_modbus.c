@@ -52,15 +52,15 @@ static int free_port(void)
 }
 
 /* Starts the pymodbus server; returns its stdout after it printed READY. */
-static FILE *start_server(int port, const char *schedule)
+static FILE *start_server_args(int port, const char *schedule, const char *extra)
 {
     const char *py = getenv("VIBID_PYTHON");
     if (!py || access(py, X_OK) != 0)
         fail_msg("FAIL: VIBID_PYTHON='%s' is not an executable venv interpreter (scripts/python-venv.sh)",
                  py ? py : "");
     char cmd[1024];
-    snprintf(cmd, sizeof cmd, "'%s' '%s' --port %d --schedule %s --max-time 20", py, VIBID_DRV_SERVER_PY, port,
-             schedule);
+    snprintf(cmd, sizeof cmd, "'%s' '%s' --port %d --schedule %s --max-time 20 %s", py, VIBID_DRV_SERVER_PY, port,
+             schedule, extra);
     FILE *p = popen(cmd, "r");
     assert_non_null(p);
     char line[128];
@@ -68,6 +68,8 @@ static FILE *start_server(int port, const char *schedule)
         fail_msg("pymodbus server did not start (%s)", cmd);
     return p;
 }
+
+static FILE *start_server(int port, const char *schedule) { return start_server_args(port, schedule, ""); }
 
 static vibid_regmap *load_regmap(void)
 {
@@ -206,6 +208,58 @@ static void test_fifo_restart(void **state)
     vibid_regmap_destroy(rm);
 }
 
+/* Where a FIFO session starts: the server produced 1300 samples into its K = 500 ring and
+ * stopped (so the window is fixed). The oldest slot is the next the server overwrites,
+ * so the source starts K/8 = 62 records after it: samples 862 .. 1299 (438 of them),
+ * index 0 .. 437, and no gap record (nothing was expected before the session began). */
+static void test_fifo_start_margin(void **state)
+{
+    (void)state;
+    int port = free_port();
+    vibid_regmap *rm = load_regmap();
+    FILE *srv = start_server_args(port, "3", "--stop-after 1300");
+    struct timespec ts = {1, 500000000}; /* 1.3 s to produce the 1300 samples, + margin */
+    nanosleep(&ts, NULL);
+    vibid_source_modbus_config cfg = base_cfg(rm, port);
+    cfg.mode = VIBID_MODBUS_FIFO;
+    cfg.sample_period_s = 1e-3;
+    cfg.poll_period_s = 0.02;
+    vibid_drv_error err = {0};
+    vibid_source *s = vibid_source_open(&vibid_source_modbus_ops, &cfg, &err);
+    if (!s)
+        fail_msg("%s", err.text);
+    static vibid_record r[256];
+    size_t n, got = 0;
+    long first = -1, last = -1;
+    int64_t end = mono() + (int64_t)0.5e9;
+    while (mono() < end) {
+        vibid_drv_status st = vibid_source_read(s, r, 256, &n, 50, &err);
+        if (st != VIBID_DRV_OK && st != VIBID_DRV_E_AGAIN)
+            fail_msg("read: %s", err.text);
+        for (size_t i = 0; i < n; i++) {
+            if (r[i].kind != VIBID_REC_SAMPLE)
+                fail_msg("record kind %d at index %llu: %s", r[i].kind, (unsigned long long)r[i].index, r[i].text);
+            assert_int_equal(r[i].index, got);
+            long sv = check_values(&r[i]);
+            if (first < 0)
+                first = sv;
+            else
+                assert_int_equal(sv, last + 1);
+            last = sv;
+            got++;
+        }
+    }
+    vibid_source_close(s);
+    while (fgets((char[128]){0}, 128, srv)) {
+    }
+    pclose(srv);
+    print_message("FIFO start: samples %ld .. %ld (%zu)\n", first, last, got);
+    assert_int_equal(first, 1300 - 500 + 500 / 8);
+    assert_int_equal(last, 1299);
+    assert_int_equal(got, 500 - 500 / 8);
+    vibid_regmap_destroy(rm);
+}
+
 static void test_snapshot(void **state)
 {
     (void)state;
@@ -340,6 +394,7 @@ int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_fifo_restart),
+        cmocka_unit_test(test_fifo_start_margin),
         cmocka_unit_test(test_snapshot),
         cmocka_unit_test(test_silent_server),
         cmocka_unit_test(test_fifo_wrong_base),
