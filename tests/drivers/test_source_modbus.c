@@ -71,6 +71,22 @@ static FILE *start_server_args(int port, const char *schedule, const char *extra
 
 static FILE *start_server(int port, const char *schedule) { return start_server_args(port, schedule, ""); }
 
+static vibid_source_modbus_config base_cfg(const vibid_regmap *rm, int port);
+
+/* FIFO source on 127.0.0.1:port, h = 1 ms, 20 ms polls; fails the test if it cannot open. */
+static vibid_source *open_fifo(const vibid_regmap *rm, int port)
+{
+    vibid_source_modbus_config cfg = base_cfg(rm, port);
+    cfg.mode = VIBID_MODBUS_FIFO;
+    cfg.sample_period_s = 1e-3;
+    cfg.poll_period_s = 0.02;
+    vibid_drv_error err = {0};
+    vibid_source *s = vibid_source_open(&vibid_source_modbus_ops, &cfg, &err);
+    if (!s)
+        fail_msg("%s", err.text);
+    return s;
+}
+
 static vibid_regmap *load_regmap(void)
 {
     char path[512];
@@ -127,14 +143,8 @@ static void test_fifo_restart(void **state)
     int port = free_port();
     vibid_regmap *rm = load_regmap();
     FILE *srv = start_server(port, "1.2,0.8,1.2"); /* serve, stop 0.8 s, serve (new session) */
-    vibid_source_modbus_config cfg = base_cfg(rm, port);
-    cfg.mode = VIBID_MODBUS_FIFO;
-    cfg.sample_period_s = 1e-3;
-    cfg.poll_period_s = 0.02;
     vibid_drv_error err = {0};
-    vibid_source *s = vibid_source_open(&vibid_source_modbus_ops, &cfg, &err);
-    if (!s)
-        fail_msg("%s", err.text);
+    vibid_source *s = open_fifo(rm, port);
     static vibid_record r[256];
     size_t n;
     uint64_t next_k = 0;
@@ -220,14 +230,8 @@ static void test_fifo_start_margin(void **state)
     FILE *srv = start_server_args(port, "3", "--stop-after 1300");
     struct timespec ts = {1, 500000000}; /* 1.3 s to produce the 1300 samples, + margin */
     nanosleep(&ts, NULL);
-    vibid_source_modbus_config cfg = base_cfg(rm, port);
-    cfg.mode = VIBID_MODBUS_FIFO;
-    cfg.sample_period_s = 1e-3;
-    cfg.poll_period_s = 0.02;
     vibid_drv_error err = {0};
-    vibid_source *s = vibid_source_open(&vibid_source_modbus_ops, &cfg, &err);
-    if (!s)
-        fail_msg("%s", err.text);
+    vibid_source *s = open_fifo(rm, port);
     static vibid_record r[256];
     size_t n, got = 0;
     long first = -1, last = -1;
