@@ -227,15 +227,15 @@ static void test_fifo_start_margin(void **state)
     (void)state;
     int port = free_port();
     vibid_regmap *rm = load_regmap();
-    FILE *srv = start_server_args(port, "3", "--stop-after 1300");
-    struct timespec ts = {1, 500000000}; /* 1.3 s to produce the 1300 samples, + margin */
+    FILE *srv = start_server_args(port, "5", "--stop-after 1300");
+    struct timespec ts = {2, 0}; /* 1.3 s to produce the 1300 samples, + margin for a loaded machine */
     nanosleep(&ts, NULL);
     vibid_drv_error err = {0};
     vibid_source *s = open_fifo(rm, port);
     static vibid_record r[256];
     size_t n, got = 0;
     long first = -1, last = -1;
-    int64_t end = mono() + (int64_t)0.5e9;
+    int64_t end = mono() + (int64_t)1.5e9; /* one poll reads all; the rest shows nothing more comes */
     while (mono() < end) {
         vibid_drv_status st = vibid_source_read(s, r, 256, &n, 50, &err);
         if (st != VIBID_DRV_OK && st != VIBID_DRV_E_AGAIN)
