@@ -84,8 +84,6 @@ int main(int argc, char **argv) {
     stand_sim_add_noise(rec[2], N, nc, 0.01, &seed);
     stand_sim_add_noise(rec[3], N, nc, 0.01, &seed);
 
-    static const size_t checkpoints[] = {10, 20, 50, 100, 200, 500, 1000, 2000, 5000, 10000, 20000};
-    const size_t ncp = sizeof checkpoints / sizeof checkpoints[0];
     const example_case cases[] = {
         {"clean_cd_ls", VIBID_DISC_CENTRAL_DIFFERENCE, VIBID_ESTIMATOR_LS, 0.0, 0, 0, 0},
         {"clean_zoh_ls", VIBID_DISC_ZOH, VIBID_ESTIMATOR_LS, 0.0, 0, 0, 1},
@@ -101,24 +99,19 @@ int main(int argc, char **argv) {
         {"noisy_zoh_ls_pf150", VIBID_DISC_ZOH, VIBID_ESTIMATOR_LS, 150.0, 0, 1, 1},
     };
     char path[1024];
-    snprintf(path, sizeof path, "%s/example1_tracks.csv", outdir);
-    FILE *csv = fopen(path, "w");
-    if (!csv) {
-        perror(path);
-        return 1;
-    }
-    example_csv_header(csv, model);
+    FILE *csv = example_open_tracks(outdir, "example1", model, path, sizeof path);
+    if (!csv) return 1;
     int rc = 0;
     for (size_t i = 0; i < sizeof cases / sizeof cases[0]; ++i) {
         const example_case *c = &cases[i];
         const double *r = rec[(c->noisy ? 2 : 0) + (c->held ? 1 : 0)];
         printf("case %s: %s, %s%s, %s base, %s\n", c->name,
                c->disc == VIBID_DISC_ZOH ? "ZOH (1.16) + matrix log" : "central differences (1.17)",
-               c->estimator == VIBID_ESTIMATOR_LS ? "batch LS" : c->estimator == VIBID_ESTIMATOR_IV ? "batch IV" : "RLS",
+               example_estimator_label(c->estimator),
                c->prefilter_hz > 0 ? " + 150 Hz pre-filter" : "", c->held ? "held" : "continuous",
                c->noisy ? "1 % noise" : "noise-free");
         const vibid_model *mc = c->disc == VIBID_DISC_ZOH ? model_zoh : model;
-        if (example_run_case(c, mc, h, r, N, checkpoints, ncp, truth, csv, NULL) != 0) rc = 1;
+        if (example_run_case(c, mc, h, r, N, example_checkpoints, example_n_checkpoints, truth, csv, NULL) != 0) rc = 1;
         printf("\n");
     }
     fclose(csv);

@@ -126,8 +126,6 @@ int main(int argc, char **argv) {
     memcpy(rec[1], rec[0], N * nc * sizeof(double));
     stand_sim_add_noise(rec[1], N, nc, 0.01, &seed);
 
-    static const size_t checkpoints[] = {10, 20, 50, 100, 200, 500, 1000, 2000, 5000, 10000, 20000};
-    const size_t ncp = sizeof checkpoints / sizeof checkpoints[0];
     const example_case cases[] = {
         {"clean_cd_ls", VIBID_DISC_CENTRAL_DIFFERENCE, VIBID_ESTIMATOR_LS, 0.0, 0, 0, 0},
         {"clean_cd_rls", VIBID_DISC_CENTRAL_DIFFERENCE, VIBID_ESTIMATOR_RLS, 0.0, 0, 0, 0},
@@ -137,20 +135,17 @@ int main(int argc, char **argv) {
         {"noisy_cd_iv_pf150", VIBID_DISC_CENTRAL_DIFFERENCE, VIBID_ESTIMATOR_IV, 150.0, 30, 1, 0},
     };
     char path[1024];
-    snprintf(path, sizeof path, "%s/example2_tracks.csv", outdir);
-    FILE *csv = fopen(path, "w");
-    if (!csv) {
-        perror(path);
-        return 1;
-    }
-    example_csv_header(csv, model);
+    FILE *csv = example_open_tracks(outdir, "example2", model, path, sizeof path);
+    if (!csv) return 1;
     int rc = 0;
     for (size_t i = 0; i < sizeof cases / sizeof cases[0]; ++i) {
         const example_case *c = &cases[i];
         printf("case %s: central differences (1.17), %s%s, continuous base, %s\n", c->name,
-               c->estimator == VIBID_ESTIMATOR_LS ? "batch LS" : c->estimator == VIBID_ESTIMATOR_IV ? "batch IV" : "RLS",
+               example_estimator_label(c->estimator),
                c->prefilter_hz > 0 ? " + 150 Hz pre-filter" : "", c->noisy ? "1 % noise" : "noise-free");
-        if (example_run_case(c, model, h, rec[c->noisy ? 1 : 0], N, checkpoints, ncp, truth, csv, NULL) != 0) rc = 1;
+        if (example_run_case(c, model, h, rec[c->noisy ? 1 : 0], N, example_checkpoints, example_n_checkpoints, truth,
+                             csv, NULL) != 0)
+            rc = 1;
         printf("\n");
     }
     fclose(csv);

@@ -11,6 +11,7 @@
 #include <string.h>
 
 #include <vibid_drivers/sample.h>
+#include <vibid_drivers/source.h>
 
 typedef struct rec_queue {
     vibid_record *r;
@@ -59,6 +60,31 @@ static inline void rec_queue_drop_head(rec_queue *q)
 {
     q->head = (q->head + 1) % q->cap;
     q->len--;
+}
+
+/* Appends a copy of rec (its used part); false when full. */
+static inline bool rec_queue_push_copy(rec_queue *q, const vibid_record *rec)
+{
+    vibid_record *slot = rec_queue_push(q, rec->kind);
+    if (slot)
+        vibid_record_copy(slot, rec);
+    return slot != NULL;
+}
+
+/* A source's read(): moves up to cap queued records into recs, each counted in st
+ * (vibid_source_stats_count). Returns how many were moved. */
+static inline size_t rec_queue_hand_out(rec_queue *q, vibid_record *recs, size_t cap, vibid_source_stats *st,
+                                        int64_t *last_sample_t)
+{
+    size_t k = 0;
+    const vibid_record *h;
+    while (k < cap && (h = rec_queue_peek(q)) != NULL) {
+        vibid_record_copy(&recs[k], h);
+        vibid_source_stats_count(st, &recs[k], last_sample_t);
+        rec_queue_drop_head(q);
+        k++;
+    }
+    return k;
 }
 
 /* Sets a record's text (truncated to fit; texts are for people). */

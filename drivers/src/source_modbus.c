@@ -524,13 +524,7 @@ static vibid_drv_status mb_read_src(vibid_source *src, vibid_record *recs, size_
     int64_t limit = wait_limit(timeout_ms);
     size_t k = 0;
     for (;;) {
-        const vibid_record *h;
-        while (k < cap && (h = rec_queue_peek(&m->q)) != NULL) {
-            recs[k] = *h;
-            vibid_source_stats_count(&m->st, &recs[k], &m->last_count_t);
-            rec_queue_drop_head(&m->q);
-            k++;
-        }
+        k += rec_queue_hand_out(&m->q, recs + k, cap - k, &m->st, &m->last_count_t);
         if (k > 0) {
             *n = k;
             return VIBID_DRV_OK;

@@ -173,7 +173,7 @@ static void drain_assembler(replay *r, unsigned long line)
             memcpy(tmp, rec.text, sizeof tmp);
             rec_text(&rec, "%s (at %s:%lu)", tmp, r->base, line);
         }
-        vibid_record_copy(rec_queue_push(&r->q, rec.kind), &rec); /* space checked above */
+        rec_queue_push_copy(&r->q, &rec); /* space checked above */
     }
 }
 

@@ -181,7 +181,7 @@ static void drain_assembler(socketcan *s)
 {
     vibid_record rec;
     while (rec_queue_space(&s->q) > 0 && vibid_can_assembler_pop(s->as, &rec))
-        *rec_queue_push(&s->q, rec.kind) = rec;
+        rec_queue_push_copy(&s->q, &rec);
 }
 
 /* One recvmmsg batch into the queue. OK, E_AGAIN (nothing), or fatal. */
@@ -253,13 +253,7 @@ static vibid_drv_status sc_read(vibid_source *src, vibid_record *recs, size_t ca
     int64_t limit = wait_limit(timeout_ms);
     size_t k = 0;
     for (;;) {
-        const vibid_record *h;
-        while (k < cap && (h = rec_queue_peek(&s->q)) != NULL) {
-            recs[k] = *h;
-            vibid_source_stats_count(&s->st, &recs[k], &s->last_sample_t);
-            rec_queue_drop_head(&s->q);
-            k++;
-        }
+        k += rec_queue_hand_out(&s->q, recs + k, cap - k, &s->st, &s->last_sample_t);
         if (k > 0 || rec_queue_peek(&s->q)) {
             *n = k;
             return VIBID_DRV_OK;

@@ -64,15 +64,29 @@ int example_parse_args(int argc, char **argv, const char *default_stand, const c
     return 0;
 }
 
-void example_csv_header(FILE *csv, const vibid_model *model) {
+const size_t example_checkpoints[] = {10, 20, 50, 100, 200, 500, 1000, 2000, 5000, 10000, 20000};
+const size_t example_n_checkpoints = sizeof example_checkpoints / sizeof example_checkpoints[0];
+
+const char *example_estimator_label(vibid_estimator e) {
+    return e == VIBID_ESTIMATOR_LS ? "batch LS" : e == VIBID_ESTIMATOR_IV ? "batch IV" : "RLS";
+}
+
+FILE *example_open_tracks(const char *outdir, const char *tag, const vibid_model *model, char *path, size_t cap) {
+    snprintf(path, cap, "%s/%s_tracks.csv", outdir, tag);
+    FILE *csv = fopen(path, "w");
+    if (!csv) {
+        perror(path);
+        return NULL;
+    }
     vibid_model_dims dims;
-    if (!ok(vibid_model_get_dims(model, &dims), "model dims")) return;
+    if (!ok(vibid_model_get_dims(model, &dims), "model dims")) return csv;
     fprintf(csv, "case,N");
     for (size_t i = 0; i < dims.n_params; ++i) {
         vibid_param_info pi;
         if (ok(vibid_model_param_info(model, i, &pi), "param info")) fprintf(csv, ",%s,%s_se", pi.name, pi.name);
     }
     fprintf(csv, "\n");
+    return csv;
 }
 
 void example_plot(const char *outdir, const char *tag, const vibid_model *model, const double *truth) {

@@ -18,8 +18,17 @@ vibid_stand *example_load_stand(const char *path, int disc_override);
 int example_parse_args(int argc, char **argv, const char *default_stand, const char **stand_path,
                        const char **outdir);
 
-/* Writes the CSV header "case,N,<param>,<param>_se,..." with the model's parameter names. */
-void example_csv_header(FILE *csv, const vibid_model *model);
+/* Creates <outdir>/<tag>_tracks.csv (its path in path[cap]) with the header
+ * "case,N,<param>,<param>_se,..." from the model's parameter names. NULL (after perror)
+ * if it cannot be created. */
+FILE *example_open_tracks(const char *outdir, const char *tag, const vibid_model *model, char *path, size_t cap);
+
+/* The sample counts N at which the examples report their estimates. */
+extern const size_t example_checkpoints[];
+extern const size_t example_n_checkpoints;
+
+/* "batch LS", "batch IV" or "RLS", for the case lines the examples print. */
+const char *example_estimator_label(vibid_estimator e);
 
 /* Plots <outdir>/<tag>_tracks.csv to <tag>_tracks.png with examples/plot_tracks.gp if
  * gnuplot is installed (parameter names from the model, truth p values). */

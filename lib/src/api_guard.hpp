@@ -90,6 +90,35 @@ inline bool all_finite(const double *v, std::size_t n) noexcept {
     return true;
 }
 
+// Non-throwing finiteness check of one column-major rows x cols block (real-time paths):
+// the first bad entry becomes the last error of function, as "name[i] = v" for a vector
+// (cols == 1), else "name[i] (row r, column c) = v"; returns VIBID_E_NONFINITE, or OK.
+inline vibid_status check_block(const char *function, const char *name, const double *A, std::size_t rows,
+                                std::size_t cols) noexcept {
+    for (std::size_t j = 0; j < cols; ++j)
+        for (std::size_t k = 0; k < rows; ++k) {
+            const double v = A[k + j * rows];
+            if (!std::isfinite(v)) {
+                if (cols == 1)
+                    set_last_error(function, "%s[%zu] = %g is not finite", name, k, v);
+                else
+                    set_last_error(function, "%s[%zu] (row %zu, column %zu) = %g is not finite", name, k + j * rows,
+                                   k, j, v);
+                return VIBID_E_NONFINITE;
+            }
+        }
+    return VIBID_OK;
+}
+
+// Throws VIBID_E_DIMENSION unless n_params, n_outputs >= 1 and n_params + n_outputs <= max
+// (the batch estimators' create functions).
+inline void check_dimensions(std::size_t n_params, std::size_t n_outputs, std::size_t max) {
+    if (n_params == 0) throw_error(VIBID_E_DIMENSION, "n_params = 0, need at least 1");
+    if (n_outputs == 0) throw_error(VIBID_E_DIMENSION, "n_outputs = 0, need at least 1");
+    if (n_params > max || n_outputs > max || n_params + n_outputs > max)
+        throw_error(VIBID_E_DIMENSION, "n_params + n_outputs = %zu + %zu exceeds %zu", n_params, n_outputs, max);
+}
+
 }  // namespace vibid
 
 // Entry-point helpers: VIBID_GUARD(body) inside a function returning vibid_status.

@@ -130,6 +130,11 @@ void check_in(const double *p, std::size_t count, const char *name) {
     if (!vibid::all_finite(p, count)) throw_error(VIBID_E_NONFINITE, "%s has NaN or Inf", name);
 }
 
+void check_state_dims(std::size_t n_states, std::size_t n_inputs) {
+    if (n_states < 1 || n_states > 512 || n_inputs > 512)
+        throw_error(VIBID_E_DIMENSION, "n_states = %zu (1..512), n_inputs = %zu (0..512)", n_states, n_inputs);
+}
+
 void check_h(double h) {
     if (!(h > 0.0) || !std::isfinite(h)) throw_error(VIBID_E_OUT_OF_RANGE, "h = %g s must be > 0 and finite", h);
 }
@@ -145,8 +150,7 @@ extern "C" {
 VIBID_API vibid_status vibid_zoh(size_t n_states, size_t n_inputs, const double *A, const double *Bv, double h,
                                  double *G, double *Gamma) {
     VIBID_GUARD(
-        if (n_states < 1 || n_states > 512 || n_inputs > 512)
-            throw_error(VIBID_E_DIMENSION, "n_states = %zu (1..512), n_inputs = %zu (0..512)", n_states, n_inputs);
+        check_state_dims(n_states, n_inputs);
         check_in(A, n_states * n_states, "A");
         if (n_inputs) check_in(Bv, n_states * n_inputs, "Bv");
         check_h(h);
@@ -162,8 +166,7 @@ VIBID_API vibid_status vibid_zoh(size_t n_states, size_t n_inputs, const double 
 VIBID_API vibid_status vibid_zoh_inverse(size_t n_states, size_t n_inputs, const double *G, const double *Gamma,
                                          double h, double *A, double *Bv, vibid_log_info *info) {
     VIBID_GUARD(
-        if (n_states < 1 || n_states > 512 || n_inputs > 512)
-            throw_error(VIBID_E_DIMENSION, "n_states = %zu (1..512), n_inputs = %zu (0..512)", n_states, n_inputs);
+        check_state_dims(n_states, n_inputs);
         check_in(G, n_states * n_states, "G");
         if (n_inputs) check_in(Gamma, n_states * n_inputs, "Gamma");
         check_h(h);

@@ -27,22 +27,7 @@ constexpr std::size_t max_recursive_dimension = 1024;
 constexpr double iv_rank_tolerance = 1e-10;
 constexpr double default_alpha = 1e-6;
 
-vibid_status check_block(const char *function, const char *name, const double *A, std::size_t rows,
-                         std::size_t cols) noexcept {
-    for (std::size_t j = 0; j < cols; ++j)
-        for (std::size_t k = 0; k < rows; ++k) {
-            const double v = A[k + j * rows];
-            if (!std::isfinite(v)) {
-                if (cols == 1)
-                    vibid::set_last_error(function, "%s[%zu] = %g is not finite", name, k, v);
-                else
-                    vibid::set_last_error(function, "%s[%zu] (row %zu, column %zu) = %g is not finite", name,
-                                          k + j * rows, k, j, v);
-                return VIBID_E_NONFINITE;
-            }
-        }
-    return VIBID_OK;
-}
+using vibid::check_block;
 
 // Scaled, rank-revealing factorisation of W^T S X.
 struct IvSolve {
@@ -160,12 +145,7 @@ extern "C" {
 
 VIBID_API vibid_iv *vibid_iv_create(size_t n_params, size_t n_outputs) {
     return vibid::guard_create<vibid_iv>(__func__, [&] {
-        if (n_params == 0) vibid::throw_error(VIBID_E_DIMENSION, "n_params = 0, need at least 1");
-        if (n_outputs == 0) vibid::throw_error(VIBID_E_DIMENSION, "n_outputs = 0, need at least 1");
-        if (n_params > max_batch_dimension || n_outputs > max_batch_dimension ||
-            n_params + n_outputs > max_batch_dimension)
-            vibid::throw_error(VIBID_E_DIMENSION, "n_params + n_outputs = %zu + %zu exceeds %zu", n_params,
-                               n_outputs, max_batch_dimension);
+        vibid::check_dimensions(n_params, n_outputs, max_batch_dimension);
         return new vibid_iv(n_params, n_outputs);
     });
 }

@@ -159,38 +159,13 @@ struct vibid_lsq {
     double rank_tol = default_rank_tolerance;
 };
 
-namespace {
-
-void check_dimensions(std::size_t n_params, std::size_t n_outputs) {
-    if (n_params == 0) vibid::throw_error(VIBID_E_DIMENSION, "n_params = 0, need at least 1");
-    if (n_outputs == 0) vibid::throw_error(VIBID_E_DIMENSION, "n_outputs = 0, need at least 1");
-    if (n_params > max_dimension || n_outputs > max_dimension || n_params + n_outputs > max_dimension)
-        vibid::throw_error(VIBID_E_DIMENSION, "n_params + n_outputs = %zu + %zu exceeds %zu", n_params,
-                           n_outputs, max_dimension);
-}
-
-// Non-throwing check of one column-major block (real-time path).
-vibid_status check_block(const char *function, const char *name, const double *A, std::size_t rows,
-                         std::size_t cols) noexcept {
-    for (std::size_t j = 0; j < cols; ++j)
-        for (std::size_t k = 0; k < rows; ++k) {
-            const double v = A[k + j * rows];
-            if (!std::isfinite(v)) {
-                vibid::set_last_error(function, "%s[%zu] (row %zu, column %zu) = %g is not finite", name,
-                                      k + j * rows, k, j, v);
-                return VIBID_E_NONFINITE;
-            }
-        }
-    return VIBID_OK;
-}
-
-}  // namespace
+using vibid::check_block;
 
 extern "C" {
 
 VIBID_API vibid_lsq *vibid_lsq_create(size_t n_params, size_t n_outputs) {
     return vibid::guard_create<vibid_lsq>(__func__, [&] {
-        check_dimensions(n_params, n_outputs);
+        vibid::check_dimensions(n_params, n_outputs, max_dimension);
         return new vibid_lsq(n_params, n_outputs);
     });
 }

@@ -194,6 +194,17 @@ typedef struct pending {
     size_t n_unknown;
 } pending;
 
+/* For an unknown parameter: its optional true_value (else the nominal value) appended to
+ * pd's list. 0, or -1 after an error. */
+static int note_true_value(const ctx *c, const config_setting_t *e, const char *path, double nominal, pending *pd) {
+    double tv;
+    int r = get_number(c, e, path, "true_value", &tv);
+    if (r < 0) return -1;
+    pd->has_true[pd->n_unknown] = r;
+    pd->true_values[pd->n_unknown++] = r ? tv : nominal;
+    return 0;
+}
+
 static int read_matrices(const ctx *c, vibid_model *m, const config_setting_t *g, const char *path, pending *pd) {
     double nd = 0, nr = 0;
     if (require_number(c, g, path, "n_dof", &nd) || (get_number(c, g, path, "n_inputs", &nr) < 0)) return -1;
@@ -377,13 +388,7 @@ vibid_stand *vibid_stand_from_setting(const void *setting_v, const char *file, v
                          strstr(vibid_last_error(), "name") ? p : f, s);
                 goto fail;
             }
-            if (unknown) {
-                double tv;
-                int r = get_number(&c, e, p, "true_value", &tv);
-                if (r < 0) goto fail;
-                pd->has_true[pd->n_unknown] = r;
-                pd->true_values[pd->n_unknown++] = r ? tv : mass;
-            }
+            if (unknown && note_true_value(&c, e, p, mass, pd)) goto fail;
             unsigned mask;
             if (read_measure(&c, e, p, &mask, pd->node_names[idx])) goto fail;
             vibid_model_set_measured(m, idx, mask);
@@ -446,13 +451,7 @@ vibid_stand *vibid_stand_from_setting(const void *setting_v, const char *file, v
                 lib_fail(&c, e, p, s);
                 goto fail;
             }
-            if (unknown) {
-                double tv;
-                int r = get_number(&c, e, p, "true_value", &tv);
-                if (r < 0) goto fail;
-                pd->has_true[pd->n_unknown] = r;
-                pd->true_values[pd->n_unknown++] = r ? tv : value;
-            }
+            if (unknown && note_true_value(&c, e, p, value, pd)) goto fail;
         }
         const config_setting_t *ins = config_setting_get_member(g, "inputs");
         for (int i = 0; ins && i < config_setting_length(ins); ++i) {
