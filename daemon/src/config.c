@@ -543,6 +543,57 @@ static int load_acquisition(ctx *c, config_t *cf)
     return get_bool(c, g, "acquisition", "lock_memory", false, &cfg->lock_memory);
 }
 
+/* Index of the stand's unknown named name, or n_params if there is none. */
+static size_t param_index(const vd_config *cfg, const char *name)
+{
+    const vibid_model *m = vibid_stand_model(cfg->stand);
+    for (size_t k = 0; k < cfg->n_params; k++) {
+        vibid_param_info pi;
+        if (vibid_model_param_info(m, k, &pi) == VIBID_OK && strcmp(pi.name, name) == 0)
+            return k;
+    }
+    return cfg->n_params;
+}
+
+/* estimator.start_values = ( { name = "c1"; value = 2.5e5; }, ... ): RLS start values
+ * (vibid_ident_set_prior); unlisted parameters start at the stand's nominal value. */
+static int load_start_values(ctx *c, const config_setting_t *sv)
+{
+    vd_config *cfg = c->cfg;
+    if (!sv)
+        return 0;
+    if (cfg->method != VIBID_ESTIMATOR_RLS)
+        return fail_at(c, sv, "estimator.start_values", "only the rls method has start values (method is %s)",
+                       vd_estimator_name(cfg->method));
+    if (!config_setting_is_list(sv))
+        return fail_at(c, sv, "estimator.start_values", "must be a list ( { name = \"c1\"; value = ...; }, ... )");
+    if (vibid_model_nominal(vibid_stand_model(cfg->stand), cfg->start_theta) != VIBID_OK)
+        return fail_at(c, sv, "estimator.start_values", "the stand's nominal values: %s", vibid_last_error());
+    int n = config_setting_length(sv);
+    for (int i = 0; i < n; i++) {
+        const config_setting_t *e = config_setting_get_elem(sv, (unsigned)i);
+        char sec[64], f[96];
+        snprintf(sec, sizeof sec, "estimator.start_values.[%d]", i);
+        static const char *const sk[] = {"name", "value", NULL};
+        if (!config_setting_is_group(e))
+            return fail_at(c, e, sec, "must be a group { name = \"...\"; value = ...; }");
+        char name[64];
+        if (check_known(c, e, sec, sk) || get_string(c, e, sec, "name", "", name, sizeof name))
+            return -1;
+        size_t k = param_index(cfg, name);
+        snprintf(f, sizeof f, "%s.name", sec);
+        if (k == cfg->n_params)
+            return fail_at(c, e, f, "'%s' is not an unknown parameter of the stand", name);
+        snprintf(f, sizeof f, "%s.value", sec);
+        if (!config_setting_get_member(e, "value"))
+            return fail_at(c, e, f, "missing");
+        if (get_double(c, e, sec, "value", 0.0, -1e300, 1e300, &cfg->start_theta[k]))
+            return -1;
+    }
+    cfg->has_start = true;
+    return 0;
+}
+
 static int load_estimator(ctx *c, config_t *cf)
 {
     vd_config *cfg = c->cfg;
@@ -572,12 +623,7 @@ static int load_estimator(ctx *c, config_t *cf)
     if (get_int(c, g, "estimator", "warmup_samples", 0, 0, 1000000000, &v))
         return -1;
     cfg->warmup_samples = (unsigned)v;
-    const config_setting_t *sv = g ? config_setting_get_member(g, "start_values") : NULL;
-    if (sv)
-        return fail_at(c, sv, "estimator.start_values",
-                       "not supported yet: libvibid's identify.h has no way to set the RLS start values "
-                       "(vibid_rls_set_prior is not reachable through vibid_ident); remove the directive");
-    return 0;
+    return load_start_values(c, g ? config_setting_get_member(g, "start_values") : NULL);
 }
 
 static int load_outputs(ctx *c, config_t *cf)
@@ -673,10 +719,7 @@ static int load_alarms(ctx *c, config_t *cf)
         char name[64];
         if (get_string(c, e, sec, "name", "", name, sizeof name))
             return -1;
-        size_t k;
-        for (k = 0; k < cfg->n_params; k++)
-            if (strcmp(cfg->alarm_param[k].name, name) == 0)
-                break;
+        size_t k = param_index(cfg, name);
         if (k == cfg->n_params) {
             char f[96];
             snprintf(f, sizeof f, "%s.name", sec);
@@ -883,9 +926,19 @@ void vd_config_print(const vd_config *cfg, FILE *o)
             cfg->handoff_spin_us);
     fprintf(o,
             "estimator = {\n  method = \"%s\";\n  forgetting = %s;\n  prefilter_hz = %s;\n  rls_alpha = %s;\n"
-            "  iv_lag = %u;\n  decimation = %u;\n  warmup_samples = %u;\n};\n",
+            "  iv_lag = %u;\n  decimation = %u;\n  warmup_samples = %u;\n",
             vd_estimator_name(cfg->method), num(cfg->forgetting), num(cfg->prefilter_hz), num(cfg->rls_alpha), cfg->iv_lag,
             cfg->decimation, cfg->warmup_samples);
+    if (cfg->has_start) {
+        fprintf(o, "  start_values = (");
+        for (size_t k = 0; k < cfg->n_params; k++) {
+            vibid_param_info pi;
+            vibid_model_param_info(m, k, &pi);
+            fprintf(o, "%s\n    { name = \"%s\"; value = %s; }", k ? "," : "", pi.name, num(cfg->start_theta[k]));
+        }
+        fprintf(o, "\n  );\n");
+    }
+    fprintf(o, "};\n");
     fprintf(o,
             "outputs = {\n  tracks = { path = \"%s\"; flush_interval = %s; fsync = %s; };\n"
             "  influx = { path = \"%s\"; udp = \"%s\"; measurement = \"%s\"; };\n"

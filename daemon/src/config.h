@@ -103,6 +103,9 @@ typedef struct vd_config {
     unsigned iv_lag;
     unsigned decimation;
     unsigned warmup_samples;
+    bool has_start;                   /* estimator.start_values given (RLS only) */
+    double start_theta[VD_MAX_PARAMS];/* RLS start values, stand parameter order; the stand's
+                                         nominal value for a parameter the list leaves out */
 
     /* outputs */
     char tracks_path[VD_PATH_MAX];

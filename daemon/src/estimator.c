@@ -36,6 +36,12 @@ int vd_est_init(vd_est *e, const vd_config *cfg, char *err, size_t cap)
         return -1;
     }
     vibid_ident_dims(e->ident, &e->nch, &e->p);
+    if (cfg->has_start && vibid_ident_set_prior(e->ident, cfg->start_theta, NULL) != VIBID_OK) {
+        snprintf(err, cap, "%s: estimator.start_values: %s", cfg->path, vibid_last_error());
+        vibid_ident_destroy(e->ident);
+        e->ident = NULL;
+        return -1;
+    }
     e->nmodes = cfg->n_modes;
     e->cov = calloc(e->p * e->p, sizeof *e->cov);
     if (!e->cov) {

@@ -196,6 +196,46 @@ static void test_defaults_and_roundtrip(void **state)
     free(p2);
 }
 
+/* estimator.start_values: listed parameters take the given value, the others the stand's
+ * nominal one; the --check printout lists them and reads back to the same printout;
+ * errors name the element and field. */
+static void test_start_values(void **state)
+{
+    (void)state;
+    const char *path = write_cfg("start.cfg", STAND SOURCE
+                                 "estimator = { start_values = ( { name = \"c1\"; value = 2.0e5; },\n"
+                                 "  { name = \"c2\"; value = 1.2e6; } ); };\n");
+    vd_config cfg;
+    vd_config_error err;
+    if (vd_config_load(path, &cfg, &err) != 0)
+        fail_msg("%s", err.text);
+    assert_true(cfg.has_start);
+    double nominal[3];
+    assert_int_equal(vibid_model_nominal(vibid_stand_model(cfg.stand), nominal), VIBID_OK);
+    assert_true(cfg.start_theta[0] == 2.0e5);      /* c1 */
+    assert_true(cfg.start_theta[1] == nominal[1]); /* d: not listed */
+    assert_true(cfg.start_theta[2] == 1.2e6);      /* c2 */
+    char *p1 = NULL;
+    size_t n1 = 0;
+    FILE *o = open_memstream(&p1, &n1);
+    vd_config_print(&cfg, o);
+    fclose(o);
+    vd_config_free(&cfg);
+    assert_non_null(strstr(p1, "{ name = \"c2\"; value = 1200000.0; }"));
+    const char *path2 = write_cfg("start_printed.cfg", p1);
+    if (vd_config_load(path2, &cfg, &err) != 0)
+        fail_msg("%s", err.text);
+    assert_true(cfg.has_start && cfg.start_theta[0] == 2.0e5 && cfg.start_theta[1] == nominal[1]);
+    vd_config_free(&cfg);
+    free(p1);
+    expect_error("start_ls.cfg", STAND SOURCE "estimator = { method = \"ls\"; start_values = ( ); };\n",
+                 ":12: estimator.start_values:", "only the rls method");
+    expect_error("start_name.cfg", STAND SOURCE "estimator = { start_values = ( { name = \"k9\"; value = 1.0; } ); };\n",
+                 ":12: estimator.start_values.[0].name:", "'k9' is not an unknown parameter");
+    expect_error("start_value.cfg", STAND SOURCE "estimator = { start_values = ( { name = \"d\"; } ); };\n",
+                 ":12: estimator.start_values.[0].value:", "missing");
+}
+
 int main(void)
 {
     snprintf(dir, sizeof dir, "/tmp/vd_test_config_%d", (int)getpid());
@@ -210,6 +250,7 @@ int main(void)
         cmocka_unit_test(test_stand_errors),      cmocka_unit_test(test_channel_missing),
         cmocka_unit_test(test_alarm_param),       cmocka_unit_test(test_modbus_url),
         cmocka_unit_test(test_defaults_and_roundtrip),
+        cmocka_unit_test(test_start_values),
     };
     int rc = cmocka_run_group_tests(tests, NULL, NULL);
     snprintf(cmd, sizeof cmd, "rm -rf %s", dir);
