@@ -19,6 +19,9 @@
  * failed (refusal, D <= 0, trace above the bound, P not PD), else 0. */
 #include <vibid/rls.h>
 
+#include "rls_check.h" /* tests/lib/support: the same PD and asymmetry checks as the CI test */
+#include "test_rng.h"  /* tests/lib/support: the same reproducible random numbers */
+
 #include <math.h>
 #include <stdint.h>
 #include <stdio.h>
@@ -28,81 +31,6 @@
 enum { P_DIM = 4, CYCLE = 25000 };
 static const double theta_true[P_DIM] = {2.0, -1.0, 0.5, 3.0};
 static const double direction[P_DIM] = {1.0, 0.5, -0.25, 0.0};
-
-/* xoshiro256** with splitmix64 seeding and polar Box-Muller: reproducible everywhere. */
-typedef struct rng {
-    uint64_t s[4];
-    int has_spare;
-    double spare;
-} rng;
-
-static uint64_t rotl(uint64_t x, int k) { return (x << k) | (x >> (64 - k)); }
-
-static void rng_seed(rng *r, uint64_t seed) {
-    for (int i = 0; i < 4; ++i) {
-        uint64_t z = (seed += 0x9E3779B97F4A7C15ull);
-        z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
-        z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
-        r->s[i] = z ^ (z >> 31);
-    }
-    r->has_spare = 0;
-}
-
-static double rng_uniform(rng *r) {
-    uint64_t *s = r->s;
-    const uint64_t result = rotl(s[1] * 5, 7) * 9, t = s[1] << 17;
-    s[2] ^= s[0];
-    s[3] ^= s[1];
-    s[1] ^= s[2];
-    s[0] ^= s[3];
-    s[2] ^= t;
-    s[3] = rotl(s[3], 45);
-    return (double)(result >> 11) * 0x1.0p-53;
-}
-
-static double rng_normal(rng *r) {
-    if (r->has_spare) {
-        r->has_spare = 0;
-        return r->spare;
-    }
-    double u, v, s;
-    do {
-        u = 2.0 * rng_uniform(r) - 1.0;
-        v = 2.0 * rng_uniform(r) - 1.0;
-        s = u * u + v * v;
-    } while (s >= 1.0 || s == 0.0);
-    const double f = sqrt(-2.0 * log(s) / s);
-    r->spare = v * f;
-    r->has_spare = 1;
-    return u * f;
-}
-
-static int is_pd(const double *A) {
-    double L[P_DIM * P_DIM] = {0};
-    for (int j = 0; j < P_DIM; ++j) {
-        double d = A[j + j * P_DIM];
-        for (int k = 0; k < j; ++k) d -= L[j + k * P_DIM] * L[j + k * P_DIM];
-        if (!(d > 0.0) || !isfinite(d)) return 0;
-        L[j + j * P_DIM] = sqrt(d);
-        for (int i = j + 1; i < P_DIM; ++i) {
-            double s = A[j + i * P_DIM];
-            for (int k = 0; k < j; ++k) s -= L[i + k * P_DIM] * L[j + k * P_DIM];
-            L[i + j * P_DIM] = s / L[j + j * P_DIM];
-        }
-    }
-    return 1;
-}
-
-static double asymmetry(const double *A) {
-    double amax = 0.0, dmax = 0.0;
-    for (int j = 0; j < P_DIM; ++j)
-        for (int i = 0; i < P_DIM; ++i) {
-            const double a = fabs(A[i + j * P_DIM]), d = fabs(A[i + j * P_DIM] - A[j + i * P_DIM]);
-            if (!(a <= amax)) amax = a;
-            if (!(d <= dmax)) dmax = d;
-        }
-    return amax == 0.0 ? 0.0 : dmax / amax;
-}
 
 typedef struct track {
     const char *name;
@@ -141,10 +69,10 @@ static void step(track *t, long long k, const double *x, double y) {
 static void check(track *t, long long k) {
     double P[P_DIM * P_DIM];
     vibid_rls_covariance(t->rls, P);
-    if (!is_pd(P)) {
+    if (!rls_check_is_pd(P, P_DIM)) {
         if (t->checks_not_pd++ == 0) t->first_not_pd = k;
     }
-    const double a = asymmetry(P);
+    const double a = rls_check_asymmetry(P, P_DIM);
     if (!(a <= t->max_asym)) t->max_asym = a;
 }
 
@@ -155,7 +83,7 @@ static void report(const track *t, long long k) {
     vibid_rls_covariance(t->rls, P);
     printf("  %-7s k=%-11lld trace=%-10.4g minD=%-10.4g asym=%-9.3g PD=%d | max trace=%-10.4g min minD=%-10.4g "
            "max asym=%-9.3g not-PD checks=%lld (first %lld) refused=%lld (first %lld) theta err=%.3g\n",
-           t->name, k, st.trace_p, st.min_d, asymmetry(P), is_pd(P), t->max_trace, t->min_d, t->max_asym,
+           t->name, k, st.trace_p, st.min_d, rls_check_asymmetry(P, P_DIM), rls_check_is_pd(P, P_DIM), t->max_trace, t->min_d, t->max_asym,
            t->checks_not_pd, t->first_not_pd, t->refused, t->first_refused, t->theta_err);
 }
 
@@ -172,20 +100,20 @@ int main(int argc, char **argv) {
     };
     printf("RLS wind-up run: p = %d, forgetting 0.98, alpha 1e-3, trace_max %g, %lld updates\n", P_DIM,
            P_DIM / 1e-3, n);
-    rng r;
-    rng_seed(&r, 2024);
+    test_rng r;
+    test_rng_seed(&r, 2024);
     double x[P_DIM];
     const long long every = n >= 10 ? n / 10 : 1;
     for (long long k = 0; k < n; ++k) {
         const long long c = k % CYCLE;
         if (c < 1000 || (c >= 13000 && c < 14000)) {
-            for (int i = 0; i < P_DIM; ++i) x[i] = rng_normal(&r);
+            for (int i = 0; i < P_DIM; ++i) x[i] = test_rng_normal(&r);
         } else if (c < 13000) {
             memset(x, 0, sizeof x);
         } else {
             memcpy(x, direction, sizeof x);
         }
-        double y = 0.01 * rng_normal(&r);
+        double y = 0.01 * test_rng_normal(&r);
         for (int i = 0; i < P_DIM; ++i) y += x[i] * theta_true[i];
         for (int t = 0; t < 2; ++t) {
             step(&tr[t], k, x, y);
