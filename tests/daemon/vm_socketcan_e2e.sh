@@ -37,9 +37,6 @@ fail() { echo "FAIL [vm_socketcan e2e]: $*" >&2; exit 1; }
 for t in qemu-system-x86_64 apt-get apt-cache dpkg cpio gzip xz candump flock python3; do
   command -v $t >/dev/null 2>&1 || fail "'$t' not found (Debian: scripts/install-deps.sh --test installs can-utils qemu-system-x86 busybox-static cpio)"
 done
-busybox=/bin/busybox
-[ -x "$busybox" ] && file -L "$busybox" 2>/dev/null | grep -q "statically linked" || busybox=$(command -v busybox)
-[ -n "$busybox" ] && ldd "$busybox" 2>&1 | grep -q "not a dynamic" || fail "a static busybox is needed (Debian: busybox-static)"
 [ -x "$vibidd" ] || fail "vibidd not built ($vibidd)"
 [ -x "$sim" ] || fail "vibid-sim not built ($sim)"
 mkdir -p "$work" || fail "cannot create $work"
@@ -48,8 +45,8 @@ cd "$work" || exit 1
 # Kernel cache shared with drivers.vm_socketcan (same build tree).
 vm_fetch_kernel "$work/../../drivers/vm/cache"
 
-rm -rf root && mkdir -p root/bin root/data root/proc root/sys root/dev root/tmp root/run
-cp "$busybox" root/bin/busybox
+rm -rf root && mkdir -p root/data root/proc root/sys root/dev root/tmp root/run
+vm_add_busybox root
 vm_add_can_modules root
 vm_add_binary root "$vibidd" "$sim" "$(command -v candump)"
 cp "$src/examples/stands/paper_example1.cfg" root/data/stand.cfg || fail "stand file missing"
@@ -80,14 +77,8 @@ outputs = {
 };
 EOF
 done
-cat > root/init <<'INIT'
-#!/bin/busybox sh
-/bin/busybox --install -s /bin
-export PATH=/bin LD_LIBRARY_PATH=/lib/x86_64-linux-gnu
-mount -t proc proc /proc; mount -t sysfs sys /sys; mount -t devtmpfs dev /dev 2>/dev/null
-echo "VIBID-BOOTED uptime $(cut -d' ' -f1 /proc/uptime)"
-for m in can can-raw can-dev vcan; do insmod /mod/$m.ko || echo "VIBID-FAIL insmod $m"; done
-ip link add dev vcan0 type vcan && ip link set up vcan0 || echo "VIBID-FAIL ip link vcan0"
+vm_init_prologue > root/init
+cat >> root/init <<'INIT'
 mkdir -p /tmp/live /tmp/replay /tmp/cd /tmp/rec
 cd /tmp/cd && candump -l vcan0 &
 cp=$!

@@ -1,7 +1,8 @@
-# Sourced helper for the qemu SocketCAN tests (tests/daemon/vm_socketcan_e2e.sh; the
-# same steps as tests/drivers/vm_socketcan.sh): Debian's own kernel package and its CAN
-# modules, never installed on the host.
+# Sourced helper for the qemu SocketCAN tests (tests/drivers/vm_socketcan.sh and
+# tests/daemon/vm_socketcan_e2e.sh): Debian's own kernel package and its CAN modules,
+# never installed on the host, and the pieces of the VM's initramfs.
 #
+# vm_add_busybox ROOT: a static busybox (Debian: busybox-static) as ROOT/bin/busybox.
 # vm_fetch_kernel CACHE_DIR: apt-get download of the package linux-image-amd64 depends
 #   on (once; cached, shared between tests, serialised with flock), dpkg -x; sets
 #   VM_VMLINUZ and VM_MODS (the unpacked lib/modules/<version>/kernel). Calls fail()
@@ -10,6 +11,7 @@
 #   (decompressed; load them in that order).
 # vm_add_binary ROOT FILE...: FILE and its shared libraries (ldd) into ROOT/bin and
 #   ROOT/lib64 | ROOT/lib/x86_64-linux-gnu (run with LD_LIBRARY_PATH set to the latter).
+# vm_init_prologue: the first lines of ROOT/init (mounts, CAN modules, vcan0 up).
 
 vm_fetch_kernel() {
   cache=$1
@@ -39,6 +41,13 @@ vm_fetch_kernel() {
   [ -n "$VM_MODS" ] || fail "no lib/modules/*/kernel in the package $pkg"
 }
 
+vm_add_busybox() {
+  bb=/bin/busybox
+  [ -x "$bb" ] && file -L "$bb" 2>/dev/null | grep -q "statically linked" || bb=$(command -v busybox)
+  [ -n "$bb" ] && ldd "$bb" 2>&1 | grep -q "not a dynamic" || fail "a static busybox is needed (Debian: busybox-static)"
+  mkdir -p "$1/bin" && cp "$bb" "$1/bin/busybox" || fail "cannot copy $bb"
+}
+
 vm_add_can_modules() {
   mkdir -p "$1/mod"
   for m in net/can/can net/can/can-raw drivers/net/can/dev/can-dev drivers/net/can/vcan; do
@@ -48,6 +57,20 @@ vm_add_can_modules() {
     elif [ -f "$VM_MODS/$m.ko.zst" ]; then zstd -dqc "$VM_MODS/$m.ko.zst" > "$1/mod/$name.ko"
     else fail "module $m.ko(.xz/.zst) not in the kernel package"; fi
   done
+}
+
+# The first lines of a VM's /init (busybox shell): mounts, the CAN modules that
+# vm_add_can_modules put in /mod, and vcan0 up. The caller appends its own steps.
+vm_init_prologue() {
+  cat <<'INIT'
+#!/bin/busybox sh
+/bin/busybox --install -s /bin
+export PATH=/bin LD_LIBRARY_PATH=/lib/x86_64-linux-gnu
+mount -t proc proc /proc; mount -t sysfs sys /sys; mount -t devtmpfs dev /dev 2>/dev/null
+echo "VIBID-BOOTED uptime $(cut -d' ' -f1 /proc/uptime)"
+for m in can can-raw can-dev vcan; do insmod /mod/$m.ko || echo "VIBID-FAIL insmod $m"; done
+ip link add dev vcan0 type vcan && ip link set up vcan0 || echo "VIBID-FAIL ip link vcan0"
+INIT
 }
 
 vm_add_binary() {

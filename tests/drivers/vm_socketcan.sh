@@ -18,55 +18,22 @@ work=$1
 check=$(cd "$(dirname "$2")" && pwd)/$(basename "$2")
 timeout_s=${3:-240}
 fail() { echo "FAIL: $*" >&2; exit 1; }
-for t in qemu-system-x86_64 apt-get apt-cache dpkg cpio gzip xz candump cangen canplayer python3; do
+for t in qemu-system-x86_64 apt-get apt-cache dpkg cpio gzip xz candump cangen canplayer flock python3; do
   command -v $t >/dev/null 2>&1 || fail "'$t' not found (Debian: scripts/install-deps.sh --test installs can-utils qemu-system-x86 busybox-static cpio)"
 done
-busybox=/bin/busybox
-[ -x "$busybox" ] && file -L "$busybox" 2>/dev/null | grep -q "statically linked" || busybox=$(command -v busybox)
-[ -n "$busybox" ] && ldd "$busybox" 2>&1 | grep -q "not a dynamic" || fail "a static busybox is needed (Debian: busybox-static)"
 [ -x "$check" ] || fail "test program '$check' not built"
-mkdir -p "$work/cache" || fail "cannot create $work/cache"
+. "$(dirname "$0")/vm_kernel.sh"
+mkdir -p "$work" || fail "cannot create $work"
 cd "$work" || exit 1
 
-# --- kernel package (cached) ---
-pkg=$(apt-cache depends linux-image-amd64 2>/dev/null | awk '/Depends: linux-image-[0-9]/{print $2; exit}')
-[ -n "$pkg" ] || fail "apt-cache depends linux-image-amd64 named no kernel package (apt-get update needed?)"
-deb=$(ls cache/${pkg}_*.deb 2>/dev/null | head -n 1)
-if [ -z "$deb" ]; then
-  echo "downloading $pkg (about 70 MB, once; cached in $work/cache)"
-  (cd cache && apt-get download "$pkg") >download.log 2>&1 || { cat download.log >&2; fail "apt-get download $pkg failed (network or apt sources?)"; }
-  deb=$(ls cache/${pkg}_*.deb 2>/dev/null | head -n 1)
-  [ -n "$deb" ] || fail "apt-get download $pkg produced no .deb"
-fi
-kroot=cache/kernel-$pkg
-if [ ! -d "$kroot" ]; then
-  rm -rf "$kroot.tmp" && dpkg -x "$deb" "$kroot.tmp" || fail "dpkg -x $deb failed"
-  mv "$kroot.tmp" "$kroot"
-fi
-vmlinuz=$(ls "$kroot"/boot/vmlinuz-* 2>/dev/null | head -n 1)
-[ -n "$vmlinuz" ] || fail "no /boot/vmlinuz-* in $deb"
-mods=$(ls -d "$kroot"/lib/modules/*/kernel 2>/dev/null | head -n 1)
-[ -n "$mods" ] || fail "no lib/modules/*/kernel in $deb"
+# --- kernel package (cached in $work/cache, shared with daemon.e2e.vm_socketcan) ---
+vm_fetch_kernel "$work/cache"
 
 # --- initramfs ---
-rm -rf root && mkdir -p root/bin root/mod root/lib64 root/lib/x86_64-linux-gnu root/data root/proc root/sys root/dev root/tmp
-cp "$busybox" root/bin/busybox
-for m in net/can/can net/can/can-raw drivers/net/can/dev/can-dev drivers/net/can/vcan; do
-  name=$(basename $m)
-  if [ -f "$mods/$m.ko" ]; then cp "$mods/$m.ko" root/mod/$name.ko
-  elif [ -f "$mods/$m.ko.xz" ]; then xz -dc "$mods/$m.ko.xz" > root/mod/$name.ko
-  elif [ -f "$mods/$m.ko.zst" ]; then zstd -dqc "$mods/$m.ko.zst" > root/mod/$name.ko
-  else fail "module $m.ko(.xz/.zst) not in $deb"; fi
-done
-for b in "$check" "$(command -v candump)" "$(command -v cangen)" "$(command -v canplayer)"; do
-  cp "$b" root/bin/ || fail "cannot copy $b"
-  for lib in $(ldd "$b" | awk '/=> \//{print $3} /^\t\/lib64/{print $1}'); do
-    case $lib in
-      /lib64/*) cp -L "$lib" root/lib64/ ;;
-      *) cp -L "$lib" root/lib/x86_64-linux-gnu/ ;;
-    esac
-  done
-done
+rm -rf root && mkdir -p root/data root/proc root/sys root/dev root/tmp
+vm_add_busybox root
+vm_add_can_modules root
+vm_add_binary root "$check" "$(command -v candump)" "$(command -v cangen)" "$(command -v canplayer)"
 cat > root/data/vm.dbc <<'DBC'
 BO_ 291 Gen: 8 S
  SG_ Cnt : 0|8@1+ (1,0) [0|255] "" X
@@ -98,14 +65,8 @@ for k in range(5000):
     log.write("(%017.6f) can0 200#%s\n" % (t, data.hex().upper()))
     exp.write("S %d %s %s\n" % (k, "%.17g" % (raw * 0.01), "%.17g" % x))
 PY
-cat > root/init <<'INIT'
-#!/bin/busybox sh
-/bin/busybox --install -s /bin
-export PATH=/bin LD_LIBRARY_PATH=/lib/x86_64-linux-gnu
-mount -t proc proc /proc; mount -t sysfs sys /sys; mount -t devtmpfs dev /dev 2>/dev/null
-echo "VIBID-BOOTED uptime $(cut -d' ' -f1 /proc/uptime)"
-for m in can can-raw can-dev vcan; do insmod /mod/$m.ko || echo "VIBID-FAIL insmod $m"; done
-ip link add dev vcan0 type vcan && ip link set up vcan0 || echo "VIBID-FAIL ip link vcan0"
+vm_init_prologue > root/init
+cat >> root/init <<'INIT'
 cd /tmp
 # 1. cangen -> our live source and candump; our replay of candump's log must match
 vm_can_check live vcan0 /data/vm.dbc /data/gen.cfg live_gen.txt 3000 4194304 > live_gen.sum &
@@ -149,13 +110,13 @@ chmod +x root/init
 # --- boot ---
 start=$(date +%s.%N)
 timeout -k 5 "$timeout_s" qemu-system-x86_64 -accel tcg -m 512 -nographic -no-reboot -smp 1 \
-  -kernel "$vmlinuz" -initrd initrd.gz -append "console=ttyS0 quiet panic=-1 rdinit=/init" \
+  -kernel "$VM_VMLINUZ" -initrd initrd.gz -append "console=ttyS0 quiet panic=-1 rdinit=/init" \
   -nic none > console.log 2>&1
 rc=$?
 end=$(date +%s.%N)
 tr -d '\r' < console.log > console.txt
 grep -E "^VIBID|^S |^>|^<|^[0-9]" console.txt | grep -v "^\[" | head -40
-echo "qemu exit $rc after $(python3 -c "print('%.1f' % ($end - $start))") s (kernel $(basename "$vmlinuz"))"
+echo "qemu exit $rc after $(python3 -c "print('%.1f' % ($end - $start))") s (kernel $(basename "$VM_VMLINUZ"))"
 [ $rc -eq 124 ] || [ $rc -eq 137 ] && fail "VM did not finish within $timeout_s s (killed); console: $work/console.txt"
 grep -q "^VIBID-DONE" console.txt || fail "VM run did not complete; console: $work/console.txt"
 grep -q "^VIBID-FAIL" console.txt && fail "setup failed in the VM: $(grep '^VIBID-FAIL' console.txt)"
