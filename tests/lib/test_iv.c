@@ -18,24 +18,9 @@
 #include <vibid/iv.h>
 #include <vibid/lsq.h>
 
+#include "test_assert.h"
 #include "test_rng.h"
 
-#define ASSERT_NEAR(a, b, tol)                                                             \
-    do {                                                                                   \
-        double a_ = (a), b_ = (b), t_ = (tol);                                             \
-        if (!(fabs(a_ - b_) <= t_)) {                                                      \
-            print_error("%s = %.17g, expected %s = %.17g (tol %g)\n", #a, a_, #b, b_, t_); \
-            fail();                                                                        \
-        }                                                                                  \
-    } while (0)
-
-#define ASSERT_MSG_CONTAINS(needle)                                                                   \
-    do {                                                                                              \
-        if (!strstr(vibid_last_error(), (needle))) {                                                  \
-            print_error("last error \"%s\" does not mention \"%s\"\n", vibid_last_error(), (needle)); \
-            fail();                                                                                   \
-        }                                                                                             \
-    } while (0)
 
 /* One-mass oscillator in second-order difference form (1.16):
  *   y_k + a1 y_{k-1} + a2 y_{k-2} = b0 u_{k-1} + e_k,

@@ -16,30 +16,10 @@
 
 #include <vibid/lsq.h>
 
+#include "rls_check.h" /* rls_check_rel_diff: max |a - b| / max |b| */
+#include "test_assert.h"
 #include "test_rng.h"
 
-/* |a - b| <= tol * max(1, |b|) would hide errors on small values; tests state
- * explicitly whether they compare absolutely or relatively. */
-#define ASSERT_NEAR(a, b, tol)                                                             \
-    do {                                                                                   \
-        double a_ = (a), b_ = (b), t_ = (tol);                                             \
-        if (!(fabs(a_ - b_) <= t_)) {                                                      \
-            print_error("%s = %.17g, expected %s = %.17g (tol %g)\n", #a, a_, #b, b_, t_); \
-            fail();                                                                        \
-        }                                                                                  \
-    } while (0)
-
-#define ASSERT_MSG_CONTAINS(needle)                                                                   \
-    do {                                                                                              \
-        if (!strstr(vibid_last_error(), (needle))) {                                                  \
-            print_error("last error \"%s\" does not mention \"%s\"\n", vibid_last_error(), (needle)); \
-            fail();                                                                                   \
-        }                                                                                             \
-    } while (0)
-
-static void fill_normal(test_rng *rng, double *v, size_t n, double scale) {
-    for (size_t i = 0; i < n; ++i) v[i] = scale * test_rng_normal(rng);
-}
 
 /* Y = X Theta, column-major (N x p) (p x q). */
 static void matmul(const double *X, const double *T, double *Y, size_t n, size_t p, size_t q) {
@@ -49,15 +29,6 @@ static void matmul(const double *X, const double *T, double *Y, size_t n, size_t
             for (size_t i = 0; i < p; ++i) s += X[k + i * n] * T[i + j * p];
             Y[k + j * n] = s;
         }
-}
-
-static double max_rel_error(const double *a, const double *b, size_t n) {
-    double num = 0.0, den = 0.0;
-    for (size_t i = 0; i < n; ++i) {
-        num = fmax(num, fabs(a[i] - b[i]));
-        den = fmax(den, fabs(b[i]));
-    }
-    return num / den;
 }
 
 /* Normal equations solved by Cholesky, written out here as an independent reference
@@ -110,8 +81,8 @@ static void test_exact_system_recovers_theta(void **state) {
     test_rng rng;
     test_rng_seed(&rng, 1);
     double X[N * P], T[P * Q], Y[N * Q], est[P * Q];
-    fill_normal(&rng, X, N * P, 1.0);
-    fill_normal(&rng, T, P * Q, 3.0);
+    test_rng_fill_normal(&rng, X, N * P, 1.0);
+    test_rng_fill_normal(&rng, T, P * Q, 3.0);
     matmul(X, T, Y, N, P, Q);
 
     vibid_lsq *lsq = vibid_lsq_create(P, Q);
@@ -134,7 +105,7 @@ static void test_exact_system_recovers_theta(void **state) {
     assert_int_equal(info.rank, P);
     ASSERT_NEAR(info.sum_weights, (double)N, 0.0);
     /* Backward-stable QR on a random (cond ~ 3) 60 x 5 system: error ~ 10 eps. */
-    double err = max_rel_error(est, T, P * Q);
+    double err = rls_check_rel_diff(est, T, P * Q);
     assert_true(err < 1e-12);
 
     /* Residual covariance of an exact system is zero up to rounding of Y (|Y| ~ 10). */
@@ -151,8 +122,8 @@ static void test_matches_normal_equations(void **state) {
     test_rng rng;
     test_rng_seed(&rng, 2);
     double X[N * P], T[P * Q], Y[N * Q], est[P * Q], ref[P * Q];
-    fill_normal(&rng, X, N * P, 1.0);
-    fill_normal(&rng, T, P * Q, 1.0);
+    test_rng_fill_normal(&rng, X, N * P, 1.0);
+    test_rng_fill_normal(&rng, T, P * Q, 1.0);
     matmul(X, T, Y, N, P, Q);
     for (size_t i = 0; i < N * Q; ++i) Y[i] += 0.3 * test_rng_normal(&rng);
     normal_equations(X, Y, N, P, Q, ref);
@@ -162,7 +133,7 @@ static void test_matches_normal_equations(void **state) {
     assert_int_equal(vibid_lsq_solve(lsq, est, NULL), VIBID_OK);
     /* cond(X^T X) ~ 2 here, so the normal equations are accurate to ~1e-15 as well;
      * 1e-12 leaves room for summation order. */
-    assert_true(max_rel_error(est, ref, P * Q) < 1e-12);
+    assert_true(rls_check_rel_diff(est, ref, P * Q) < 1e-12);
     vibid_lsq_destroy(lsq);
 }
 
@@ -230,9 +201,9 @@ static void test_rank_deficient(void **state) {
     test_rng rng;
     test_rng_seed(&rng, 4);
     double X[N * P], Y[N * Q];
-    fill_normal(&rng, X, N * P, 1.0);
+    test_rng_fill_normal(&rng, X, N * P, 1.0);
     for (size_t k = 0; k < N; ++k) X[k + 2 * N] = 2.0 * X[k + 0 * N];
-    fill_normal(&rng, Y, N * Q, 1.0);
+    test_rng_fill_normal(&rng, Y, N * Q, 1.0);
     vibid_lsq *lsq = vibid_lsq_create(P, Q);
     assert_int_equal(vibid_lsq_add_rows(lsq, N, X, Y, NULL), VIBID_OK);
 
@@ -274,12 +245,12 @@ static void test_rank_deficient_scaled(void **state) {
     test_rng rng;
     test_rng_seed(&rng, 5);
     double X[N * P], Y[N], theta[P];
-    fill_normal(&rng, X, N * P, 1.0);
+    test_rng_fill_normal(&rng, X, N * P, 1.0);
     for (size_t k = 0; k < N; ++k) {
         X[k] *= 1e6;
         X[k + 1 * N] = -3e-6 * X[k]; /* column 1 = -3e-6 column 0 */
     }
-    fill_normal(&rng, Y, N, 1.0);
+    test_rng_fill_normal(&rng, Y, N, 1.0);
     vibid_lsq *lsq = vibid_lsq_create(P, 1);
     assert_int_equal(vibid_lsq_add_rows(lsq, N, X, Y, NULL), VIBID_OK);
     vibid_lsq_info info;
@@ -346,7 +317,7 @@ static void test_monte_carlo_standard_errors(void **state) {
     test_rng_seed(&rng, 6);
     double X[N * P], Y[N * Q], est[P * Q], se[P * Q], rc[Q * Q];
     const double T[P * Q] = {1.0, -2.0, 0.5, 3.0, 0.0, -1.0};
-    fill_normal(&rng, X, N * P, 1.0);
+    test_rng_fill_normal(&rng, X, N * P, 1.0);
     const double s1 = 0.5, s2 = 2.0, rho = 0.3;
     double sum[P * Q] = {0}, sum2[P * Q] = {0}, se2[P * Q] = {0}, rc_mean[Q * Q] = {0};
     vibid_lsq *lsq = vibid_lsq_create(P, Q);
@@ -417,8 +388,8 @@ static void test_add_rows_rejects_and_keeps_state(void **state) {
     test_rng rng;
     test_rng_seed(&rng, 7);
     double X[N * P], Y[N * Q], w[N];
-    fill_normal(&rng, X, N * P, 1.0);
-    fill_normal(&rng, Y, N * Q, 1.0);
+    test_rng_fill_normal(&rng, X, N * P, 1.0);
+    test_rng_fill_normal(&rng, Y, N * Q, 1.0);
     for (size_t k = 0; k < N; ++k) w[k] = 1.0 + test_rng_uniform(&rng);
     vibid_lsq *lsq = vibid_lsq_create(P, Q);
     assert_int_equal(vibid_lsq_add_rows(lsq, N, X, Y, w), VIBID_OK);
@@ -503,9 +474,9 @@ static void test_rank_tolerance(void **state) {
     test_rng rng;
     test_rng_seed(&rng, 8);
     double X[N * P], Y[N], theta[P];
-    fill_normal(&rng, X, N * P, 1.0);
+    test_rng_fill_normal(&rng, X, N * P, 1.0);
     for (size_t k = 0; k < N; ++k) X[k + N] = X[k] + 1e-8 * X[k + N];
-    fill_normal(&rng, Y, N, 1.0);
+    test_rng_fill_normal(&rng, Y, N, 1.0);
     vibid_lsq *lsq = vibid_lsq_create(P, 1);
     assert_int_equal(vibid_lsq_add_rows(lsq, N, X, Y, NULL), VIBID_OK);
     vibid_lsq_info info;

@@ -25,10 +25,6 @@ static double *alloc_doubles(size_t n) {
     return v;
 }
 
-static void fill_normal(test_rng *rng, double *v, size_t n, double scale) {
-    for (size_t i = 0; i < n; ++i) v[i] = scale * test_rng_normal(rng);
-}
-
 static vibid_rls *make(size_t p, size_t q, size_t m, vibid_rls_form form, double forgetting, double alpha) {
     vibid_rls_config cfg;
     vibid_rls_config_init(&cfg, p, q);
@@ -62,8 +58,8 @@ static void check_against_batch(vibid_rls_form form, size_t p, size_t q, size_t 
 
     /* Non-zero theta0 so that the prior rows' targets are exercised too. */
     double *theta0 = alloc_doubles(p * q), *theta_true = alloc_doubles(p * q);
-    fill_normal(&rng, theta0, p * q, 0.5);
-    fill_normal(&rng, theta_true, p * q, 1.0);
+    test_rng_fill_normal(&rng, theta0, p * q, 0.5);
+    test_rng_fill_normal(&rng, theta_true, p * q, 1.0);
     assert_int_equal(vibid_rls_set_prior(rls, theta0, NULL), VIBID_OK);
     if (Sigma) assert_int_equal(vibid_rls_set_equation_covariance(rls, Sigma), VIBID_OK);
 
@@ -77,7 +73,7 @@ static void check_against_batch(vibid_rls_form form, size_t p, size_t q, size_t 
     double *x = alloc_doubles(p * m), *y = alloc_doubles(m * q);
     double *Xr = alloc_doubles(m * p); /* the sample as m LS rows (m x p) */
     for (size_t k = 0; k < N; ++k) {
-        fill_normal(&rng, x, p * m, 1.0);
+        test_rng_fill_normal(&rng, x, p * m, 1.0);
         for (size_t i = 0; i < m; ++i)
             for (size_t j = 0; j < q; ++j) {
                 double s = 0.1 * test_rng_normal(&rng);
@@ -234,11 +230,11 @@ static void test_prior_from_batch_start(void **state) {
         assert_non_null(first);
         assert_non_null(all);
         double theta_true[10];
-        fill_normal(&rng, theta_true, p * q, 1.0);
+        test_rng_fill_normal(&rng, theta_true, p * q, 1.0);
         double x[5], y[2];
         vibid_rls *rls = make(p, q, 1, forms[f], 1.0, 1e-6);
         for (size_t k = 0; k < N1 + N2; ++k) {
-            fill_normal(&rng, x, p, 1.0);
+            test_rng_fill_normal(&rng, x, p, 1.0);
             for (size_t j = 0; j < q; ++j) {
                 y[j] = 0.1 * test_rng_normal(&rng);
                 for (size_t l = 0; l < p; ++l) y[j] += x[l] * theta_true[l + j * p];
@@ -292,7 +288,7 @@ static void test_reset_returns_to_prior(void **state) {
         test_rng_seed(&rng, 3);
         for (int k = 0; k < 50; ++k) {
             double x[3], y = test_rng_normal(&rng);
-            fill_normal(&rng, x, 3, 1.0);
+            test_rng_fill_normal(&rng, x, 3, 1.0);
             assert_int_equal(vibid_rls_update(rls, x, &y), VIBID_OK);
         }
         assert_int_equal(vibid_rls_set_adaptation(rls, 0), VIBID_OK);
@@ -329,7 +325,7 @@ static void test_adaptation_disabled(void **state) {
         test_rng_seed(&rng, 5);
         double x[2], y;
         for (int k = 0; k < 20; ++k) {
-            fill_normal(&rng, x, 2, 1.0);
+            test_rng_fill_normal(&rng, x, 2, 1.0);
             y = 3.0 * x[0] - x[1];
             assert_int_equal(vibid_rls_update(rls, x, &y), VIBID_OK);
         }
@@ -337,7 +333,7 @@ static void test_adaptation_disabled(void **state) {
         rls_snapshot_take(&before, rls, 2, 1);
         assert_int_equal(vibid_rls_set_adaptation(rls, 0), VIBID_OK);
         for (int k = 0; k < 20; ++k) {
-            fill_normal(&rng, x, 2, 1.0);
+            test_rng_fill_normal(&rng, x, 2, 1.0);
             y = -5.0 * x[0] + x[1]; /* a different system: would move Theta a lot */
             assert_int_equal(vibid_rls_update(rls, x, &y), VIBID_OK);
         }
@@ -429,8 +425,8 @@ static vibid_rls *seasoned(vibid_rls_form form, size_t m) {
     test_rng_seed(&rng, 11);
     double x[9], y[6];
     for (int k = 0; k < 30; ++k) {
-        fill_normal(&rng, x, 3 * m, 1.0);
-        fill_normal(&rng, y, 2 * m, 1.0);
+        test_rng_fill_normal(&rng, x, 3 * m, 1.0);
+        test_rng_fill_normal(&rng, y, 2 * m, 1.0);
         assert_int_equal(vibid_rls_update(rls, x, y), VIBID_OK);
     }
     return rls;

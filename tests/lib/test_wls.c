@@ -15,33 +15,10 @@
 
 #include <vibid/lsq.h>
 
+#include "rls_check.h" /* rls_check_rel_diff: max |a - b| / max |b| */
+#include "test_assert.h"
 #include "test_rng.h"
 
-#define ASSERT_NEAR(a, b, tol)                                                             \
-    do {                                                                                   \
-        double a_ = (a), b_ = (b), t_ = (tol);                                             \
-        if (!(fabs(a_ - b_) <= t_)) {                                                      \
-            print_error("%s = %.17g, expected %s = %.17g (tol %g)\n", #a, a_, #b, b_, t_); \
-            fail();                                                                        \
-        }                                                                                  \
-    } while (0)
-
-#define ASSERT_MSG_CONTAINS(needle)                                                                   \
-    do {                                                                                              \
-        if (!strstr(vibid_last_error(), (needle))) {                                                  \
-            print_error("last error \"%s\" does not mention \"%s\"\n", vibid_last_error(), (needle)); \
-            fail();                                                                                   \
-        }                                                                                             \
-    } while (0)
-
-static double max_rel_error(const double *a, const double *b, size_t n) {
-    double num = 0.0, den = 0.0;
-    for (size_t i = 0; i < n; ++i) {
-        num = fmax(num, fabs(a[i] - b[i]));
-        den = fmax(den, fabs(b[i]));
-    }
-    return num / den;
-}
 
 /* ---- hand-computed WLS ----
  * Line y = c0 + c1 t through (t, y, w) = (0, 1, 1), (1, 3, 2), (2, 4, 1), plus a
@@ -102,7 +79,7 @@ static void test_weight_equals_repeated_rows(void **state) {
     assert_int_equal(vibid_lsq_solve(weighted, a, NULL), VIBID_OK);
     assert_int_equal(vibid_lsq_solve(repeated, b, NULL), VIBID_OK);
     /* Same minimiser, different rotation order: agreement to rounding (cond ~ 3). */
-    assert_true(max_rel_error(a, b, P * Q) < 1e-13);
+    assert_true(rls_check_rel_diff(a, b, P * Q) < 1e-13);
     vibid_lsq_destroy(weighted);
     vibid_lsq_destroy(repeated);
 }
@@ -154,8 +131,8 @@ static void test_gauss_markov_diagonal_is_wls(void **state) {
     assert_int_equal(vibid_lsq_covariance(gm, NULL, ra), VIBID_OK);
     assert_int_equal(vibid_lsq_covariance(wls, NULL, rb), VIBID_OK);
     /* Row k scaled by 1/sqrt(S_kk) either way; only rounding differs (cond ~ 10). */
-    assert_true(max_rel_error(a, b, P * Q) < 1e-13);
-    assert_true(max_rel_error(ra, rb, Q * Q) < 1e-13);
+    assert_true(rls_check_rel_diff(a, b, P * Q) < 1e-13);
+    assert_true(rls_check_rel_diff(ra, rb, Q * Q) < 1e-13);
     vibid_lsq_destroy(gm);
     vibid_lsq_destroy(wls);
 }
@@ -195,8 +172,8 @@ static void test_gauss_markov_full_is_whitening(void **state) {
     assert_int_equal(vibid_lsq_covariance(ref, NULL, rb), VIBID_OK);
     /* Two Cholesky implementations of an SPD matrix with cond ~ 1e3 agree to ~1e-13;
      * the fit is well conditioned, so 1e-11 is a comfortable bound. */
-    assert_true(max_rel_error(a, b, P * Q) < 1e-11);
-    assert_true(max_rel_error(ra, rb, Q * Q) < 1e-11);
+    assert_true(rls_check_rel_diff(a, b, P * Q) < 1e-11);
+    assert_true(rls_check_rel_diff(ra, rb, Q * Q) < 1e-11);
     vibid_lsq_destroy(gm);
     vibid_lsq_destroy(ref);
 }

@@ -48,3 +48,7 @@ double test_rng_normal(test_rng *rng) {
     rng->has_spare = 1;
     return u * f;
 }
+
+void test_rng_fill_normal(test_rng *rng, double *v, size_t n, double scale) {
+    for (size_t i = 0; i < n; ++i) v[i] = scale * test_rng_normal(rng);
+}

@@ -2,6 +2,7 @@
  * xoshiro256** seeded by splitmix64; normals by the polar Box-Muller method. */
 #ifndef VIBID_TEST_RNG_H
 #define VIBID_TEST_RNG_H
+#include <stddef.h>
 #include <stdint.h>
 
 typedef struct test_rng {
@@ -16,5 +17,7 @@ uint64_t test_rng_next(test_rng *rng);
 double test_rng_uniform(test_rng *rng);
 /* Standard normal N(0, 1). */
 double test_rng_normal(test_rng *rng);
+/* v[0 .. n) = scale * N(0, 1) draws. */
+void test_rng_fill_normal(test_rng *rng, double *v, size_t n, double scale);
 
 #endif
