@@ -88,7 +88,7 @@ int main(int argc, char **argv)
                    "    { name = \"d%d\"; kind = \"damper\"; between = [\"m%d\", \"m%d\"]; value = 5.0; }",
                 i, i, i - 1, i, i, i - 1);
     fprintf(f, "\n  );\n  inputs = ( { name = \"f\"; node = \"m10\"; gain = 1.0; channel = \"F\"; } );\n};\n");
-    fprintf(f, "simulation = { seed = 1; excitation = (\n"
+    fprintf(f, "simulation = { seed = 1; hold = \"zoh\"; excitation = (\n"
                "  { target = \"base\"; kind = \"triangle\"; amplitude = 1.0e-3; frequency = 3.0; },\n"
                "  { target = \"f\"; kind = \"prbs\"; amplitude = 10.0; order = 15; samples_per_bit = 20; },\n"
                "  { target = \"f\"; kind = \"noise\"; amplitude = 5.0; f_high = 500.0; } );\n"

@@ -134,6 +134,31 @@ static void channel_list(const vibid_stand *st, char *buf, size_t cap)
     }
 }
 
+/* cfg->base_smooth / input_smooth from the override cfg->smooth (-1: the stand's declarations). */
+static void resolve_holds(sim_config *cfg, const vibid_model *model, size_t n_inputs)
+{
+    vibid_hold hd = VIBID_HOLD_SMOOTH;
+    if (cfg->smooth >= 0) cfg->base_smooth = cfg->smooth;
+    else cfg->base_smooth = vibid_model_get_hold(model, VIBID_BASE, &hd) != VIBID_OK || hd != VIBID_HOLD_ZOH;
+    for (size_t j = 0; j < n_inputs && j < SIM_MAX_CHANNELS; j++) {
+        if (cfg->smooth >= 0) cfg->input_smooth[j] = cfg->smooth;
+        else cfg->input_smooth[j] = vibid_model_get_hold(model, j, &hd) != VIBID_OK || hd != VIBID_HOLD_ZOH;
+    }
+}
+
+/* VIBID_MEASURE_VELOCITY / _ACCELERATION bits of the base channels that are measured. */
+static unsigned base_rate_measured(const vibid_model *model, const vibid_model_dims *d)
+{
+    unsigned bits = 0;
+    for (size_t k = 0; k < d->n_channels; k++) {
+        vibid_channel_info ci;
+        if (vibid_model_channel_info(model, k, &ci) != VIBID_OK || ci.index != VIBID_BASE) continue;
+        if (ci.kind == VIBID_CHANNEL_VELOCITY) bits |= VIBID_MEASURE_VELOCITY;
+        if (ci.kind == VIBID_CHANNEL_ACCELERATION) bits |= VIBID_MEASURE_ACCELERATION;
+    }
+    return bits;
+}
+
 static int parse_exc(ctx *c, const config_setting_t *e, const char *path, uint64_t seed, size_t index, sim_exc_spec *s)
 {
     static const char *const known[] = {"target", "kind", "amplitude", "offset", "frequency", "phase",
@@ -196,6 +221,9 @@ int sim_config_load(const char *path, const vibid_stand *stand, const uint64_t *
         fail(&c, NULL, "stand", "%zu channels; vibid-sim handles at most %d", d.n_channels, SIM_MAX_CHANNELS);
         return -1;
     }
+    /* Each input behaves as the stand declares it unless simulation.hold overrides all. */
+    cfg->smooth = -1;
+    resolve_holds(cfg, model, d.n_inputs);
 
     config_t lc;
     config_init(&lc);
@@ -234,6 +262,15 @@ int sim_config_load(const char *path, const vibid_stand *stand, const uint64_t *
         if (strcmp(hold, "zoh") == 0) cfg->smooth = 0;
         else if (strcmp(hold, "smooth") == 0) cfg->smooth = 1;
         else { fail(&c, config_setting_get_member(g, "hold"), "simulation.hold", "'%s': use \"zoh\" or \"smooth\"", hold); goto out; }
+        resolve_holds(cfg, model, d.n_inputs);
+        unsigned bm = base_rate_measured(model, &d);
+        if (!cfg->smooth && bm) {
+            fail(&c, config_setting_get_member(g, "hold"), "simulation.hold",
+                 "\"zoh\" holds the base, whose %s is measured: a held displacement's derivative is a train of "
+                 "impulses that no sensor reports (measure only the base displacement, or use \"smooth\")",
+                 bm & VIBID_MEASURE_VELOCITY ? "velocity" : "acceleration");
+            goto out;
+        }
     }
 
     const config_setting_t *ig = config_setting_get_member(g, "integrator");

@@ -2,7 +2,8 @@
  * vibid-sim beside the `stand` group that the shared loader reads.
  *
  *   simulation = {
- *     seed = 1; duration = 10.0; hold = "zoh";            # or "smooth"
+ *     seed = 1; duration = 10.0; hold = "zoh";            # or "smooth"; overrides the stand's
+ *                                                          # per-input `hold` (default: the stand's)
  *     integrator = { rtol = 1e-10; atol = 1e-15; method = "fehlberg8"; };  # or "dormand_prince5"
  *     excitation = ( { target = "base"; kind = "triangle"; amplitude = 1e-3; frequency = 10.0; } );
  *     noise = ( { channel = "x1"; std = 1e-7; resolution = 1e-8; }, { channel = "x2"; snr_db = 60.0; } );
@@ -57,7 +58,13 @@ typedef struct sim_config {
     char file[256];
     uint64_t seed;
     double duration;      /* s; 0 = not given */
-    int smooth;           /* 0 = ZOH inputs (1.10), 1 = smooth */
+    int smooth;           /* simulation.hold: -1 not given (each input as the stand declares it,
+                             vibid_model_get_hold), 0 = "zoh" / 1 = "smooth" for every input
+                             (a global override of the stand's declarations) */
+    /* Resolved per input from the stand's declarations and the override (1 = smooth,
+     * 0 = held over [t_k, t_k + h), (1.10)): what the engine uses. */
+    int base_smooth;
+    int input_smooth[SIM_MAX_CHANNELS]; /* per force input j (every input is a channel) */
     double rtol, atol;
     int method;           /* 0 = fehlberg8 (Fehlberg 13-7-8, default), 1 = dormand_prince5 (7-4-5) */
     sim_exc_target *targets;

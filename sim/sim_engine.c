@@ -20,6 +20,10 @@ struct sim_engine {
     /* excitation */
     sim_exc *base_exc;
     sim_exc **in_exc;      /* r entries, NULL = zero input */
+    /* held base (cfg->base_smooth == 0): s jumps by s_k - s_{k-1} at t_k, and the dampers to
+     * the base turn that jump into an impulse d_base (s_k - s_{k-1}) (model.h, vibid_hold) */
+    double *d_base;        /* n, N s/m, from vibid_model_assemble at the current parameters */
+    double s_prev;         /* m: s_{k-1}; 0 before sample 0 (the stand rests with the base at 0) */
     /* parameters */
     double *theta0, *theta, *theta_k;
     int mass_changes, ramp_in_interval;
@@ -125,6 +129,39 @@ static int refresh_mass(sim_engine *e, const double *theta)
     return 0;
 }
 
+/* d_base at theta (dampers to the base; they change only through parameter changes). */
+static int refresh_d_base(sim_engine *e, const double *theta)
+{
+    if (vibid_model_assemble(e->model, theta, NULL, NULL, NULL, NULL, e->d_base, NULL) != VIBID_OK) {
+        set_err(e, "assembling d_base failed: %s", vibid_last_error());
+        return -1;
+    }
+    return 0;
+}
+
+/* Held base: the impulse of the dampers to the base at t_k, M dy' = d_base (s_k - s_{k-1}),
+ * applied to the state y'. Returns 1 if the state changed. */
+static int apply_base_jump(sim_engine *e, double s_k)
+{
+    size_t n = e->n;
+    double ds = s_k - e->s_prev;
+    e->s_prev = s_k;
+    if (ds == 0.0) return 0;
+    double *x = N_VGetArrayPointer(e->y);
+    int changed = 0;
+    for (size_t i = 0; i < n; i++) {
+        double a = 0.0;
+        if (e->diag) a = e->Minv[i] * e->d_base[i];
+        else
+            for (size_t j = 0; j < n; j++) a += e->Minv[i + j * n] * e->d_base[j];
+        if (a != 0.0) {
+            x[n + i] += a * ds;
+            changed = 1;
+        }
+    }
+    return changed;
+}
+
 /* xdot = [y'; M^-1 f(y, y', s, s', u, theta(t))] */
 static int rhs(sunrealtype t, N_Vector x, N_Vector xdot, void *user)
 {
@@ -199,12 +236,13 @@ sim_engine *sim_engine_create_internal(const vibid_stand *stand, const sim_confi
     e->work = calloc(n * n, sizeof(double));
     e->u = calloc(e->r + 1, sizeof(double));
     e->f = calloc(n, sizeof(double));
+    e->d_base = calloc(n, sizeof(double));
     e->in_exc = calloc(e->r + 1, sizeof(sim_exc *));
     e->ch = calloc(e->nch + 1, sizeof *e->ch);
     e->noise_std = calloc(e->nch + 1, sizeof(double));
     e->resolution = calloc(e->nch + 1, sizeof(double));
     if (!e->theta0 || !e->theta || !e->theta_k || !e->M || !e->Minv || !e->work || !e->u || !e->f || !e->in_exc ||
-        !e->ch || !e->noise_std || !e->resolution)
+        !e->d_base || !e->ch || !e->noise_std || !e->resolution)
         CFAIL("out of memory");
     if (e->p) memcpy(e->theta0, vibid_stand_true_values(stand), e->p * sizeof(double));
     for (size_t i = 0; i < e->p; i++) {
@@ -214,12 +252,22 @@ sim_engine *sim_engine_create_internal(const vibid_stand *stand, const sim_confi
         for (size_t c = 0; c < cfg->n_changes; c++)
             if (cfg->changes[c].param == i && pi.kind == VIBID_PARAM_MASS) e->mass_changes = 1;
     }
-    for (size_t i = 0; i < e->nch; i++) vibid_model_channel_info(e->model, i, &e->ch[i]);
+    for (size_t i = 0; i < e->nch; i++) {
+        vibid_model_channel_info(e->model, i, &e->ch[i]);
+        /* sim_config_load rejects this for simulation.hold = "zoh"; here the stand declared it */
+        if (!cfg->base_smooth && e->ch[i].index == VIBID_BASE && e->ch[i].kind != VIBID_CHANNEL_DISPLACEMENT)
+            CFAIL("stand.base.hold: the base is held (\"zoh\") and its %s is measured (channel '%s'): a held "
+                  "displacement's derivative is a train of impulses that no sensor reports (measure only the base "
+                  "displacement, or declare hold = \"smooth\")",
+                  e->ch[i].kind == VIBID_CHANNEL_VELOCITY ? "velocity" : "acceleration",
+                  vibid_stand_channel_name(stand, i));
+    }
 
     char xerr[256];
     for (size_t i = 0; i < cfg->n_targets; i++) {
         const sim_exc_target *t = &cfg->targets[i];
-        sim_exc *x = sim_exc_create(t->specs, t->n, e->h, cfg->smooth, xerr, sizeof xerr);
+        int smooth = t->is_base ? cfg->base_smooth : t->input < SIM_MAX_CHANNELS ? cfg->input_smooth[t->input] : 1;
+        sim_exc *x = sim_exc_create(t->specs, t->n, e->h, smooth, xerr, sizeof xerr);
         if (!x) CFAIL("%s: simulation.excitation (target %s): %s", cfg->file, t->is_base ? "base" : "input", xerr);
         if (t->is_base) e->base_exc = x;
         else e->in_exc[t->input] = x;
@@ -227,6 +275,7 @@ sim_engine *sim_engine_create_internal(const vibid_stand *stand, const sim_confi
 
     theta_at(e, 0.0, 0.0, e->theta_k);
     if (refresh_mass(e, e->theta_k)) goto fail;
+    if (e->has_base && refresh_d_base(e, e->theta_k)) goto fail;
 
     if (SUNContext_Create(NULL, &e->sunctx)) CFAIL("SUNContext_Create failed");
     e->y = N_VNew_Serial((sunindextype)(2 * n), e->sunctx);
@@ -302,6 +351,7 @@ void sim_engine_destroy(sim_engine *e)
     free(e->work);
     free(e->u);
     free(e->f);
+    free(e->d_base);
     free(e->ch);
     free(e->noise_std);
     free(e->resolution);
@@ -343,6 +393,14 @@ int sim_engine_next(sim_engine *e, uint64_t *kout, double *tout, double *values,
         if (c->ramp > 0.0 && c->at < tk1 && c->at + c->ramp > tk) e->ramp_in_interval = 1;
     }
     if (e->mass_changes && mass_changed && refresh_mass(e, e->theta_k)) return -1;
+    /* Held base: the jump of s at t_k and its impulse, before the sample is taken (the
+     * channels at t_k are the state right after the jumps) and before the integrator
+     * restarts from t_k. The parameters in force from t_k decide the impulse. */
+    int jumped = 0;
+    if (e->base_exc && !e->cfg->base_smooth) {
+        if (mass_changed && refresh_d_base(e, e->theta_k)) return -1;
+        jumped = apply_base_jump(e, sim_exc_sample_value(e->base_exc));
+    }
 
     /* the sample: state at t_k and inputs u_k */
     const double *x = N_VGetArrayPointer(e->y);
@@ -366,7 +424,7 @@ int sim_engine_next(sim_engine *e, uint64_t *kout, double *tout, double *values,
         double v0, d0;
         sim_exc_eval(e->base_exc, tk, &v0, &d0);
         sd = d0;
-        if (e->cfg->smooth) {
+        if (e->cfg->base_smooth) {
             double dl = e->h * 1e-3, v1, d1;
             sim_exc_eval(e->base_exc, tk + dl, &v1, &d1);
             sdd = (d1 - d0) / dl;
@@ -390,8 +448,9 @@ int sim_engine_next(sim_engine *e, uint64_t *kout, double *tout, double *values,
     *kout = k;
     *tout = tk;
 
-    /* integrate over [t_k, t_{k+1}], restarted at t_k (the input jumped) */
-    if (k > 0 || e->hnext > 0) {
+    /* integrate over [t_k, t_{k+1}], restarted at t_k (the input jumped; the state too
+     * when the held base's impulse changed y', also at k = 0) */
+    if (k > 0 || e->hnext > 0 || jumped) {
         if (e->hnext > 0) ERKStepSetInitStep(e->ark, e->hnext);
         if (ERKStepReset(e->ark, tk, e->y)) { set_err(e, "ERKStepReset failed at t = %g", tk); return -1; }
     }

@@ -11,9 +11,13 @@
  * below Nyquist), so an explicit method needs no Jacobian or linear solver.
  *
  * Sample k (t_k = k h): state y(t_k), y'(t_k); inputs u_k = u(t_k), base s_k; then the
- * state is integrated over [t_k, t_{k+1}] with the input held (ZOH) or varying
- * (smooth), stopping exactly at t_{k+1} (ERKStepSetStopTime) and resetting the method
- * there (ERKStepReset), so that no stage ever straddles a jump.
+ * state is integrated over [t_k, t_{k+1}] with each input held (ZOH) or varying
+ * (smooth) as sim_config resolved it (the stand's declarations or simulation.hold),
+ * stopping exactly at t_{k+1} (ERKStepSetStopTime) and resetting the method there
+ * (ERKStepReset), so that no stage ever straddles a jump. A held base jumps by
+ * s_k - s_{k-1} at t_k (s_{-1} = 0) and the dampers to the base make that an impulse:
+ * y' += M^-1 d_base (s_k - s_{k-1}) before sample k is taken (its velocities are
+ * post-impulse, its accelerations those with u_k, s_k, s' = 0) and before the restart.
  *
  * Time-varying parameters (sim_config.changes): a step takes effect at the first sample
  * boundary t_k >= at (so the ZOH solution stays exact); a ramp is linear in continuous

@@ -15,8 +15,24 @@ void vd_alarm_init(vd_alarm *a, const vd_alarm_config *cfg)
     }
 }
 
+static void note_learn_missed(vd_alarm *a, double t_s)
+{
+    if (!a->have_baseline && a->n_learn == 0 && t_s >= a->cfg.learn_start_s + a->cfg.learn_duration_s)
+        a->learn_missed = true;
+}
+
+vd_alarm_event vd_alarm_update_row(vd_alarm *a, double t_s, double theta, double se, bool usable)
+{
+    if (!usable) {
+        note_learn_missed(a, t_s);
+        return VD_ALARM_NONE;
+    }
+    return vd_alarm_update(a, t_s, theta, se);
+}
+
 vd_alarm_event vd_alarm_update(vd_alarm *a, double t_s, double theta, double se)
 {
+    note_learn_missed(a, t_s);
     if (!isfinite(theta) || !isfinite(se) || se < 0.0)
         return VD_ALARM_NONE;
     if (!a->have_baseline) {

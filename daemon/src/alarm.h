@@ -13,7 +13,16 @@
  * Baseline: given (value, se_b = 0), or learned as the mean of the estimates (and the
  * mean of their standard errors) over the sample-time window
  * [learn_start_s, learn_start_s + learn_duration_s) from the start of the run; no
- * alarm is evaluated before the baseline exists.
+ * alarm is evaluated before the baseline exists. If the window passes without a single
+ * usable estimate, no baseline is ever learned and learn_missed says so (the alarm of
+ * that parameter stays off for the run).
+ *
+ * Unusable rows (vd_alarm_update_row with usable = false: vibidd's rows flagged E, no
+ * estimate, or P, a physically impossible estimate) are ignored like non-finite values:
+ * they are not learned from, they neither raise nor clear, and they do not change the
+ * out/in state or when it began. The sample time they cover is not evidence either way;
+ * the next usable row judges the state as if they were absent (an excursion that is out
+ * before and after a run of unusable rows counts as continuously out).
  */
 #ifndef VIBIDD_ALARM_H
 #define VIBIDD_ALARM_H
@@ -42,11 +51,15 @@ typedef struct vd_alarm {
     double since_s;       /* time the current out/in state began */
     bool active;          /* alarm raised */
     double last_z;
+    bool learn_missed;    /* the learning window passed without a usable estimate */
 } vd_alarm;
 
 void vd_alarm_init(vd_alarm *a, const vd_alarm_config *cfg);
 /* One estimate at run time t_s (s since the first sample). se <= 0 or non-finite
  * values are ignored for the alarm (nothing can be said). Returns the event. */
 vd_alarm_event vd_alarm_update(vd_alarm *a, double t_s, double theta, double se);
+/* One track row: vd_alarm_update when usable, else nothing but the learn_missed
+ * bookkeeping (VD_ALARM_NONE). */
+vd_alarm_event vd_alarm_update_row(vd_alarm *a, double t_s, double theta, double se, bool usable);
 
 #endif

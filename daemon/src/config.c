@@ -506,8 +506,9 @@ static int load_source(ctx *c, config_t *cf)
 
 static const char *const acq_known[] = {"ring_size",   "read_batch",   "read_timeout", "realtime_priority",
                                         "lock_memory", "handoff_spin", NULL};
-static const char *const est_known[] = {"method",  "forgetting", "prefilter_hz", "rls_alpha", "iv_lag",
-                                        "decimation", "warmup_samples", "start_values", NULL};
+static const char *const est_known[] = {"method",         "forgetting",       "prefilter_hz", "rls_alpha",
+                                        "iv_lag",         "difference_order", "decimation",   "warmup_samples",
+                                        "start_values",   NULL};
 static const char *const out_known[] = {"tracks", "influx", "record", "status", NULL};
 static const char *const alarm_known[] = {"enabled", "threshold", "min_relative", "hold", "learn_start",
                                           "learn_duration", "parameters", NULL};
@@ -600,19 +601,28 @@ static int load_estimator(ctx *c, config_t *cf)
     config_setting_t *g = config_lookup(cf, "estimator");
     if (check_known(c, g, "estimator", est_known))
         return -1;
-    static const char *const methods[] = {"ls", "iv", "rls", NULL};
+    /* The order is vibid_estimator's: ls 0, iv 1, rls 2, auto 3 (the default). */
+    static const char *const methods[] = {"ls", "iv", "rls", "auto", NULL};
     int mi;
-    if (get_enum(c, g, "estimator", "method", 2, methods, &mi))
+    if (get_enum(c, g, "estimator", "method", (int)VIBID_ESTIMATOR_AUTO, methods, &mi))
         return -1;
     cfg->method = (vibid_estimator)mi;
     double fa = cfg->sample_rate;
     long long v;
+    /* Absent prefilter_hz, iv_lag, difference_order: the library chooses (identify.h);
+     * a given value overrides the choice. */
     if (get_double(c, g, "estimator", "forgetting", 1.0, 0.9, 1.0, &cfg->forgetting) ||
-        get_double(c, g, "estimator", "prefilter_hz", 0.0, 0.0, 0.45 * fa, &cfg->prefilter_hz) ||
+        get_double(c, g, "estimator", "prefilter_hz", -1.0, 0.0, 0.45 * fa, &cfg->prefilter_hz) ||
         get_double(c, g, "estimator", "rls_alpha", 1e-9, 1e-30, 1e30, &cfg->rls_alpha) ||
-        get_int(c, g, "estimator", "iv_lag", 3, 3, 4096, &v))
+        get_int(c, g, "estimator", "iv_lag", 0, 3, 4096, &v))
         return -1;
     cfg->iv_lag = (unsigned)v;
+    if (get_int(c, g, "estimator", "difference_order", 0, 2, 4, &v))
+        return -1;
+    if (v == 3)
+        return fail_at(c, config_setting_get_member(g, "difference_order"), "estimator.difference_order",
+                       "3: use 2 (central differences (1.17)) or 4 (five-point stencils)");
+    cfg->difference_order = (unsigned)v;
     if (cfg->prefilter_hz > 0 && cfg->prefilter_hz < 1e-3 * fa)
         return fail_at(c, config_setting_get_member(g, "prefilter_hz"), "estimator.prefilter_hz",
                        "%g Hz is below f_a / 1000 = %g Hz (0 turns the pre-filter off)", cfg->prefilter_hz,
@@ -810,8 +820,8 @@ const char *vd_source_kind_name(vd_source_kind k) { return (unsigned)k < 3 ? src
 
 const char *vd_estimator_name(vibid_estimator e)
 {
-    static const char *const n[] = {"ls", "iv", "rls"};
-    return (unsigned)e < 3 ? n[e] : "?";
+    static const char *const n[] = {"ls", "iv", "rls", "auto"};
+    return (unsigned)e < 4 ? n[e] : "?";
 }
 
 static const char *yes(bool b) { return b ? "true" : "false"; }
@@ -924,11 +934,24 @@ void vd_config_print(const vd_config *cfg, FILE *o)
             "  handoff_spin = %u;  # us the estimation thread busy-waits before sleeping\n};\n",
             cfg->ring_size, cfg->read_batch, cfg->read_timeout_ms, cfg->rt_priority, yes(cfg->lock_memory),
             cfg->handoff_spin_us);
-    fprintf(o,
-            "estimator = {\n  method = \"%s\";\n  forgetting = %s;\n  prefilter_hz = %s;\n  rls_alpha = %s;\n"
-            "  iv_lag = %u;\n  decimation = %u;\n  warmup_samples = %u;\n",
-            vd_estimator_name(cfg->method), num(cfg->forgetting), num(cfg->prefilter_hz), num(cfg->rls_alpha), cfg->iv_lag,
-            cfg->decimation, cfg->warmup_samples);
+    /* Settings left to the automatic choice stay commented out, so that the printout
+     * read back chooses again; the choices themselves follow as comments (main.c). */
+    fprintf(o, "estimator = {\n  method = \"%s\";\n  forgetting = %s;\n", vd_estimator_name(cfg->method),
+            num(cfg->forgetting));
+    if (cfg->prefilter_hz >= 0.0)
+        fprintf(o, "  prefilter_hz = %s;\n", num(cfg->prefilter_hz));
+    else
+        fprintf(o, "  # prefilter_hz: automatic\n");
+    fprintf(o, "  rls_alpha = %s;\n", num(cfg->rls_alpha));
+    if (cfg->iv_lag)
+        fprintf(o, "  iv_lag = %u;\n", cfg->iv_lag);
+    else
+        fprintf(o, "  # iv_lag: automatic\n");
+    if (cfg->difference_order)
+        fprintf(o, "  difference_order = %u;\n", cfg->difference_order);
+    else
+        fprintf(o, "  # difference_order: automatic\n");
+    fprintf(o, "  decimation = %u;\n  warmup_samples = %u;\n", cfg->decimation, cfg->warmup_samples);
     if (cfg->has_start) {
         fprintf(o, "  start_values = (");
         for (size_t k = 0; k < cfg->n_params; k++) {

@@ -98,9 +98,10 @@ typedef struct vd_config {
                                     sleeping on the eventfd; 0 = sleep at once */
 
     /* estimator */
-    vibid_estimator method;
-    double forgetting, prefilter_hz, rls_alpha;
-    unsigned iv_lag;
+    vibid_estimator method;           /* default VIBID_ESTIMATOR_AUTO */
+    double forgetting, prefilter_hz, rls_alpha;   /* prefilter_hz < 0: automatic */
+    unsigned iv_lag;                  /* 0: automatic */
+    unsigned difference_order;        /* 0: automatic, else 2 or 4 */
     unsigned decimation;
     unsigned warmup_samples;
     bool has_start;                   /* estimator.start_values given (RLS only) */

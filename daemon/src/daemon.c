@@ -55,9 +55,11 @@ static bool has_csv_ext(const char *p)
     return L >= 4 && strcasecmp(p + L - 4, ".csv") == 0;
 }
 
-static int open_replay(vd_daemon *d, const char *path, int format, bool paced, double speed, char *err, size_t cap)
+/* The replay source's configuration for capture `path` (vibidd's own recording: columns
+ * by channel name, time column t). 0, or -1 with err. */
+static int replay_config(const vd_config *cfg, const char *path, int format, bool paced, double speed,
+                         vibid_source_replay_config *out, char *err, size_t cap)
 {
-    vd_config *cfg = d->cfg;
     vibid_source_replay_config rc;
     memset(&rc, 0, sizeof rc);
     rc.path = path;
@@ -95,6 +97,18 @@ static int open_replay(vd_daemon *d, const char *path, int format, bool paced, d
         }
         rc.dbc = cfg->dbc;
     }
+    *out = rc;
+    return 0;
+}
+
+static int open_replay(vd_daemon *d, const char *path, int format, bool paced, double speed, char *err, size_t cap)
+{
+    vibid_source_replay_config rc;
+    if (replay_config(d->cfg, path, format, paced, speed, &rc, err, cap))
+        return -1;
+    /* data that do not fit the stand are refused before anything is written (rate_check.h) */
+    if (vd_rate_check_capture(d->cfg, &rc, d->opt.rate_check, NULL, 0, err, cap))
+        return -1;
     vibid_drv_error de = {0};
     d->src = vibid_source_open(&vibid_source_replay_ops, &rc, &de);
     if (!d->src) {
@@ -105,6 +119,21 @@ static int open_replay(vd_daemon *d, const char *path, int format, bool paced, d
     d->file_source = true;
     d->measure_latency = paced;
     return 0;
+}
+
+int vd_daemon_check_capture(const vd_config *cfg, const vd_options *opt, char *note, size_t note_cap, char *err,
+                            size_t cap)
+{
+    if (note_cap)
+        note[0] = '\0';
+    const char *path = opt->replay ? opt->replay : cfg->source_kind == VD_SRC_REPLAY ? cfg->replay_file : NULL;
+    int format = opt->replay ? VIBID_REPLAY_AUTO : cfg->replay_format;
+    vibid_source_replay_config rc;
+    if (!path || opt->rate_check == VD_RATE_MODE_OFF)
+        return 0;
+    if (replay_config(cfg, path, format, false, 1.0, &rc, err, cap))
+        return -1;
+    return vd_rate_check_capture(cfg, &rc, opt->rate_check, note, note_cap, err, cap);
 }
 
 static int open_source(vd_daemon *d, char *err, size_t cap)
@@ -324,17 +353,50 @@ static void handle_gap_log(vd_daemon *d, const vibid_record *rec)
                   (unsigned long long)rec->index, rec->text);
 }
 
+/* The log tells of physically impossible estimates once per episode: a warning at the
+ * first row flagged P (what is impossible, the sample index), a notice at the first
+ * plausible row after it. Rows without an estimate (E) neither start nor end an episode. */
+static void note_plausibility(vd_daemon *d, const vd_row *row)
+{
+    if (d->est.pref_ready && !d->pref_reported) {
+        d->pref_reported = true;
+        if (!d->est.pref.zeta_rule)
+            vd_info("plausibility: the rule 'zeta >= 1 where the nominal mode is underdamped' is off: %s",
+                    d->est.pref.zeta_rule_off);
+    }
+    if (row->flags & VD_FLAG_NOEST)
+        return;
+    if (row->flags & VD_FLAG_IMPLAUSIBLE) {
+        if (!d->implausible_episode) {
+            d->implausible_episode = true;
+            d->episode_first = row->index;
+            d->episode_rows = 0;
+            vd_warning("physically impossible estimate at sample %llu: %s (rows flagged P until the estimates are "
+                       "plausible again; the alarms ignore them)",
+                       (unsigned long long)row->index, d->est.why);
+        }
+        d->episode_rows++;
+    } else if (d->implausible_episode) {
+        d->implausible_episode = false;
+        vd_notice("estimates physically plausible again at sample %llu (%llu rows flagged P from sample %llu)",
+                  (unsigned long long)row->index, (unsigned long long)d->episode_rows,
+                  (unsigned long long)d->episode_first);
+    }
+}
+
 static void run_alarms(vd_daemon *d, vd_row *row)
 {
-    if (!d->cfg->alarms_enabled || (row->flags & VD_FLAG_NOEST))
+    if (!d->cfg->alarms_enabled)
         return;
     const vibid_model *m = vibid_stand_model(d->cfg->stand);
+    /* rows without an estimate (E) or with an impossible one (P) change no alarm */
+    const bool usable = vd_row_usable(row->flags);
     bool any = false;
     for (size_t k = 0; k < d->cfg->n_params; k++) {
         if (!d->cfg->alarm_param[k].enabled)
             continue;
         vd_alarm *a = &d->alarm[k];
-        vd_alarm_event ev = vd_alarm_update(a, row->run_s, row->theta[k], row->se[k]);
+        vd_alarm_event ev = vd_alarm_update_row(a, row->run_s, row->theta[k], row->se[k], usable);
         vibid_param_info pi;
         vibid_model_param_info(m, k, &pi);
         if (ev == VD_ALARM_RAISED) {
@@ -351,6 +413,11 @@ static void run_alarms(vd_daemon *d, vd_row *row)
         } else if (a->have_baseline && a->cfg.learn && !d->base_reported[k]) {
             vd_info("alarm baseline of %s learned: %.9g (mean standard error %.3g, %llu estimates)", pi.name,
                     a->base, a->base_se, (unsigned long long)a->n_learn);
+            d->base_reported[k] = true;
+        } else if (a->learn_missed && !d->base_reported[k]) {
+            vd_warning("alarm baseline of %s not learned: no usable estimate (a row without flags E and P) in "
+                       "[%g, %g) s of sample time; this alarm stays off",
+                       pi.name, a->cfg.learn_start_s, a->cfg.learn_start_s + a->cfg.learn_duration_s);
             d->base_reported[k] = true;
         }
         if (a->active)
@@ -417,8 +484,9 @@ static void write_status(vd_daemon *d, const char *state, double now)
     S("jitter_mean_s=%.9g\njitter_std_s=%.3g\n", ss.jitter.mean_s, ss.jitter.std_s);
     for (unsigned c = 1; c <= (unsigned)VIBID_FAULT_CORRUPT; c++) /* faults by kind */
         S("faults_%s=%llu\n", fault_name((vibid_fault_code)c), (unsigned long long)d->faults_by_code[c]);
-    S("rows=%llu\nestimate_failures=%llu\nnonfinite_samples=%llu\n", (unsigned long long)d->est.rows,
-      (unsigned long long)d->est.est_errors, (unsigned long long)d->est.push_errors);
+    S("rows=%llu\nestimate_failures=%llu\nimplausible_rows=%llu\nnonfinite_samples=%llu\n",
+      (unsigned long long)d->est.rows, (unsigned long long)d->est.est_errors,
+      (unsigned long long)d->est.implausible_rows, (unsigned long long)d->est.push_errors);
     S("latency_us_p50=%.1f\nlatency_us_p99=%.1f\n", vd_daemon_latency_us(d, 0.5), vd_daemon_latency_us(d, 0.99));
     S("write_errors=%llu\ninflux_udp_sent=%llu\ninflux_udp_errors=%llu\n", (unsigned long long)d->w.write_errors,
       (unsigned long long)d->w.udp_sent, (unsigned long long)d->w.udp_errors);
@@ -504,6 +572,20 @@ static void housekeeping(vd_daemon *d, bool final)
 static void process(vd_daemon *d, const vd_item *it)
 {
     const vibid_record *rec = &it->rec;
+    if (d->rate_refused)
+        return; /* the source's rate was refused: the ring drains, nothing more is written */
+    if (d->rate && rec->kind != VIBID_REC_FAULT) {
+        if (vd_rate_check_live(d->rate, rec, d->opt.rate_check)) {
+            d->rate_refused = true;
+            atomic_store(&d->fatal, 2);
+            atomic_store(&d->stop_acq, 1);
+            return;
+        }
+        if (vd_rate_check_done(d->rate)) {
+            vd_rate_check_destroy(d->rate);
+            d->rate = NULL;
+        }
+    }
     if (rec->kind == VIBID_REC_FAULT) {
         handle_fault(d, rec);
         return;
@@ -523,6 +605,7 @@ static void process(vd_daemon *d, const vd_item *it)
         vd_writers_sample(&d->w, rec);
     }
     if (due) {
+        note_plausibility(d, &row);
         run_alarms(d, &row);
         vd_writers_row(&d->w, &row);
     }
@@ -628,6 +711,14 @@ int vd_daemon_init(vd_daemon *d, vd_config *cfg, const vd_options *opt, char *er
     }
     if (open_source(d, err, cap))
         return -1;
+    /* Live CAN: receive stamps measure the device's rate (rate_check.h). Modbus needs none:
+     * FIFO mode compares the device's period_ns at every connection, snapshot mode samples
+     * on the stand's own clock. */
+    if (!d->file_source && cfg->source_kind == VD_SRC_SOCKETCAN && opt->rate_check != VD_RATE_MODE_OFF &&
+        !(d->rate = vd_rate_check_create_live(cfg))) {
+        snprintf(err, cap, "out of memory for the sample-rate check");
+        return -1;
+    }
     /* A file source never drops (the producer waits for room), so a ring larger than
      * VD_REPLAY_RING only pushes the records out of the caches: 65536 slots of ~470 bytes
      * are 30 MB, and replay ran at half the speed it reaches with 4096 (bench_vibidd.sh). */
@@ -639,7 +730,8 @@ int vd_daemon_init(vd_daemon *d, vd_config *cfg, const vd_options *opt, char *er
         snprintf(err, cap, "out of memory for a ring of %u records", ring_size);
         return -1;
     }
-    if (vd_writers_open(&d->w, cfg, &d->rec_chanmap, err, cap))
+    vd_est_log_choices(&d->est);
+    if (vd_writers_open(&d->w, cfg, &d->rec_chanmap, d->est.choices, err, cap))
         return -1;
     return 0;
 }
@@ -729,7 +821,7 @@ int vd_daemon_run(vd_daemon *d)
               (unsigned long long)vd_ring_overflows(d->ring), vd_daemon_latency_us(d, 0.5),
               vd_daemon_latency_us(d, 0.99));
     if (atomic_load(&d->fatal))
-        return 1;
+        return atomic_load(&d->fatal) == 2 ? 2 : 1; /* 2: the source's rate was refused */
     return d->w.write_errors ? 1 : 0;
 }
 
@@ -739,6 +831,8 @@ void vd_daemon_fini(vd_daemon *d)
     vd_writers_close(&d->w);
     vibid_source_close(d->src);
     d->src = NULL;
+    vd_rate_check_destroy(d->rate);
+    d->rate = NULL;
     vd_est_free(&d->est);
     vd_ring_destroy(d->ring);
     d->ring = NULL;

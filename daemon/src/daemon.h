@@ -30,6 +30,7 @@
 #include "config.h"
 #include "estimator.h"
 #include "notify.h"
+#include "rate_check.h"
 #include "ring.h"
 #include "writers.h"
 
@@ -37,6 +38,7 @@ typedef struct vd_options {
     const char *replay;        /* --replay CAPTURE (NULL: the configured source) */
     bool pace;                 /* --pace: replay at the recorded pace */
     double speed;              /* --speed (with --pace) */
+    vd_rate_mode rate_check;   /* --rate-check (default error): capture/stand rate mismatch */
 } vd_options;
 
 #define VD_LAT_BUCKETS 20000   /* 1 us buckets up to 20 ms; the last one collects the rest */
@@ -56,6 +58,8 @@ typedef struct vd_daemon {
     vd_alarm alarm[VD_MAX_PARAMS];
     bool base_reported[VD_MAX_PARAMS];
     vd_notify notify;
+    vd_rate_check *rate;       /* live SocketCAN: the sample-rate check until it decided */
+    bool rate_refused;         /* the rate was refused: nothing more is processed */
     int efd;
     pthread_t acq_thread, est_thread;
     pthread_t main_thread;          /* runs vd_daemon_run; woken with VD_WAKE_SIGNAL when done */
@@ -73,6 +77,9 @@ typedef struct vd_daemon {
     uint64_t faults_by_code[16];
     uint64_t faults, gap_records;
     uint64_t alarms_raised;
+    bool pref_reported;        /* the plausibility reference was logged (when its zeta rule is off) */
+    bool implausible_episode;  /* rows are flagged P since sample episode_first */
+    uint64_t episode_first, episode_rows;
     uint32_t *lat_hist;        /* receipt -> estimate pushed, 1 us buckets */
     uint64_t lat_n;
     double t_start, t_last_flush, t_last_status, t_last_logstatus;
@@ -83,9 +90,15 @@ typedef struct vd_daemon {
 /* Opens everything (see the start order). 0, or -1 with err. */
 int vd_daemon_init(vd_daemon *d, vd_config *cfg, const vd_options *opt, char *err, size_t cap);
 /* Runs until SIGTERM/SIGINT or the end of a replay; returns the exit status (0 ok, 1 a
- * fatal run-time error). */
+ * fatal run-time error, 2 the live source's sample rate was refused: rate_check.h). */
 int vd_daemon_run(vd_daemon *d);
 void vd_daemon_fini(vd_daemon *d);
+
+/* --check: the sample-rate check of the capture when the source is a replay (or --replay
+ * is given); 0 with the outcome in note ("" if none), or -1 with err (refused, or the
+ * capture's configuration is wrong). */
+int vd_daemon_check_capture(const vd_config *cfg, const vd_options *opt, char *note, size_t note_cap, char *err,
+                            size_t cap);
 
 /* Latency percentile (0..1) in microseconds from the histogram, NAN when empty. */
 double vd_daemon_latency_us(const vd_daemon *d, double q);

@@ -1,5 +1,6 @@
 /* estimator.c: see estimator.h. */
 #include "estimator.h"
+#include "log.h"
 
 #include <math.h>
 #include <stdio.h>
@@ -7,6 +8,7 @@
 #include <string.h>
 
 #include <vibid/modal.h>
+#include <vibid/plausibility.h>
 
 int64_t vd_ns_to_us(int64_t t_ns)
 {
@@ -30,11 +32,16 @@ int vd_est_init(vd_est *e, const vd_config *cfg, char *err, size_t cap)
     ic.iv_lag = cfg->iv_lag;
     ic.forgetting = cfg->forgetting;
     ic.rls_alpha = cfg->rls_alpha;
+    ic.difference_order = cfg->difference_order;
     e->ident = vibid_ident_create(e->model, &ic);
     if (!e->ident) {
         snprintf(err, cap, "%s: estimator: %s", cfg->stand_file[0] ? cfg->stand_file : cfg->path, vibid_last_error());
         return -1;
     }
+    /* What the automatic estimator chose and why: for --check, the log and the tracks
+     * file's header. */
+    vibid_ident_get_config(e->ident, &e->resolved);
+    vibid_ident_describe(e->ident, e->choices, sizeof e->choices, NULL);
     vibid_ident_dims(e->ident, &e->nch, &e->p);
     if (cfg->has_start && vibid_ident_set_prior(e->ident, cfg->start_theta, NULL) != VIBID_OK) {
         snprintf(err, cap, "%s: estimator.start_values: %s", cfg->path, vibid_last_error());
@@ -51,6 +58,28 @@ int vd_est_init(vd_est *e, const vd_config *cfg, char *err, size_t cap)
         return -1;
     }
     return 0;
+}
+
+void vd_est_print_choices(const vd_est *e, FILE *out, const char *prefix)
+{
+    const char *line = e->choices;
+    while (*line) {
+        const char *nl = strchr(line, '\n');
+        int len = nl ? (int)(nl - line) : (int)strlen(line);
+        fprintf(out, "%s%.*s\n", prefix, len, line);
+        line += len + (nl ? 1 : 0);
+    }
+}
+
+void vd_est_log_choices(const vd_est *e)
+{
+    const char *line = e->choices;
+    while (*line) {
+        const char *nl = strchr(line, '\n');
+        int len = nl ? (int)(nl - line) : (int)strlen(line);
+        vd_info("%.*s", len, line);
+        line += len + (nl ? 1 : 0);
+    }
 }
 
 void vd_est_free(vd_est *e)
@@ -79,6 +108,36 @@ static void note_gap(vd_est *e, uint64_t count)
     restart_window(e);
 }
 
+/* Flags the row P when its estimate is physically impossible (a failed modal computation,
+ * NaN modes, counts too: the estimate has no physical modes). The reference for the
+ * damping-ratio rule (the stand's nominal modes) is made at the first row: it allocates,
+ * which the row rate tolerates; the check itself allocates nothing. */
+static void check_plausible(vd_est *e, vd_row *row)
+{
+    if (!e->pref_ready) {
+        if (vibid_plausibility_ref_init(e->model, NULL, &e->pref) != VIBID_OK) {
+            memset(&e->pref, 0, sizeof e->pref); /* cannot happen for a finalized model */
+            e->pref.zeta_rule = 0;
+            snprintf(e->pref.zeta_rule_off, sizeof e->pref.zeta_rule_off, "%s", vibid_last_error());
+        }
+        e->pref_ready = true;
+    }
+    unsigned found = 0;
+    const vibid_plausibility_ref *ref = e->pref.n_modes ? &e->pref : NULL;
+    if (vibid_plausibility_check(e->model, 1.0 / e->cfg->sample_rate, row->theta, row->freq, row->zeta, e->nmodes,
+                                 ref, &found, NULL, NULL, e->why, sizeof e->why) != VIBID_OK) {
+        /* an argument error (a bug): nothing can be said for the estimate, so it is not
+         * passed as plausible either */
+        snprintf(e->why, sizeof e->why, "plausibility check failed: %s", vibid_last_error());
+        found = VIBID_IMPLAUSIBLE_NONFINITE;
+    }
+    if (found) {
+        row->implausible = found;
+        row->flags |= VD_FLAG_IMPLAUSIBLE;
+        e->implausible_rows++;
+    }
+}
+
 static void fill_row(vd_est *e, const vibid_record *rec, uint64_t rel, vd_row *row)
 {
     const vd_config *cfg = e->cfg;
@@ -105,6 +164,14 @@ static void fill_row(vd_est *e, const vibid_record *rec, uint64_t rel, vd_row *r
                               cov ? row->zeta_se : NULL, NULL, NULL) != VIBID_OK) {
             for (size_t k = 0; k < e->nmodes; k++)
                 row->freq[k] = row->freq_se[k] = row->zeta[k] = row->zeta_se[k] = NAN;
+        }
+        check_plausible(e, row);
+        vibid_ident_quality q;
+        if (vibid_ident_get_quality(e->ident, &q, NULL) == VIBID_OK) {
+            if (q.flags & VIBID_QUALITY_SE_INVALID)
+                row->flags |= VD_FLAG_SE_INVALID;
+            if (q.flags & VIBID_QUALITY_NOT_EXCITED)
+                row->flags |= VD_FLAG_NOT_EXCITED;
         }
     }
     e->rows++;

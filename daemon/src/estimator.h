@@ -17,6 +17,12 @@
  * the gap; the first 2 samples after it (plus the pre-filter's settling) only refill the
  * window. The row that covers a gap carries the missing-sample count and the flag G.
  *
+ * Physically impossible estimates (vibid/plausibility.h: a mass, damper or spring <= 0, a
+ * mode at 0 Hz or at/above f_a/2, an unstable mode, or zeta >= 1 where the nominal mode is
+ * underdamped) are written as they are but flagged P (VD_FLAG_IMPLAUSIBLE), with the
+ * reason in vd_est.why; the alarms ignore such rows as they ignore rows without an
+ * estimate (vd_row_usable).
+ *
  * Sample index and time: the index of a row is counted from the run's first record
  * (index - first index), so a live run and the replay of its recording number samples
  * alike. Times are kept to the microsecond (round(t_ns / 1000)), the resolution of
@@ -26,9 +32,11 @@
 #define VIBIDD_ESTIMATOR_H
 
 #include <stdbool.h>
+#include <stdio.h>
 #include <stdint.h>
 
 #include <vibid/identify.h>
+#include <vibid/plausibility.h>
 #include <vibid_drivers/sample.h>
 
 #include "config.h"
@@ -36,8 +44,21 @@
 enum {
     VD_FLAG_GAP = 1u,       /* samples missing since the previous row */
     VD_FLAG_NOEST = 2u,     /* no estimate yet / estimate failed (values NaN) */
-    VD_FLAG_ALARM = 4u      /* a drift alarm is active */
+    VD_FLAG_ALARM = 4u,     /* a drift alarm is active */
+    VD_FLAG_IMPLAUSIBLE = 8u, /* the estimate is physically impossible (vibid/plausibility.h):
+                                written as it is, flagged P, ignored by the alarms */
+    VD_FLAG_SE_INVALID = 16u, /* U: the standard errors do not hold (VIBID_QUALITY_SE_INVALID:
+                                 the older and newer half of the data disagree, too few blocks
+                                 yet, or an LS/RLS estimator) */
+    VD_FLAG_NOT_EXCITED = 32u /* I: some parameter is hardly informed by the data (its
+                                 standard error is written as inf) */
 };
+
+/* Rows the alarms may use: an estimate exists (no E) and is physically possible (no P). */
+static inline bool vd_row_usable(unsigned flags)
+{
+    return (flags & (VD_FLAG_NOEST | VD_FLAG_IMPLAUSIBLE)) == 0;
+}
 
 typedef struct vd_row {
     int64_t t_us;           /* time of the row's sample, microseconds since the epoch */
@@ -48,6 +69,7 @@ typedef struct vd_row {
     double theta[VD_MAX_PARAMS], se[VD_MAX_PARAMS];
     double freq[VD_MAX_PARAMS], freq_se[VD_MAX_PARAMS], zeta[VD_MAX_PARAMS], zeta_se[VD_MAX_PARAMS];
     int est_status;         /* vibid_status of the estimate */
+    unsigned implausible;   /* VIBID_IMPLAUSIBLE_* bits found (flag P), 0 = plausible */
 } vd_row;
 
 typedef struct vd_est {
@@ -64,11 +86,25 @@ typedef struct vd_est {
     vd_row last;            /* the latest row (for the status) */
     bool have_last;
     int last_push_status;
+    /* physical plausibility of each row's estimate (vibid_plausibility_check); the
+     * reference (nominal modes) is computed at the first row (it allocates) */
+    bool pref_ready;
+    vibid_plausibility_ref pref;
+    uint64_t implausible_rows;
+    char why[512];          /* what the latest flagged row's estimate got wrong */
+    vibid_ident_config resolved;   /* the settings in force (automatic choices resolved) */
+    char choices[2048];            /* vibid_ident_describe: one line per choice and why */
 } vd_est;
 
 /* 0, or -1 with a message in err (cap bytes): the model is not identifiable, ... */
 int vd_est_init(vd_est *e, const vd_config *cfg, char *err, size_t cap);
 void vd_est_free(vd_est *e);
+
+/* Writes what the estimator chose and why (vibid_ident_describe), one line per choice,
+ * each line starting with prefix (e.g. "# " for the tracks header and --check). */
+void vd_est_print_choices(const vd_est *e, FILE *out, const char *prefix);
+/* The same lines in the log (info level), at start. */
+void vd_est_log_choices(const vd_est *e);
 
 /* Feeds one record. Returns 1 when *row was filled (a row is due), else 0. FAULT
  * records are not handled here (the caller logs and counts them). */

@@ -20,6 +20,7 @@ static void usage(FILE *o)
     fprintf(o,
             "usage: vibidd -c FILE [--check] [--replay CAPTURE [--pace] [--speed X]]\n"
             "              [--tracks F] [--influx F] [--record F] [--status F] [--log-level L]\n"
+            "              [--rate-check error|warn|off]\n"
             "  -c, --config FILE   configuration (libconfig; docs/vibidd.md)\n"
             "  --check             validate, print the effective configuration, exit\n"
             "  --replay CAPTURE    run the same pipeline on a capture (candump .log or CSV,\n"
@@ -28,6 +29,8 @@ static void usage(FILE *o)
             "  --tracks F, --influx F, --record F, --status F\n"
             "                      override outputs.*.path (\"\" disables that output)\n"
             "  --log-level L       error, warning, notice, info, debug (overrides log.level)\n"
+            "  --rate-check M      the capture's or device's sample rate more than 1 %% off the\n"
+            "                      stand's: error (default: exit 2), warn (go on), off\n"
             "  -h, --help          this text;  --version  version\n"
             "Signals: SIGTERM/SIGINT drain, flush and exit 0; SIGHUP reopens the output files.\n");
 }
@@ -46,8 +49,9 @@ int main(int argc, char **argv)
 {
     setlocale(LC_NUMERIC, "C"); /* strtod in the DBC/CSV parsers needs the C locale */
     const char *cfg_path = NULL, *tracks = NULL, *influx = NULL, *record = NULL, *status = NULL, *level = NULL;
+    const char *rate_check = NULL;
     bool check = false;
-    vd_options opt = {NULL, false, 1.0};
+    vd_options opt = {NULL, false, 1.0, VD_RATE_MODE_ERROR};
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i];
         const char **val = NULL;
@@ -65,6 +69,8 @@ int main(int argc, char **argv)
             val = &status;
         else if (!strcmp(a, "--log-level"))
             val = &level;
+        else if (!strcmp(a, "--rate-check"))
+            val = &rate_check;
         else if (!strcmp(a, "--check"))
             check = true;
         else if (!strcmp(a, "--pace"))
@@ -98,6 +104,14 @@ int main(int argc, char **argv)
             }
             *val = argv[++i];
         }
+    }
+    if (rate_check) {
+        int m = vd_rate_mode_parse(rate_check);
+        if (m < 0) {
+            fprintf(stderr, "vibidd: --rate-check '%s': expected error, warn or off\n", rate_check);
+            return 2;
+        }
+        opt.rate_check = (vd_rate_mode)m;
     }
     if (!cfg_path) {
         fprintf(stderr, "vibidd: no configuration: use -c FILE\n");
@@ -137,8 +151,20 @@ int main(int argc, char **argv)
             vd_config_free(&cfg);
             return 2;
         }
-        vd_est_free(&est);
+        /* a replay: the capture's sample rate against the stand's (rate_check.h); the
+         * outcome is a comment at the end of the printout */
+        static char rate_note[3 * VD_PATH_MAX];
+        if (vd_daemon_check_capture(&cfg, &opt, rate_note, sizeof rate_note, e2, sizeof e2)) {
+            vd_error("%s", e2);
+            vd_est_free(&est);
+            vd_config_free(&cfg);
+            return 2;
+        }
         vd_config_print(&cfg, stdout);
+        vd_est_print_choices(&est, stdout, "# ");
+        if (rate_note[0])
+            printf("# %s\n", rate_note);
+        vd_est_free(&est);
         vd_config_free(&cfg);
         return 0;
     }

@@ -70,13 +70,20 @@ int vd_format_tracks_header(char *buf, size_t cap, const vd_config *cfg)
     return (int)off;
 }
 
-static void flag_text(unsigned flags, char out[4])
+/* Letters in this order: G E P U I A (E and P never meet: P needs an estimate). */
+static void flag_text(unsigned flags, char out[8])
 {
     int n = 0;
     if (flags & VD_FLAG_GAP)
         out[n++] = 'G';
     if (flags & VD_FLAG_NOEST)
         out[n++] = 'E';
+    if (flags & VD_FLAG_IMPLAUSIBLE)
+        out[n++] = 'P';
+    if (flags & VD_FLAG_SE_INVALID)
+        out[n++] = 'U';
+    if (flags & VD_FLAG_NOT_EXCITED)
+        out[n++] = 'I';
     if (flags & VD_FLAG_ALARM)
         out[n++] = 'A';
     out[n] = '\0';
@@ -94,7 +101,7 @@ int vd_format_track_row(char *buf, size_t cap, const vd_config *cfg, const vd_ro
         if (put_num(buf, cap, &off, row->freq[i]) || put_num(buf, cap, &off, row->freq_se[i]) ||
             put_num(buf, cap, &off, row->zeta[i]) || put_num(buf, cap, &off, row->zeta_se[i]))
             return -1;
-    char fl[4];
+    char fl[8];
     flag_text(row->flags, fl);
     if (put(buf, cap, &off, ",%llu,%s\n", (unsigned long long)row->gap_samples, fl))
         return -1;
@@ -150,7 +157,7 @@ int vd_format_influx_row(char *buf, size_t cap, const vd_config *cfg, const char
             put_field(buf, cap, &off, &first, z, "_se", row->zeta_se[i]))
             return -1;
     }
-    char fl[4];
+    char fl[8];
     flag_text(row->flags, fl);
     if (put(buf, cap, &off, "%sindex=%llui,gap_samples=%llui,flags=\"%s\" %lld\n", first ? " " : ",",
             (unsigned long long)row->index, (unsigned long long)row->gap_samples, fl, (long long)row->t_us * 1000LL))
@@ -274,7 +281,21 @@ static int open_files(vd_writers *w, char *err, size_t cap)
 {
     const vd_config *cfg = w->cfg;
     if (cfg->tracks_path[0]) {
-        int n = vd_format_tracks_header(w->linebuf, sizeof w->linebuf, cfg);
+        /* The preamble: "# " before every line, then the column header (a CSV reader
+         * skips it with comment='#'). */
+        size_t off = 0;
+        for (const char *l = w->tracks_preamble; l && *l && off < sizeof w->linebuf / 2;) {
+            const char *nl = strchr(l, '\n');
+            int len = nl ? (int)(nl - l) : (int)strlen(l);
+            int k = snprintf(w->linebuf + off, sizeof w->linebuf / 2 - off, "# %.*s\n", len, l);
+            if (k < 0 || (size_t)k >= sizeof w->linebuf / 2 - off)
+                break;
+            off += (size_t)k;
+            l += len + (nl ? 1 : 0);
+        }
+        int n = vd_format_tracks_header(w->linebuf + off, sizeof w->linebuf - off, cfg);
+        if (n >= 0)
+            n += (int)off;
         if (!(w->tracks = open_append(cfg->tracks_path, w->linebuf, n, err, cap)))
             return -1;
     }
@@ -291,10 +312,12 @@ static int open_files(vd_writers *w, char *err, size_t cap)
     return 0;
 }
 
-int vd_writers_open(vd_writers *w, const vd_config *cfg, const vibid_chanmap *chanmap, char *err, size_t cap)
+int vd_writers_open(vd_writers *w, const vd_config *cfg, const vibid_chanmap *chanmap, const char *tracks_preamble,
+                    char *err, size_t cap)
 {
     memset(w, 0, sizeof *w);
     w->cfg = cfg;
+    w->tracks_preamble = tracks_preamble;
     w->chanmap = chanmap;
     w->stand_name = vibid_stand_name(cfg->stand);
     w->udp_fd = -1;

@@ -6,11 +6,13 @@
  *             gap_samples, flags
  *           time_s: sample time, s since the Unix epoch, to the microsecond; index:
  *           sample index from the run's start; a value that could not be computed is
- *           "nan"; flags: G (gap since the previous row), E (no estimate), A (alarm
- *           active), "" otherwise.
+ *           "nan"; flags: G (gap since the previous row), E (no estimate), P (the
+ *           estimate is physically impossible, vibid/plausibility.h: values written as
+ *           they are), A (alarm active), "" otherwise.
  *  influx   InfluxDB line protocol, to a file and/or UDP datagrams (Telegraf's
  *           socket_listener / InfluxDB's UDP service):
- *             <measurement>,stand=<name> c1=..,c1_se=..,f1_hz=..,..,gap_samples=0i,index=..i <ns>
+ *             <measurement>,stand=<name> c1=..,c1_se=..,f1_hz=..,..,index=..i,gap_samples=0i,flags="P" <ns>
+ *           (flags as in the tracks: filter on it, e.g. flags !~ /P/, to drop impossible estimates)
  *           non-finite fields are left out (line protocol has no NaN); alarm events as
  *             <measurement>_alarm,stand=<name>,parameter=<p> state="raised",value=..,baseline=..,z=.. <ns>
  *  record   raw samples as CSV: a comment line "# vibidd raw recording ...", a header
@@ -43,6 +45,7 @@ typedef struct vd_writers {
     const vd_config *cfg;
     const vibid_chanmap *chanmap; /* channels of the raw recording, in record order */
     const char *stand_name;
+    const char *tracks_preamble;  /* "# " lines before the tracks header, or NULL */
     FILE *tracks, *influx, *record;
     vibid_can_assembler *record_encoder; /* candump recording: samples -> frames (source DBC) */
     int udp_fd;
@@ -53,8 +56,11 @@ typedef struct vd_writers {
 } vd_writers;
 
 /* Opens every configured output (append mode for tracks/influx/record; a header is
- * written when the file is empty). 0, or -1 with err naming the file and errno. */
-int vd_writers_open(vd_writers *w, const vd_config *cfg, const vibid_chanmap *chanmap, char *err, size_t cap);
+ * written when the file is empty). tracks_preamble (may be NULL): lines written before
+ * the tracks' column header, each prefixed "# " (what the estimator chose and why);
+ * must live as long as w. 0, or -1 with err naming the file and errno. */
+int vd_writers_open(vd_writers *w, const vd_config *cfg, const vibid_chanmap *chanmap, const char *tracks_preamble,
+                    char *err, size_t cap);
 /* SIGHUP: closes and reopens the files (logrotate moved them away). 0 or -1 (logged). */
 int vd_writers_reopen(vd_writers *w);
 void vd_writers_row(vd_writers *w, const vd_row *row);

@@ -3,12 +3,13 @@
 // estimated and taken back to the structured unknowns by the matrix logarithm and a
 // small linear least-squares problem.
 #include <vibid/identify.h>
-#include <vibid/iv.h>
 #include <vibid/lsq.h>
+#include <vibid/modal.h>
 #include <vibid/regressor.h>
 #include <vibid/rls.h>
 
 #include "api_guard.hpp"
+#include "block_iv.hpp"
 #include "discretize_internal.hpp"
 #include "model_internal.hpp"
 
@@ -16,6 +17,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdarg>
+#include <cstdio>
 #include <memory>
 #include <string>
 #include <vector>
@@ -29,7 +32,7 @@ struct vibid_ident {
     vibid_ident_config cfg{};
     vibid_regressor *reg = nullptr;
     vibid_lsq *lsq = nullptr;
-    vibid_iv *iv = nullptr;
+    std::unique_ptr<vibid::BlockIV> biv;  // IV and AUTO: sums per block (block_iv.hpp)
     vibid_rls *rls = nullptr;
     std::size_t n = 0, p = 0, p_reg = 0, m = 0, q = 0, n_channels = 0;
     bool zoh = false;
@@ -44,6 +47,12 @@ struct vibid_ident {
     // Last estimate
     std::vector<double> cov;
     bool have_cov = false;
+    vibid_ident_quality quality{};
+    std::vector<unsigned> param_flags;
+    // Automatic choices: the highest natural frequency of the nominal model (0 = unknown)
+    // and the text of vibid_ident_describe.
+    double f_nominal_max = 0.0;
+    std::string description;
 
     vibid_ident() = default;
     vibid_ident(const vibid_ident &) = delete;
@@ -51,7 +60,6 @@ struct vibid_ident {
     ~vibid_ident() {
         vibid_regressor_destroy(reg);
         vibid_lsq_destroy(lsq);
-        vibid_iv_destroy(iv);
         vibid_rls_destroy(rls);
     }
 };
@@ -141,18 +149,143 @@ VectorXd zoh_to_theta(const vibid_ident &id, const MatrixXd &Th, vibid_log_info 
     return th.cwiseQuotient(scale);
 }
 
+// Highest natural frequency (Hz) of the model at its nominal values, 0 when the stand
+// does not give a usable nominal value for every unknown (0 = not given) or the modes
+// cannot be computed.
+double nominal_max_frequency(const vibid_model &m) {
+    const std::size_t p = m.param_term.size();
+    std::vector<double> th(p);
+    if (vibid_model_nominal(&m, th.data()) != VIBID_OK) return 0.0;
+    for (std::size_t i = 0; i < p; ++i) {
+        const vibid_param_kind k = m.terms[m.param_term[i]].kind;
+        if ((k == VIBID_PARAM_MASS || k == VIBID_PARAM_STIFFNESS) && !(th[i] > 0.0)) return 0.0;
+        if (k == VIBID_PARAM_GAIN && th[i] == 0.0) return 0.0;
+    }
+    std::vector<double> f(m.nodes.size()), z(m.nodes.size());
+    if (vibid_model_modal(&m, th.data(), nullptr, f.data(), nullptr, z.data(), nullptr, nullptr, nullptr) != VIBID_OK)
+        return 0.0;
+    double fmax = 0.0;
+    for (double v : f)
+        if (std::isfinite(v)) fmax = std::max(fmax, v);
+    return fmax;
+}
+
+std::string strprintf(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
+std::string strprintf(const char *fmt, ...) {
+    char buf[512];
+    va_list ap;
+    va_start(ap, fmt);
+    std::vsnprintf(buf, sizeof buf, fmt, ap);
+    va_end(ap);
+    return buf;
+}
+
+// Resolves every automatic setting of cfg for the model and writes why into `why`.
+vibid_ident_config resolve_config(const vibid_model &m, const vibid_ident_config &cfg, double f_nominal_max,
+                                  std::string &why) {
+    vibid_ident_config r = cfg;
+    const double h = cfg.sample_time, fa = 1.0 / h;
+    const bool zoh = m.discretization == VIBID_DISC_ZOH;
+    const bool iv_family = cfg.estimator == VIBID_ESTIMATOR_AUTO || cfg.estimator == VIBID_ESTIMATOR_IV;
+    switch (cfg.estimator) {
+    case VIBID_ESTIMATOR_AUTO:
+        why += "estimator: instrumental variables with block statistics (automatic): consistent where noise on "
+               "the measured channels biases LS and RLS, exact on noise-free data; error bars from the spread "
+               "over 32..64 blocks, valid for coloured equation errors\n";
+        break;
+    case VIBID_ESTIMATOR_IV: why += "estimator: instrumental variables with block statistics (configured)\n"; break;
+    case VIBID_ESTIMATOR_LS:
+        why += "estimator: batch least squares (configured); biased by noise on the measured channels, standard "
+               "errors assume white equation errors (flagged as not valid)\n";
+        break;
+    case VIBID_ESTIMATOR_RLS:
+        why += "estimator: recursive least squares (configured); biased by noise on the measured channels, "
+               "standard errors assume white equation errors (flagged as not valid)\n";
+        break;
+    }
+    if (zoh) {
+        r.difference_order = 2;
+        why += "discretization: ZOH difference form (1.16) of the stand (exact for held inputs)\n";
+    } else if (cfg.difference_order == 0 && iv_family && cfg.iv_lag != 0 && cfg.iv_lag < 5) {
+        r.difference_order = 2;
+        why += "differences: central differences (1.17) (automatic: the configured iv_lag is shorter than the "
+               "five-point window)\n";
+    } else if (cfg.difference_order == 0) {
+        r.difference_order = 4;
+        why += "differences: five-point stencils (automatic): bias (w h)^4/30 instead of (w h)^2/6 of (1.17)\n";
+    } else {
+        why += strprintf("differences: order %u (configured)\n", cfg.difference_order);
+    }
+    const unsigned width = r.difference_order + 1;
+    if (cfg.prefilter_hz < 0.0) {
+        double fc;
+        if (f_nominal_max > 0.0) {
+            fc = std::min(std::max(4.0 * f_nominal_max, fa / 50.0), fa / 8.0);
+            why += strprintf("pre-filter: %.4g Hz (automatic: 4 x the highest natural frequency of the nominal "
+                             "model, %.4g Hz, within [f_a/50, f_a/8])\n",
+                             fc, f_nominal_max);
+        } else {
+            // f_a / 20: a stand sampled at 20 or more samples per period of its highest
+            // mode (stand-file.md) keeps every mode in the pass band, while the content
+            // above, where the stencils' bias grows as (w h)^4 (harmonics of a cubic
+            // spring reach far up), is filtered out of the regression.
+            fc = fa / 20.0;
+            why += strprintf("pre-filter: %.4g Hz (automatic: f_a/20; the stand gives no nominal value for every "
+                             "unknown, so no natural frequency is known in advance)\n",
+                             fc);
+        }
+        r.prefilter_hz = fc;
+    } else if (cfg.prefilter_hz > 0.0) {
+        why += strprintf("pre-filter: %.4g Hz (configured)\n", cfg.prefilter_hz);
+    } else {
+        why += "pre-filter: off (configured)\n";
+    }
+    if (iv_family) {
+        if (cfg.iv_lag == 0) {
+            // Short enough that the instruments stay correlated with the regressors at
+            // every mode (a lag near a period of some mode makes a weak instrument: 2.9 %
+            // damping errors on the test chain at lag 59 against 0.13 % at 19), long
+            // enough that the filtered noise has decorrelated: one period of the
+            // pre-filter's cutoff beyond the difference window (coverage of the
+            // 2-standard-error bars 93.5-96 % on that chain, tests/model/test_auto.c).
+            const std::size_t memory =
+                r.prefilter_hz > 0.0 ? static_cast<std::size_t>(std::ceil(1.0 / (r.prefilter_hz * h))) : 2;
+            r.iv_lag = std::min<std::size_t>(width + memory, 4096);
+            why += strprintf("instrument lag: %zu samples (automatic: difference window %u + %s %zu)\n", r.iv_lag,
+                             width, r.prefilter_hz > 0.0 ? "one period of the pre-filter cutoff 1/(f_c h) =" : "margin",
+                             memory);
+        } else {
+            why += strprintf("instrument lag: %zu samples (configured)\n", cfg.iv_lag);
+        }
+    }
+    if (cfg.forgetting < 1.0)
+        why += strprintf("forgetting: %.6g (memory about %.4g samples = %.4g s)\n", cfg.forgetting,
+                         1.0 / (1.0 - cfg.forgetting), h / (1.0 - cfg.forgetting));
+    else
+        why += "forgetting: none (every sample counts alike)\n";
+    std::string held;
+    for (const auto &u : m.inputs)
+        if (u.hold == VIBID_HOLD_ZOH) held += (held.empty() ? "" : ", ") + u.name;
+    if (m.has_base && m.base_hold == VIBID_HOLD_ZOH) held += held.empty() ? "base" : ", base";
+    if (!held.empty())
+        why += "held inputs: " + held +
+               (zoh ? " (exact in the ZOH form)\n" : " (entered as their hold equivalents, regressor.h)\n");
+    return r;
+}
+
 }  // namespace
 
 extern "C" {
 
 VIBID_API void vibid_ident_config_init(vibid_ident_config *cfg, double sample_time) {
     if (!cfg) return;
-    cfg->estimator = VIBID_ESTIMATOR_LS;
+    cfg->estimator = VIBID_ESTIMATOR_AUTO;
     cfg->sample_time = sample_time;
-    cfg->prefilter_hz = 0.0;
-    cfg->iv_lag = 3;
+    cfg->prefilter_hz = -1.0;
+    cfg->iv_lag = 0;
     cfg->forgetting = 1.0;
     cfg->rls_alpha = 1e-9;
+    cfg->difference_order = 0;
 }
 
 VIBID_API vibid_ident *vibid_ident_create(const vibid_model *model, const vibid_ident_config *cfg) {
@@ -160,17 +293,35 @@ VIBID_API vibid_ident *vibid_ident_create(const vibid_model *model, const vibid_
         vibid::require_finalized(model);
         if (!cfg) throw_error(VIBID_E_NULL_ARGUMENT, "cfg is NULL");
         if (cfg->estimator != VIBID_ESTIMATOR_LS && cfg->estimator != VIBID_ESTIMATOR_IV &&
-            cfg->estimator != VIBID_ESTIMATOR_RLS)
+            cfg->estimator != VIBID_ESTIMATOR_RLS && cfg->estimator != VIBID_ESTIMATOR_AUTO)
             throw_error(VIBID_E_OUT_OF_RANGE, "estimator %d unknown", static_cast<int>(cfg->estimator));
-        if (cfg->estimator == VIBID_ESTIMATOR_IV && (cfg->iv_lag < 3 || cfg->iv_lag > 4096))
-            throw_error(VIBID_E_OUT_OF_RANGE, "iv_lag = %zu outside 3..4096 (the difference window is 3 samples)",
-                        cfg->iv_lag);
+        if (!(cfg->sample_time > 0.0) || !std::isfinite(cfg->sample_time))
+            throw_error(VIBID_E_OUT_OF_RANGE, "sample_time = %g s must be > 0 and finite", cfg->sample_time);
+        if (cfg->difference_order != 0 && cfg->difference_order != 2 && cfg->difference_order != 4)
+            throw_error(VIBID_E_OUT_OF_RANGE, "difference_order = %u: use 0 (automatic), 2 or 4",
+                        cfg->difference_order);
+        if (!(cfg->forgetting > 0.0 && cfg->forgetting <= 1.0))
+            throw_error(VIBID_E_OUT_OF_RANGE, "forgetting = %g outside (0, 1]", cfg->forgetting);
+        if (cfg->iv_lag != 0 && (cfg->iv_lag < 3 || cfg->iv_lag > 4096))
+            throw_error(VIBID_E_OUT_OF_RANGE, "iv_lag = %zu outside 3..4096 (0 = automatic)", cfg->iv_lag);
         // Identifiability before any sample.
-        check_status(vibid_model_check_identifiable(model, nullptr), "model not identifiable");
+        // The check's own message says why (not identifiable, a signal not measured, a
+        // discretization that does not support the model): no prefix that would claim
+        // "not identifiable" for all of them.
+        {
+            const vibid_status st = vibid_model_check_identifiable(model, nullptr);
+            if (st != VIBID_OK) throw_error(st, "%s", vibid_last_error());
+        }
         auto id = std::make_unique<vibid_ident>();
         id->model = *model;
-        id->cfg = *cfg;
-        id->reg = vibid_regressor_create(model, cfg->sample_time, cfg->prefilter_hz);
+        id->f_nominal_max = nominal_max_frequency(*model);
+        id->cfg = resolve_config(*model, *cfg, id->f_nominal_max, id->description);
+        const vibid_ident_config &rcfg = id->cfg;
+        if ((rcfg.estimator == VIBID_ESTIMATOR_IV || rcfg.estimator == VIBID_ESTIMATOR_AUTO) &&
+            rcfg.iv_lag < rcfg.difference_order + 1)
+            throw_error(VIBID_E_OUT_OF_RANGE, "iv_lag = %zu is shorter than the difference window (%u samples)",
+                        rcfg.iv_lag, rcfg.difference_order + 1);
+        id->reg = vibid_regressor_create_order(model, rcfg.sample_time, rcfg.prefilter_hz, rcfg.difference_order);
         if (!id->reg) throw_error(VIBID_E_OUT_OF_RANGE, "%s", vibid_last_error());
         vibid_regressor_dims rd{};
         check_status(vibid_regressor_get_dims(id->reg, &rd), "regressor");
@@ -185,16 +336,25 @@ VIBID_API vibid_ident *vibid_ident_create(const vibid_model *model, const vibid_
         id->y.assign(id->m * id->q, 0.0);
         id->rows_x.assign(id->p_reg * id->m, 0.0);
         id->rows_w.assign(id->p_reg * id->m, 0.0);
-        switch (cfg->estimator) {
+        switch (rcfg.estimator) {
         case VIBID_ESTIMATOR_LS:
             id->lsq = vibid_lsq_create(id->p_reg, id->q);
             if (!id->lsq) throw_error(VIBID_E_NO_MEMORY, "vibid_lsq_create: %s", vibid_last_error());
             break;
         case VIBID_ESTIMATOR_IV:
-            id->iv = vibid_iv_create(id->p_reg, id->q);
-            if (!id->iv) throw_error(VIBID_E_NO_MEMORY, "vibid_iv_create: %s", vibid_last_error());
-            id->ring.assign((cfg->iv_lag + 1) * id->p_reg * id->m, 0.0);
+        case VIBID_ESTIMATOR_AUTO: {
+            // Blocks much longer than the equation error's correlation (window + filter
+            // memory, i.e. about the lag): 4 (lag + window), at least 64 samples. With
+            // forgetting, 64 blocks span about 6 memories.
+            const std::size_t width = rcfg.difference_order + 1;
+            std::size_t block = std::max<std::size_t>(4 * (rcfg.iv_lag + width), 64);
+            if (rcfg.forgetting < 1.0)
+                block = std::max<std::size_t>(
+                    static_cast<std::size_t>(std::ceil(6.0 / (1.0 - rcfg.forgetting) / 64.0)), 2 * (rcfg.iv_lag + width));
+            id->biv = std::make_unique<vibid::BlockIV>(id->p_reg, id->q, rcfg.forgetting, block, 64);
+            id->ring.assign((rcfg.iv_lag + 1) * id->p_reg * id->m, 0.0);
             break;
+        }
         case VIBID_ESTIMATOR_RLS: {
             vibid_rls_config rc;
             vibid_rls_config_init(&rc, id->p_reg, id->q);
@@ -247,7 +407,7 @@ VIBID_API vibid_status vibid_ident_reset(vibid_ident *ident) {
         if (!ident) throw_error(VIBID_E_NULL_ARGUMENT, "ident is NULL");
         check_status(vibid_regressor_reset(ident->reg), "regressor reset");
         if (ident->lsq) check_status(vibid_lsq_reset(ident->lsq), "lsq reset");
-        if (ident->iv) check_status(vibid_iv_reset(ident->iv), "iv reset");
+        if (ident->biv) ident->biv->reset();
         if (ident->rls) check_status(vibid_rls_reset(ident->rls), "rls reset");
         ident->n_built = ident->n_samples = ident->n_rows = 0;
         ident->have_cov = false;
@@ -343,7 +503,14 @@ VIBID_API vibid_status vibid_ident_push(vibid_ident *ident, const double *channe
         transpose_into(ident->x.data(), p, m, ident->rows_x.data());
         s = vibid_lsq_add_rows(ident->lsq, m, ident->rows_x.data(), ident->y.data(), nullptr);
         break;
-    case VIBID_ESTIMATOR_IV: {
+    case VIBID_ESTIMATOR_IV:
+    case VIBID_ESTIMATOR_AUTO: {
+        // A cubic term of a wild sample can overflow: such a row would poison every sum.
+        if (!vibid::all_finite(ident->x.data(), p * m) || !vibid::all_finite(ident->y.data(), m * ident->q)) {
+            vibid_regressor_reset(ident->reg);
+            ident->n_built = 0;
+            return VIBID_FAIL(VIBID_E_NONFINITE, "regressor overflow (non-finite row): window restarted");
+        }
         const std::size_t L = ident->cfg.iv_lag, slots = L + 1, block = p * m;
         double *slot = ident->ring.data() + (ident->n_built % slots) * block;
         std::copy(ident->x.begin(), ident->x.end(), slot);
@@ -351,7 +518,8 @@ VIBID_API vibid_status vibid_ident_push(vibid_ident *ident, const double *channe
             const double *old = ident->ring.data() + ((ident->n_built - L) % slots) * block;
             transpose_into(ident->x.data(), p, m, ident->rows_x.data());
             transpose_into(old, p, m, ident->rows_w.data());
-            s = vibid_iv_add_rows(ident->iv, m, ident->rows_x.data(), ident->rows_w.data(), ident->y.data(), nullptr);
+            ident->biv->add(m, ident->rows_x.data(), ident->rows_w.data(), ident->y.data());
+            ident->biv->end_sample();
         }
         break;
     }
@@ -390,6 +558,9 @@ VIBID_API vibid_status vibid_ident_estimate(vibid_ident *ident, double *theta, d
         vibid_ident_info out{};
         if (id.n_rows <= pr && !(id.rls && id.has_prior))
             throw_error(VIBID_E_INSUFFICIENT_DATA, "%llu equations for %zu regressors: push more samples", id.n_rows, pr);
+        vibid_ident_quality qual{};
+        qual.z_consistency = std::nan("");
+        std::vector<int> weak;
         if (id.lsq) {
             vibid_status s = vibid_lsq_solve(id.lsq, Th.data(), &li);
             if (s == VIBID_E_NOT_IDENTIFIABLE) refuse_null_space(id, li);
@@ -399,14 +570,21 @@ VIBID_API vibid_status vibid_ident_estimate(vibid_ident *ident, double *theta, d
             for (std::size_t j = 0; j < q; ++j)
                 for (std::size_t l = 0; l < q; ++l)
                     cov_reg.block(j * pr, l * pr, pr, pr) = Sig(j, l) * Pm;
-        } else if (id.iv) {
-            vibid_status s = vibid_iv_solve(id.iv, Th.data(), &li);
-            if (s == VIBID_E_NOT_IDENTIFIABLE) refuse_null_space(id, li);
-            check_status(s, "instrumental variables");
-            // iv.h exposes standard errors only: the covariance is taken as diagonal.
-            MatrixXd se(pr, q);
-            check_status(vibid_iv_stderr(id.iv, se.data()), "instrumental-variable standard errors");
-            for (std::size_t i = 0; i < P; ++i) cov_reg(i, i) = se.data()[i] * se.data()[i];
+            qual.flags |= VIBID_QUALITY_SE_INVALID;
+        } else if (id.biv) {
+            if (id.biv->samples() * id.m <= pr)
+                throw_error(VIBID_E_INSUFFICIENT_DATA, "%llu instrumented samples for %zu regressors: push more samples",
+                            id.biv->samples(), pr);
+            const vibid::BlockIVResult res = id.biv->solve();
+            Th = res.theta;
+            cov_reg = res.cov;
+            li.rank = res.rank;
+            li.rcond = res.rcond;
+            qual.n_blocks = res.n_blocks;
+            qual.z_consistency = res.z_max;
+            weak = res.not_excited;
+            // Too few blocks for a covariance (early in a run), or the halves disagree.
+            if (!cov_reg.allFinite() || !(res.z_max <= 4.0)) qual.flags |= VIBID_QUALITY_SE_INVALID;
         } else {
             check_status(vibid_rls_theta(id.rls, Th.data()), "recursive least squares");
             MatrixXd Pm(pr, pr), Sig(q, q);
@@ -417,12 +595,36 @@ VIBID_API vibid_status vibid_ident_estimate(vibid_ident *ident, double *theta, d
                         cov_reg.block(j * pr, l * pr, pr, pr) = Sig(j, l) * Pm;
             li.rank = pr;
             li.rcond = 0.0;
+            qual.flags |= VIBID_QUALITY_SE_INVALID;
         }
         const std::size_t p = id.p;
         MatrixXd cov(p, p);
+        std::vector<unsigned> pflags(p, 0u);
         if (!id.zoh) {
             std::copy(Th.data(), Th.data() + p, theta);
             cov = cov_reg;
+            // Discretization bias: the stencils' error at the highest natural frequency
+            // of this estimate (of the nominal model when the estimate gives none), as a
+            // relative bound on every parameter, added to the variances: (w h)^2 / 6 for
+            // (1.17), (w h)^4 / 30 for five-point stencils.
+            double fmax = 0.0;
+            {
+                std::vector<double> f(id.n), z(id.n);
+                if (vibid_model_modal(&id.model, theta, nullptr, f.data(), nullptr, z.data(), nullptr, nullptr,
+                                      nullptr) == VIBID_OK)
+                    for (double v : f)
+                        if (std::isfinite(v)) fmax = std::max(fmax, v);
+                if (!(fmax > 0.0)) fmax = id.f_nominal_max;
+            }
+            const double wh = 2.0 * M_PI * fmax * id.cfg.sample_time;
+            const double rel = id.cfg.difference_order == 4 ? std::pow(wh, 4) / 30.0 : wh * wh / 6.0;
+            qual.bias_relative = rel;
+            for (std::size_t i = 0; i < p; ++i) {
+                const Eigen::Index ii = static_cast<Eigen::Index>(i);
+                cov(ii, ii) += (rel * theta[i]) * (rel * theta[i]);
+            }
+            for (std::size_t i = 0; i < p && i < weak.size(); ++i)
+                if (weak[i]) pflags[i] |= VIBID_QUALITY_NOT_EXCITED;
         } else {
             VectorXd th = zoh_to_theta(id, Th, out.log_info);
             // Standard errors through the numerical Jacobian of the whole way back.
@@ -438,17 +640,51 @@ VIBID_API vibid_status vibid_ident_estimate(vibid_ident *ident, double *theta, d
             cov = J * cov_reg * J.transpose();
             std::copy(th.data(), th.data() + p, theta);
         }
+        for (std::size_t i = 0; i < p; ++i) {
+            if (qual.flags & VIBID_QUALITY_SE_INVALID) pflags[i] |= VIBID_QUALITY_SE_INVALID;
+            if (pflags[i] & VIBID_QUALITY_NOT_EXCITED) qual.flags |= VIBID_QUALITY_NOT_EXCITED;
+        }
         if (stderr_out)
             for (std::size_t i = 0; i < p; ++i)
-                stderr_out[i] = std::sqrt(std::max(cov(static_cast<Eigen::Index>(i), static_cast<Eigen::Index>(i)), 0.0));
+                stderr_out[i] = (pflags[i] & VIBID_QUALITY_NOT_EXCITED)
+                                    ? HUGE_VAL
+                                    : std::sqrt(std::max(cov(static_cast<Eigen::Index>(i), static_cast<Eigen::Index>(i)), 0.0));
         std::copy(cov.data(), cov.data() + p * p, id.cov.begin());
         id.have_cov = true;
+        qual.rcond = li.rcond;
+        id.quality = qual;
+        id.param_flags = pflags;
         out.n_samples = id.n_samples;
         out.n_rows = id.n_rows;
         out.rank = li.rank;
         out.rcond = li.rcond;
         if (info) *info = out;
         return VIBID_OK;);
+}
+
+VIBID_API vibid_status vibid_ident_get_quality(const vibid_ident *ident, vibid_ident_quality *q, unsigned *param_flags) {
+    if (!ident) return VIBID_FAIL(VIBID_E_NULL_ARGUMENT, "ident is NULL");
+    if (!ident->have_cov) return VIBID_FAIL(VIBID_E_STATE, "no estimate yet: call vibid_ident_estimate first");
+    if (q) *q = ident->quality;
+    if (param_flags) std::copy(ident->param_flags.begin(), ident->param_flags.end(), param_flags);
+    return VIBID_OK;
+}
+
+VIBID_API vibid_status vibid_ident_get_config(const vibid_ident *ident, vibid_ident_config *cfg) {
+    if (!ident || !cfg) return VIBID_FAIL(VIBID_E_NULL_ARGUMENT, "ident and cfg are required");
+    *cfg = ident->cfg;
+    return VIBID_OK;
+}
+
+VIBID_API vibid_status vibid_ident_describe(const vibid_ident *ident, char *buf, size_t cap, size_t *len) {
+    if (!ident || (!buf && cap)) return VIBID_FAIL(VIBID_E_NULL_ARGUMENT, "ident and buf are required");
+    if (len) *len = ident->description.size();
+    if (cap) {
+        const std::size_t nb = std::min(cap - 1, ident->description.size());
+        std::copy(ident->description.begin(), ident->description.begin() + static_cast<long>(nb), buf);
+        buf[nb] = '\0';
+    }
+    return VIBID_OK;
 }
 
 VIBID_API vibid_status vibid_ident_covariance(const vibid_ident *ident, double *cov) {

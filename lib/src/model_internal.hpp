@@ -64,6 +64,7 @@ struct Input {
     std::size_t node;  // VIBID_GROUND for inputs of a full-matrix model (B holds the coupling)
     double gain;
     bool unknown;
+    vibid_hold hold = VIBID_HOLD_SMOOTH;
 };
 
 struct Channel {
@@ -83,6 +84,7 @@ struct vibid_model {
     std::vector<vibid::Input> inputs;
     std::vector<vibid::Term> matrix_terms;  // full-matrix models only
     unsigned base_measured = 0;
+    vibid_hold base_hold = VIBID_HOLD_SMOOTH;
     bool full_matrix = false;
     vibid_discretization discretization = VIBID_DISC_CENTRAL_DIFFERENCE;
     bool frozen = false;

@@ -36,7 +36,10 @@ struct vibid_regressor {
     std::size_t n = 0, r = 0, n_channels = 0;
     std::size_t p_reg = 0, m_eq = 0, q_out = 0;
     bool zoh = false;
-    // Ring of the last 3 samples' channels: slot (count - 1) % 3 is the newest.
+    unsigned order = 2;         // difference order: 2 (three-point, 1.17) or 4 (five-point)
+    unsigned width = 3;         // samples in the window: order + 1
+    unsigned centre = 1;        // age of the sample the equations describe
+    // Ring of the last `width` samples' channels: slot (count - 1) % width is the newest.
     std::vector<double> window;
     unsigned long long count = 0;
     // Pre-filter
@@ -81,23 +84,73 @@ void reset_state(vibid_regressor &g) {
     for (auto &s : g.state) s = FilterState{{0.0, 0.0, 0.0, 0.0}};
 }
 
-// Channel value of sample `age` (0 = newest, 1 = previous, 2 = the one before).
+// Channel value of sample `age` (0 = newest, 1 = previous, ...; < g.width).
 inline double chan(const vibid_regressor &g, long channel, unsigned age) {
-    const unsigned long long slot = (g.count - 1 - age) % 3;
+    const unsigned long long slot = (g.count - 1 - age) % g.width;
     return g.window[slot * g.n_channels + static_cast<std::size_t>(channel)];
 }
 
-// Quantity q (0 disp, 1 vel, 2 acc) of a node or the base at the centre sample (age 1),
-// measured when available, else central differences (1.17) of a lower quantity.
+// Value of `channel` at offset j from the centre sample (j = -2..2, j > 0 is newer).
+inline double at(const vibid_regressor &g, long channel, int j) {
+    return chan(g, channel, static_cast<unsigned>(static_cast<int>(g.centre) - j));
+}
+
+// First derivative at the centre: (1.17) for order 2, the five-point stencil
+// (x_{c-2} - 8 x_{c-1} + 8 x_{c+1} - x_{c+2}) / 12h for order 4 (error h^4 x^(5) / 30).
+inline double first_derivative(const vibid_regressor &g, long channel) {
+    if (g.order == 2) return (at(g, channel, 1) - at(g, channel, -1)) / (2.0 * g.h);
+    return (at(g, channel, -2) - 8.0 * at(g, channel, -1) + 8.0 * at(g, channel, 1) - at(g, channel, 2)) / (12.0 * g.h);
+}
+
+// Second derivative at the centre: (1.17), or the five-point stencil
+// (-x_{c+2} + 16 x_{c+1} - 30 x_c + 16 x_{c-1} - x_{c-2}) / 12h^2 (error h^4 x^(6) / 90).
+inline double second_derivative(const vibid_regressor &g, long channel) {
+    if (g.order == 2) return (at(g, channel, 1) - 2.0 * at(g, channel, 0) + at(g, channel, -1)) / (g.h * g.h);
+    return (-at(g, channel, 2) + 16.0 * at(g, channel, 1) - 30.0 * at(g, channel, 0) + 16.0 * at(g, channel, -1) -
+            at(g, channel, -2)) /
+           (12.0 * g.h * g.h);
+}
+
+// A held (ZOH) signal acts on the system like its sample sequence filtered by
+// (1 - e^{-i w h}) / (i w h) = e^{-i w h/2} sinc(w h/2): delayed by half a sample and
+// slightly low-passed (model.h, vibid_hold). Its equivalent smooth value at the centre:
+// order 2: (s_{c-1} + s_c) / 2 (error (w h)^2 / 12); order 4: the four-tap fit
+// (13 (s_{c-1} + s_c) - (s_{c-2} + s_{c+1})) / 24 (error O((w h)^4)). Its derivative is
+// exactly (1 - e^{-i w h}) / h: the backward difference, the jump at t_c over h (the
+// impulse a damper transmits).
+inline double held_value(const vibid_regressor &g, long channel) {
+    if (g.order == 2) return 0.5 * (at(g, channel, -1) + at(g, channel, 0));
+    return (13.0 * (at(g, channel, -1) + at(g, channel, 0)) - (at(g, channel, -2) + at(g, channel, 1))) / 24.0;
+}
+inline double held_derivative(const vibid_regressor &g, long channel) {
+    return (at(g, channel, 0) - at(g, channel, -1)) / g.h;
+}
+
+// Quantity q (0 disp, 1 vel, 2 acc) of a node or the base at the centre sample,
+// measured when available, else differences of a lower quantity. A held base
+// displacement gives its hold equivalents (its acceleration is never needed: the base
+// has no mass).
 inline double centre_quantity(const vibid_regressor &g, std::size_t node, int q) {
     if (node == VIBID_GROUND) return 0.0;
     const std::array<long, 3> &ch = node == VIBID_BASE ? g.model.base_channel : g.model.node_channel[node];
-    if (ch[q] != vibid::kNoChannel) return chan(g, ch[q], 1);
-    const double h = g.h;
-    if (q == 1) return (chan(g, ch[0], 0) - chan(g, ch[0], 2)) / (2.0 * h);
+    if (node == VIBID_BASE && g.model.base_hold == VIBID_HOLD_ZOH && q < 2 && ch[0] != vibid::kNoChannel)
+        return q == 0 ? held_value(g, ch[0]) : held_derivative(g, ch[0]);
+    if (ch[q] != vibid::kNoChannel) return at(g, ch[q], 0);
+    if (q == 1) return first_derivative(g, ch[0]);
     // q == 2
-    if (ch[1] != vibid::kNoChannel) return (chan(g, ch[1], 0) - chan(g, ch[1], 2)) / (2.0 * h);
-    return (chan(g, ch[0], 0) - 2.0 * chan(g, ch[0], 1) + chan(g, ch[0], 2)) / (h * h);
+    if (ch[1] != vibid::kNoChannel) return first_derivative(g, ch[1]);
+    return second_derivative(g, ch[0]);
+}
+
+// Force input j in equation row `row`. A held input is replaced by its hold equivalent,
+// except in the equation of a node whose acceleration is measured: an accelerometer
+// sampled at t_k sees the force that holds from t_k (the instantaneous equation), so
+// there the sample itself is consistent.
+inline double input_value(const vibid_regressor &g, std::size_t j, std::size_t row) {
+    const long c = g.model.input_channel[j];
+    if (g.model.inputs[j].hold != VIBID_HOLD_ZOH) return at(g, c, 0);
+    if (row < g.n && g.model.node_channel[row][2] != vibid::kNoChannel) return at(g, c, 0);
+    return held_value(g, c);
 }
 
 void build_structured(const vibid_regressor &g, double *x, double *y) {
@@ -109,7 +162,7 @@ void build_structured(const vibid_regressor &g, double *x, double *y) {
             const Signal &s = e.signal;
             double val;
             switch (s.type) {
-            case SignalType::Input: val = chan(g, g.model.input_channel[s.a], 1); break;
+            case SignalType::Input: val = input_value(g, s.a, e.row); break;
             case SignalType::Displacement: val = centre_quantity(g, s.a, 0) - centre_quantity(g, s.b, 0); break;
             case SignalType::Velocity: val = centre_quantity(g, s.a, 1) - centre_quantity(g, s.b, 1); break;
             case SignalType::Acceleration: val = centre_quantity(g, s.a, 2) - centre_quantity(g, s.b, 2); break;
@@ -150,7 +203,15 @@ extern "C" {
 
 VIBID_API vibid_regressor *vibid_regressor_create(const vibid_model *model, double sample_time,
                                                   double prefilter_hz) {
+    return vibid_regressor_create_order(model, sample_time, prefilter_hz, 2);
+}
+
+VIBID_API vibid_regressor *vibid_regressor_create_order(const vibid_model *model, double sample_time,
+                                                        double prefilter_hz, unsigned difference_order) {
     return vibid::guard_create<vibid_regressor>(__func__, [&] {
+        if (difference_order != 2 && difference_order != 4)
+            throw_error(VIBID_E_OUT_OF_RANGE, "difference_order = %u: use 2 (1.17) or 4 (five-point stencils)",
+                        difference_order);
         vibid::require_finalized(model);
         if (!(sample_time > 0.0) || !std::isfinite(sample_time))
             throw_error(VIBID_E_OUT_OF_RANGE, "sample_time = %g s must be > 0 and finite", sample_time);
@@ -177,7 +238,11 @@ VIBID_API vibid_regressor *vibid_regressor_create(const vibid_model *model, doub
             g->m_eq = g->n;
             g->q_out = 1;
         }
-        g->window.assign(3 * g->n_channels, 0.0);
+        // ZOH builds (1.16) from three consecutive samples whatever the order.
+        g->order = g->zoh ? 2 : difference_order;
+        g->width = g->order + 1;
+        g->centre = g->order / 2;
+        g->window.assign(g->width * g->n_channels, 0.0);
         g->filter_on = prefilter_hz > 0.0;
         if (g->filter_on) {
             design_butterworth4(prefilter_hz, sample_time, g->section);
@@ -201,7 +266,7 @@ VIBID_API vibid_status vibid_regressor_get_dims(const vibid_regressor *reg, vibi
     dims->n_regressors = reg->p_reg;
     dims->n_equations = reg->m_eq;
     dims->n_outputs = reg->q_out;
-    dims->latency = reg->zoh ? 0 : 1;
+    dims->latency = reg->zoh ? 0 : reg->centre;
     return VIBID_OK;
 }
 
@@ -211,10 +276,10 @@ VIBID_API vibid_status vibid_regressor_push(vibid_regressor *reg, const double *
     if (!reg || !channels || !x || !y || !ready)
         return VIBID_FAIL(VIBID_E_NULL_ARGUMENT, "reg, channels, x, y and ready are required");
     if (!vibid::all_finite(channels, reg->n_channels)) return VIBID_FAIL(VIBID_E_NONFINITE, "channel with NaN or Inf");
-    const std::size_t slot = static_cast<std::size_t>(reg->count % 3);
+    const std::size_t slot = static_cast<std::size_t>(reg->count % reg->width);
     for (std::size_t i = 0; i < reg->n_channels; ++i) reg->window[slot * reg->n_channels + i] = channels[i];
     ++reg->count;
-    if (reg->count < 3) {
+    if (reg->count < reg->width) {
         *ready = 0;
         return VIBID_OK;
     }

@@ -167,7 +167,8 @@ static void test_defaults_and_roundtrip(void **state)
     vd_config_error err;
     assert_int_equal(vd_config_load(path, &cfg, &err), 0);
     assert_int_equal(cfg.source_kind, VD_SRC_REPLAY);
-    assert_int_equal(cfg.method, VIBID_ESTIMATOR_RLS);
+    assert_int_equal(cfg.method, VIBID_ESTIMATOR_AUTO); /* the automatic estimator by default (issue 11) */
+    assert_true(cfg.prefilter_hz < 0.0 && cfg.iv_lag == 0 && cfg.difference_order == 0); /* chosen by the library */
     assert_int_equal(cfg.decimation, 200); /* f_a / 10 at 2 kHz */
     assert_int_equal(cfg.ring_size, 65536);
     assert_true(cfg.forgetting == 1.0);
@@ -203,7 +204,7 @@ static void test_start_values(void **state)
 {
     (void)state;
     const char *path = write_cfg("start.cfg", STAND SOURCE
-                                 "estimator = { start_values = ( { name = \"c1\"; value = 2.0e5; },\n"
+                                 "estimator = { method = \"rls\"; start_values = ( { name = \"c1\"; value = 2.0e5; },\n"
                                  "  { name = \"c2\"; value = 1.2e6; } ); };\n");
     vd_config cfg;
     vd_config_error err;
@@ -230,9 +231,9 @@ static void test_start_values(void **state)
     free(p1);
     expect_error("start_ls.cfg", STAND SOURCE "estimator = { method = \"ls\"; start_values = ( ); };\n",
                  ":12: estimator.start_values:", "only the rls method");
-    expect_error("start_name.cfg", STAND SOURCE "estimator = { start_values = ( { name = \"k9\"; value = 1.0; } ); };\n",
+    expect_error("start_name.cfg", STAND SOURCE "estimator = { method = \"rls\"; start_values = ( { name = \"k9\"; value = 1.0; } ); };\n",
                  ":12: estimator.start_values.[0].name:", "'k9' is not an unknown parameter");
-    expect_error("start_value.cfg", STAND SOURCE "estimator = { start_values = ( { name = \"d\"; } ); };\n",
+    expect_error("start_value.cfg", STAND SOURCE "estimator = { method = \"rls\"; start_values = ( { name = \"d\"; } ); };\n",
                  ":12: estimator.start_values.[0].value:", "missing");
 }
 

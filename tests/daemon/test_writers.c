@@ -94,6 +94,13 @@ static void test_track_row(void **state)
     assert_true(vd_format_track_row(buf, sizeof buf, &cfg, &r) > 0);
     assert_true(strncmp(buf, "-1.500000,42,", 13) == 0);
     assert_non_null(strstr(buf, ",3,E\n"));
+    /* a physically impossible estimate: P, between E's place and A */
+    r.flags = VD_FLAG_GAP | VD_FLAG_IMPLAUSIBLE | VD_FLAG_ALARM;
+    assert_true(vd_format_track_row(buf, sizeof buf, &cfg, &r) > 0);
+    assert_non_null(strstr(buf, ",3,GPA\n"));
+    r.flags = VD_FLAG_IMPLAUSIBLE;
+    assert_true(vd_format_influx_row(buf, sizeof buf, &cfg, "s", &r) > 0);
+    assert_non_null(strstr(buf, ",flags=\"P\" "));
 }
 
 static void test_influx(void **state)

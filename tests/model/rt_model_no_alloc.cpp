@@ -153,7 +153,7 @@ void run_ident(const vibid_model *m, vibid_estimator est, double prefilter_hz) {
     vibid_ident_config_init(&cfg, 5e-4);
     cfg.estimator = est;
     cfg.prefilter_hz = prefilter_hz;
-    cfg.forgetting = est == VIBID_ESTIMATOR_RLS ? 0.999 : 1.0;
+    cfg.forgetting = est == VIBID_ESTIMATOR_RLS || est == VIBID_ESTIMATOR_AUTO ? 0.999 : 1.0;
     if (est == VIBID_ESTIMATOR_IV) cfg.iv_lag = prefilter_hz > 0 ? 30 : 3;
     vibid_ident *id = vibid_ident_create(m, &cfg);
     assert_non_null(id);
@@ -188,8 +188,8 @@ void test_ident_no_alloc(void **state) {
     (void)state;
     vibid_model *cd = make_model(true, VIBID_DISC_CENTRAL_DIFFERENCE);
     vibid_model *zoh = make_model(false, VIBID_DISC_ZOH);
-    for (vibid_estimator est : {VIBID_ESTIMATOR_LS, VIBID_ESTIMATOR_IV, VIBID_ESTIMATOR_RLS})
-        for (double pf : {0.0, 150.0}) {
+    for (vibid_estimator est : {VIBID_ESTIMATOR_LS, VIBID_ESTIMATOR_IV, VIBID_ESTIMATOR_RLS, VIBID_ESTIMATOR_AUTO})
+        for (double pf : {0.0, 150.0, -1.0 /* automatic */}) {
             run_ident(cd, est, pf);
             run_ident(zoh, est, pf);
         }

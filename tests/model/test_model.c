@@ -448,6 +448,50 @@ static void test_loader(void **state) {
     remove(path);
 }
 
+/* `hold` of inputs and the base: declarations reach the model (vibid_model_get_hold);
+ * wrong values are errors at their line naming the field. */
+static void test_loader_hold(void **state) {
+    (void)state;
+    vibid_stand_error err;
+    const char *path = "test_loader_hold.cfg";
+    write_file(path, "stand = {\n  sample_rate = 1000.0;\n  nodes = ( { name = \"m1\"; mass = 1.0; } );\n"
+                     "  base = { hold = \"zoh\"; };\n"
+                     "  elements = ( { name = \"k\"; kind = \"spring\"; between = [\"m1\", \"base\"]; value = 1.0; } );\n"
+                     "  inputs = ( { name = \"f1\"; node = \"m1\"; channel = \"F1\"; hold = \"zoh\"; },\n"
+                     "             { name = \"f2\"; node = \"m1\"; channel = \"F2\"; hold = \"smooth\"; },\n"
+                     "             { name = \"f3\"; node = \"m1\"; channel = \"F3\"; } );\n};\n");
+    vibid_stand *st = vibid_stand_load(path, &err);
+    if (!st) fail_msg("%s", err.text);
+    vibid_hold hd;
+    static const vibid_hold want[3] = {VIBID_HOLD_ZOH, VIBID_HOLD_SMOOTH, VIBID_HOLD_SMOOTH};
+    for (size_t j = 0; j < 3; ++j) {
+        assert_int_equal(vibid_model_get_hold(vibid_stand_model(st), j, &hd), VIBID_OK);
+        assert_int_equal(hd, want[j]);
+    }
+    assert_int_equal(vibid_model_get_hold(vibid_stand_model(st), VIBID_BASE, &hd), VIBID_OK);
+    assert_int_equal(hd, VIBID_HOLD_ZOH);
+    vibid_stand_destroy(st);
+
+    write_file(path, "stand = {\n  sample_rate = 1000.0;\n  nodes = ( { name = \"m1\"; mass = 1.0; } );\n"
+                     "  inputs = ( { name = \"f1\"; node = \"m1\"; channel = \"F1\";\n"
+                     "    hold = \"held\"; } );\n};\n");
+    assert_null(vibid_stand_load(path, &err));
+    printf("  loader error: %s\n", err.text);
+    assert_int_equal(err.line, 5);
+    assert_string_equal(err.field, "stand.inputs.[0].hold");
+    assert_non_null(strstr(err.text, "test_loader_hold.cfg:5: stand.inputs.[0].hold: 'held': use \"zoh\" or \"smooth\""));
+
+    write_file(path, "stand = {\n  sample_rate = 1000.0;\n  nodes = ( { name = \"m1\"; mass = 1.0; } );\n"
+                     "  base = {\n    hold = 1;\n  };\n"
+                     "  elements = ( { name = \"k\"; kind = \"spring\"; between = [\"m1\", \"base\"]; value = 1.0; } );\n};\n");
+    assert_null(vibid_stand_load(path, &err));
+    printf("  loader error: %s\n", err.text);
+    assert_int_equal(err.line, 5);
+    assert_string_equal(err.field, "stand.base.hold");
+    assert_non_null(strstr(err.text, "must be a string"));
+    remove(path);
+}
+
 int main(void) {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_zoh_noise_free),
@@ -460,6 +504,7 @@ int main(void) {
         cmocka_unit_test(test_modal_standard_errors),
         cmocka_unit_test(test_discretization_round_trip),
         cmocka_unit_test(test_loader),
+        cmocka_unit_test(test_loader_hold),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -1,7 +1,9 @@
 /* sim.accuracy: the simulator's sampled output against the exact zero-order-hold
  * solution (1.12) x_{k+1} = G x_k + Gamma v_k computed by vibid_zoh (augmented matrix
  * exponential), on linear one- and two-mass stands. Bar (issue 5): 1e-8 relative,
- * measured as max_k |y_sim - y_exact| / max_k |y_exact| per channel kind. */
+ * measured as max_k |y_sim - y_exact| / max_k |y_exact| per channel kind. The inputs are
+ * held: declared `hold = "zoh"` in the stand, or by the override simulation.hold = "zoh".
+ * (Held bases with dampers and smooth inputs: test_hold.c.) */
 #include <math.h>
 #include <setjmp.h>
 #include <stdarg.h>
@@ -122,7 +124,7 @@ static void test_one_mass_force(void **state)
         "  nodes = ( { name = \"m1\"; mass = 2.0; measure = { displacement = \"x1\"; velocity = \"v1\"; acceleration = \"a1\"; }; } );\n"
         "  elements = ( { name = \"c\"; kind = \"spring\"; between = [\"m1\", \"ground\"]; value = 8.0e4; },\n"
         "               { name = \"d\"; kind = \"damper\"; between = [\"m1\", \"ground\"]; value = 20.0; } );\n"
-        "  inputs = ( { name = \"f1\"; node = \"m1\"; gain = 1.0; channel = \"F\"; } ); };\n"
+        "  inputs = ( { name = \"f1\"; node = \"m1\"; gain = 1.0; channel = \"F\"; hold = \"zoh\"; } ); };\n"
         "simulation = { seed = 3; excitation = (\n"
         "  { target = \"f1\"; kind = \"prbs\"; amplitude = 10.0; order = 9; samples_per_bit = 3; },\n"
         "  { target = \"f1\"; kind = \"sine\"; amplitude = 5.0; frequency = 17.0; } ); };\n";
@@ -138,7 +140,7 @@ static void test_two_mass_base(void **state)
         "stand = { name = \"two_mass\"; sample_rate = 2000.0;\n"
         "  nodes = ( { name = \"m1\"; mass = 10.0; measure = { displacement = \"x1\"; velocity = \"v1\"; }; },\n"
         "            { name = \"m2\"; mass = 20.0; measure = { displacement = \"x2\"; acceleration = \"a2\"; }; } );\n"
-        "  base = { measure = { displacement = \"s\"; }; };\n"
+        "  base = { hold = \"zoh\"; measure = { displacement = \"s\"; }; };\n"
         "  elements = ( { name = \"c1\"; kind = \"spring\"; between = [\"m1\", \"m2\"]; unknown = true; true_value = 2.5e5; },\n"
         "               { name = \"d\"; kind = \"damper\"; between = [\"m1\", \"m2\"]; unknown = true; true_value = 300.0; },\n"
         "               { name = \"c2\"; kind = \"spring\"; between = [\"m2\", \"base\"]; unknown = true; true_value = 1.5e6; } ); };\n"
@@ -159,7 +161,7 @@ static void test_two_mass_force_noise(void **state)
         "               { name = \"c2\"; kind = \"spring\"; between = [\"m2\", \"ground\"]; value = 2.0e4; },\n"
         "               { name = \"d2\"; kind = \"damper\"; between = [\"m2\", \"ground\"]; value = 4.0; } );\n"
         "  inputs = ( { name = \"f1\"; node = \"m1\"; gain = 2.0; channel = \"F\"; } ); };\n"
-        "simulation = { seed = 11; excitation = ( { target = \"f1\"; kind = \"noise\"; amplitude = 3.0; f_low = 1.0; f_high = 100.0; } ); };\n";
+        "simulation = { seed = 11; hold = \"zoh\"; excitation = ( { target = \"f1\"; kind = \"noise\"; amplitude = 3.0; f_low = 1.0; f_high = 100.0; } ); };\n";
     double worst = compare_with_zoh("acc_two_mass_f.cfg", text, 3000);
     assert_true(worst < 1e-8);
 }
@@ -174,7 +176,7 @@ static void test_step_change(void **state)
         "  nodes = ( { name = \"m1\"; mass = 2.0; measure = { displacement = \"x1\"; }; } );\n"
         "  elements = ( { name = \"c\"; kind = \"spring\"; between = [\"m1\", \"ground\"]; unknown = true; true_value = 8.0e4; },\n"
         "               { name = \"d\"; kind = \"damper\"; between = [\"m1\", \"ground\"]; value = 20.0; } );\n"
-        "  inputs = ( { name = \"f1\"; node = \"m1\"; gain = 1.0; channel = \"F\"; } ); };\n"
+        "  inputs = ( { name = \"f1\"; node = \"m1\"; gain = 1.0; channel = \"F\"; hold = \"zoh\"; } ); };\n"
         "simulation = { excitation = ( { target = \"f1\"; kind = \"sine\"; amplitude = 10.0; frequency = 23.0; } );\n"
         "  changes = ( { parameter = \"c\"; at = 0.5; factor = 0.9; } ); };\n";
     const char *path = write_tmp("acc_step.cfg", text);

@@ -14,6 +14,7 @@
  *       (2.14 a).
  *  RLS  recursive least squares (2.6)/(2.7), Bierman form, with forgetting: for tracking
  *       and the daemon. The per-sample push is real-time safe in this mode.
+ *  AUTO (default) IV with block statistics, settings chosen from the model; below.
  * With the regressor pre-filter (prefilter_hz > 0) the noise that central differences
  * amplify is removed before it reaches any estimator; for example 1 of the paper at
  * 1 % noise that is what brings every estimator from tens of percent to below 1 %
@@ -43,18 +44,47 @@ typedef struct vibid_ident vibid_ident;
 typedef enum vibid_estimator {
     VIBID_ESTIMATOR_LS = 0,
     VIBID_ESTIMATOR_IV = 1,
-    VIBID_ESTIMATOR_RLS = 2
+    VIBID_ESTIMATOR_RLS = 2,
+    VIBID_ESTIMATOR_AUTO = 3   /* the default: chosen from the model (see below) */
 } vibid_estimator;
 
+/* The automatic estimator (VIBID_ESTIMATOR_AUTO, the default of vibid_ident_config_init)
+ * and the automatic settings (the "0 / negative = automatic" values below). What it
+ * chooses and why, in words: vibid_ident_describe; the settings: vibid_ident_get_config.
+ *  - estimator: instrumental variables with block statistics (the IV below). Noise on
+ *    any measured channel that enters the regressor biases LS and RLS (badly with
+ *    differences: +100 % and more at 1 % noise); IV is consistent with noise and exact
+ *    without. Recursive in the sense that matters: the per-sample push is O(p^2 m) and
+ *    allocation-free, an estimate is formed from the running sums when asked for; with
+ *    forgetting < 1 the sums are exponentially weighted (tracking).
+ *  - difference_order 4 (five-point stencils: bias (w h)^4 / 30 instead of (w h)^2 / 6).
+ *  - prefilter_hz: 4 times the highest natural frequency of the nominal model (when the
+ *    stand gives nominal values for every unknown), else f_a / 20; kept within
+ *    [f_a / 50, f_a / 8].
+ *  - iv_lag: the difference window plus one period of the pre-filter's cutoff,
+ *    1 / (prefilter_hz h): long enough for the filtered noise to decorrelate, short
+ *    enough that the instruments stay correlated with the regressors at every mode.
+ * Each of these can be set explicitly and then overrides the choice.
+ *
+ * Error bars (every estimator but plain LS and RLS): the covariance is taken from the
+ * spread of the estimating equations over 32..64 blocks of consecutive samples (batch
+ * means), which holds for the coloured equation errors that differences and the
+ * pre-filter produce; the remaining discretization bias, bounded by
+ * |theta_i| (w_max h)^2 / 6 for (1.17) and |theta_i| (w_max h)^4 / 30 for five-point
+ * stencils (w_max the highest natural frequency of the estimate), is added to each
+ * variance. A consistency check compares the estimates of
+ * the older and the newer half of the blocks (vibid_ident_get_quality). LS and RLS report
+ * the textbook covariance, which assumes white equation errors: their quality says
+ * VIBID_QUALITY_SE_INVALID. */
 typedef struct vibid_ident_config {
-    vibid_estimator estimator;
+    vibid_estimator estimator; /* default VIBID_ESTIMATOR_AUTO */
     double sample_time;   /* h in s, > 0 */
-    double prefilter_hz;  /* pre-filter cutoff in Hz, 0 = off (regressor.h) */
-    size_t iv_lag;        /* IV instrument delay in samples, 3..4096; default 3 without
-                             pre-filter (the difference window is 3 samples), with
-                             pre-filter about 4 / (prefilter_hz h) (its memory) */
-    double forgetting;    /* RLS forgetting gamma in (0, 1], default 1 */
+    double prefilter_hz;  /* pre-filter cutoff in Hz (regressor.h); 0 = off; < 0 = automatic (default) */
+    size_t iv_lag;        /* instrument delay in samples (IV, AUTO), 3..4096; 0 = automatic (default):
+                             the difference window plus 1 / (prefilter_hz h) */
+    double forgetting;    /* forgetting gamma in (0, 1], default 1 (RLS, and the AUTO/IV sums) */
     double rls_alpha;     /* RLS P0 = alpha^-1 I, > 0, default 1e-9 (weak prior) */
+    unsigned difference_order; /* 2 (1.17) or 4 (five-point), 0 = automatic (default: 4) */
 } vibid_ident_config;
 
 typedef struct vibid_ident_info {
@@ -65,7 +95,26 @@ typedef struct vibid_ident_info {
     vibid_log_info log_info;        /* ZOH only: the way back's report */
 } vibid_ident_info;
 
-/* Defaults for sample time h (s): LS, no pre-filter, iv_lag 3, forgetting 1, alpha 1e-9. */
+/* Quality of the last estimate (vibid_ident_get_quality). */
+#define VIBID_QUALITY_SE_INVALID 1u   /* the error bars do not hold: the consistency check failed
+                                         (|z| > 4), too few blocks, or an estimator whose standard
+                                         errors assume white equation errors (LS, RLS) */
+#define VIBID_QUALITY_NOT_EXCITED 2u  /* a parameter lies in a direction the data hardly inform
+                                         (scaled information below 1e-7 of the strongest): its
+                                         standard error is reported as infinite */
+
+typedef struct vibid_ident_quality {
+    unsigned flags;          /* VIBID_QUALITY_* bits for the estimate as a whole */
+    double z_consistency;    /* max over parameters of |theta_old - theta_new| / sqrt(var_old + var_new)
+                                between the older and the newer half of the blocks; NaN when not
+                                available (too few blocks, or LS/RLS) */
+    size_t n_blocks;         /* blocks behind the covariance (0 for LS/RLS) */
+    double rcond;            /* reciprocal condition of the scaled estimating equations */
+    double bias_relative;    /* relative discretization-bias bound included in the standard errors */
+} vibid_ident_quality;
+
+/* Defaults for sample time h (s): AUTO estimator, automatic pre-filter, lag and
+ * difference order, forgetting 1, alpha 1e-9. */
 VIBID_API void vibid_ident_config_init(vibid_ident_config *cfg, double sample_time);
 
 /* Creates an identification for a finalized model (copied). Runs
@@ -120,6 +169,19 @@ VIBID_API vibid_status vibid_ident_estimate(vibid_ident *ident, double *theta, d
 /* Covariance of the last estimate (p x p), consistent with its standard errors. Valid
  * after a successful vibid_ident_estimate. */
 VIBID_API vibid_status vibid_ident_covariance(const vibid_ident *ident, double *cov);
+
+/* Quality of the last successful vibid_ident_estimate: whole-estimate flags and figures
+ * (q, may be NULL) and per-parameter flags (param_flags, p entries, may be NULL:
+ * VIBID_QUALITY_* bits that concern that parameter). VIBID_E_STATE before an estimate. */
+VIBID_API vibid_status vibid_ident_get_quality(const vibid_ident *ident, vibid_ident_quality *q, unsigned *param_flags);
+
+/* The settings in force after the automatic choices (every "automatic" field resolved). */
+VIBID_API vibid_status vibid_ident_get_config(const vibid_ident *ident, vibid_ident_config *cfg);
+
+/* What was chosen and why, one line per choice ("estimator: ... because ..."), into buf
+ * (cap bytes, always NUL-terminated); the full length is returned in *len (may be NULL).
+ * The same text for the same model and configuration. */
+VIBID_API vibid_status vibid_ident_describe(const vibid_ident *ident, char *buf, size_t cap, size_t *len);
 
 #ifdef __cplusplus
 }

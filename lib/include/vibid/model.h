@@ -88,6 +88,23 @@ typedef enum vibid_discretization {
     VIBID_DISC_ZOH = 1
 } vibid_discretization;
 
+/* How an input (a force input u_j, or the base displacement s) behaves between samples.
+ *  SMOOTH  the samples are taken from a continuous, smooth signal (an analog sensor, a
+ *          sine from a signal generator). Default.
+ *  ZOH     the signal is held constant over [t_k, t_k + h) and jumps at t_k (a DAC
+ *          output, a controller's set point updated once per sample) (1.10). A held base
+ *          displacement jumps by s_k - s_{k-1} at t_k: a damper (or a cubic spring's
+ *          rate) to the base transmits that jump as an impulse d (s_k - s_{k-1}), i.e.
+ *          the node's velocity jumps by d (s_k - s_{k-1}) / m. A held signal is, to the
+ *          system, its sample sequence delayed by h/2 and low-passed by sinc(omega h / 2):
+ *          treated as if sampled at the instant, it biases every damping (a phase error
+ *          of omega h / 2). The identification accounts for it (regressor.h), and the
+ *          simulator produces it (docs/sim.md). */
+typedef enum vibid_hold {
+    VIBID_HOLD_SMOOTH = 0,
+    VIBID_HOLD_ZOH = 1
+} vibid_hold;
+
 typedef enum vibid_param_kind {
     VIBID_PARAM_MASS = 0,      /* kg (an entry of M for full-matrix models) */
     VIBID_PARAM_DAMPING = 1,   /* N s/m (an entry of D) */
@@ -188,6 +205,13 @@ VIBID_API vibid_status vibid_model_set_measured(vibid_model *model, size_t node,
 VIBID_API vibid_status vibid_model_set_matrices(vibid_model *model, size_t n_dof, size_t n_inputs,
                                                 const double *M, const double *D, const double *C,
                                                 const double *B, unsigned unknown_mask);
+
+/* Declares how input `input` (an input index, or VIBID_BASE for the base displacement)
+ * behaves between samples (vibid_hold; default SMOOTH). On an editable model; the base
+ * may be declared before any element touches it. */
+VIBID_API vibid_status vibid_model_set_hold(vibid_model *model, size_t input, vibid_hold hold);
+/* The declaration of input `input` (index or VIBID_BASE); works in any state. */
+VIBID_API vibid_status vibid_model_get_hold(const vibid_model *model, size_t input, vibid_hold *hold);
 
 /* Chooses the discretization used for identification (default CENTRAL_DIFFERENCE). */
 VIBID_API vibid_status vibid_model_set_discretization(vibid_model *model, vibid_discretization disc);

@@ -47,7 +47,8 @@ typedef struct vibid_regressor_dims {
     size_t n_regressors; /* p_reg */
     size_t n_equations;  /* m */
     size_t n_outputs;    /* q */
-    size_t latency;      /* samples between the newest sample and the one the rows describe (1 or 2) */
+    size_t latency;      /* samples between the newest sample and the one the rows describe (0 for ZOH,
+                            1 for central differences, 2 for five-point stencils) */
 } vibid_regressor_dims;
 
 /* Creates a builder for a finalized model (copied; the model may be destroyed).
@@ -57,6 +58,22 @@ typedef struct vibid_regressor_dims {
  * without the identifiability part). NULL on failure, reason in vibid_last_error(). */
 VIBID_API vibid_regressor *vibid_regressor_create(const vibid_model *model, double sample_time,
                                                   double prefilter_hz);
+/* As vibid_regressor_create, with the order of the differences that replace unmeasured
+ * derivatives (structured form only; ZOH always uses three samples):
+ *   2  central differences (1.17), window of 3 samples, latency 1, bias (w h)^2 / 6 on
+ *      a first and (w h)^2 / 12 on a second derivative of a component at w (rad/s);
+ *   4  five-point stencils, window of 5 samples, latency 2, bias (w h)^4 / 30 and
+ *      (w h)^4 / 90 (2e-5 and 7e-6 at 40 samples per period). They amplify white noise
+ *      near Nyquist a little more (by 4/3 in amplitude); the pre-filter removes it.
+ * Held inputs (vibid_model_set_hold) enter as their hold equivalents of the same order:
+ *   value   order 2: (s_{c-1} + s_c) / 2; order 4: (13 (s_{c-1} + s_c) - (s_{c-2} + s_{c+1})) / 24
+ *   rate    (s_c - s_{c-1}) / h (exact: the impulse of the jump at t_c, spread over h)
+ * where c is the centre sample; a held force in the equation of a node whose acceleration
+ * is measured enters as sampled (the accelerometer at t_k sees the force held from t_k).
+ * vibid_regressor_create is this function with order 2. */
+VIBID_API vibid_regressor *vibid_regressor_create_order(const vibid_model *model, double sample_time,
+                                                        double prefilter_hz, unsigned difference_order);
+
 /* Forgets the sample history and the filter state. */
 VIBID_API vibid_status vibid_regressor_reset(vibid_regressor *reg);
 VIBID_API void vibid_regressor_destroy(vibid_regressor *reg);
@@ -66,7 +83,7 @@ VIBID_API vibid_status vibid_regressor_get_dims(const vibid_regressor *reg, vibi
  *   channels  n_channels values in the model's channel layout (model.h), finite.
  *   x         out: p_reg x m (column-major), written when *ready != 0.
  *   y         out: m x q (column-major), written when *ready != 0.
- *   ready     out: 0 while the window is filling (the first 2 samples), 1 after.
+ *   ready     out: 0 while the window is filling (the first 2, or 4 with order 4), 1 after.
  * Non-finite input gives VIBID_E_NONFINITE and leaves the builder unchanged (a gap:
  * call vibid_regressor_reset to restart the window). Allocates nothing. */
 VIBID_API vibid_status vibid_regressor_push(vibid_regressor *reg, const double *channels, double *x, double *y,

@@ -13,4 +13,5 @@
 #include <vibid/identify.h>
 #include <vibid/io_form.h>
 #include <vibid/kf_rls.h>
+#include <vibid/plausibility.h>
 #endif

@@ -148,6 +148,28 @@ static int read_measure(const ctx *c, const config_setting_t *g, const char *pat
     return 0;
 }
 
+/* Optional `hold = "zoh" | "smooth"` of an input or the base (vibid_hold: how the signal
+ * behaves between samples; the simulator produces it, the identification accounts for
+ * it). Sets it on the model; absent = the model's default (smooth). 0, or -1 after an
+ * error. */
+static int read_hold(const ctx *c, vibid_model *m, const config_setting_t *g, const char *path, size_t input) {
+    const char *hs = NULL;
+    int r = get_string(c, g, path, "hold", &hs);
+    if (r <= 0) return r;
+    char f[160];
+    child_path(f, sizeof f, path, "hold", 0);
+    const config_setting_t *s = config_setting_get_member(g, "hold");
+    vibid_hold hold;
+    if (!strcmp(hs, "zoh"))
+        hold = VIBID_HOLD_ZOH;
+    else if (!strcmp(hs, "smooth"))
+        hold = VIBID_HOLD_SMOOTH;
+    else
+        return fail(c, s, f, "'%s': use \"zoh\" or \"smooth\"", hs);
+    vibid_status st = vibid_model_set_hold(m, input, hold);
+    return st == VIBID_OK ? 0 : lib_fail(c, s, f, st);
+}
+
 static char *dup_string(const char *s) {
     size_t n = strlen(s) + 1;
     char *d = malloc(n);
@@ -399,6 +421,7 @@ vibid_stand *vibid_stand_from_setting(const void *setting_v, const char *file, v
             unsigned mask;
             if (read_measure(&c, base, "stand.base", &mask, pd->base_names)) goto fail;
             vibid_model_set_measured(m, VIBID_BASE, mask);
+            if (read_hold(&c, m, base, "stand.base", VIBID_BASE)) goto fail;
         }
         const config_setting_t *els = config_setting_get_member(g, "elements");
         for (int i = 0; els && i < config_setting_length(els); ++i) {
@@ -471,10 +494,12 @@ vibid_stand *vibid_stand_from_setting(const void *setting_v, const char *file, v
                 fail(&c, config_setting_get_member(e, "node"), f, "'%s' is not a declared node", node);
                 goto fail;
             }
-            if ((s = vibid_model_add_input(m, nm, idx, gain, unknown, NULL)) != VIBID_OK) {
+            size_t in_idx;
+            if ((s = vibid_model_add_input(m, nm, idx, gain, unknown, &in_idx)) != VIBID_OK) {
                 lib_fail(&c, e, p, s);
                 goto fail;
             }
+            if (read_hold(&c, m, e, p, in_idx)) goto fail;
             pd->input_names[pd->n_inputs++] = chan;
         }
     }

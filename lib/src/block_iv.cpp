@@ -1,0 +1,260 @@
+// block_iv.cpp: see block_iv.hpp.
+#include "block_iv.hpp"
+
+#include "api_guard.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+using Eigen::Index;
+using Eigen::MatrixXd;
+using Eigen::VectorXd;
+
+namespace vibid {
+
+namespace {
+
+void zero_block(MatrixXd &G, MatrixXd &c, VectorXd &xx, VectorXd &ww) {
+    G.setZero();
+    c.setZero();
+    xx.setZero();
+    ww.setZero();
+}
+
+// Solution of the weighted sums of a range of blocks, with its batch-means covariance.
+struct Partial {
+    MatrixXd theta, cov;
+    double rcond = 0.0;
+    std::size_t rank = 0;
+    std::vector<int> weak;
+    bool ok = false;
+};
+
+}  // namespace
+
+BlockIV::BlockIV(std::size_t p, std::size_t q, double gamma, std::size_t block_len, std::size_t k_max)
+    : p_(p), q_(q), k_max_(k_max), gamma_(gamma), block_len0_(std::max<std::size_t>(block_len, 1)),
+      block_len_(block_len0_) {
+    const Index P = static_cast<Index>(p), Q = static_cast<Index>(q);
+    auto init = [&](Block &b) {
+        b.G = MatrixXd::Zero(P, P);
+        b.c = MatrixXd::Zero(P, Q);
+        b.xx = VectorXd::Zero(P);
+        b.ww = VectorXd::Zero(P);
+    };
+    blocks_.resize(k_max_);
+    for (auto &b : blocks_) init(b);
+    init(cur_);
+    reset();
+}
+
+void BlockIV::reset() {
+    for (auto &b : blocks_) {
+        zero_block(b.G, b.c, b.xx, b.ww);
+        b.n = b.end = 0;
+    }
+    zero_block(cur_.G, cur_.c, cur_.xx, cur_.ww);
+    cur_.n = cur_.end = 0;
+    n_closed_ = head_ = 0;
+    block_len_ = block_len0_;
+    samples_ = 0;
+    cur_scale_ = 1.0;
+}
+
+void BlockIV::add(std::size_t n_rows, const double *X, const double *W, const double *Y) {
+    // Within the current block a row of sample j (0-based) carries gamma^-j; the block
+    // is brought to "as of its last sample" when it closes (factor at most e^0.2, see
+    // the block length chosen for gamma < 1, so nothing overflows).
+    const double f = cur_scale_;
+    const Index P = static_cast<Index>(p_), Q = static_cast<Index>(q_);
+    for (std::size_t r = 0; r < n_rows; ++r) {
+        for (Index j = 0; j < P; ++j) {
+            const double xj = X[r + static_cast<std::size_t>(j) * n_rows] * f;
+            cur_.xx(j) += xj * X[r + static_cast<std::size_t>(j) * n_rows];
+            if (xj == 0.0) continue;
+            for (Index i = 0; i < P; ++i) cur_.G(i, j) += W[r + static_cast<std::size_t>(i) * n_rows] * xj;
+        }
+        for (Index i = 0; i < P; ++i) {
+            const double wi = W[r + static_cast<std::size_t>(i) * n_rows];
+            cur_.ww(i) += f * wi * wi;
+            const double fwi = f * wi;
+            for (Index k = 0; k < Q; ++k) cur_.c(i, k) += fwi * Y[r + static_cast<std::size_t>(k) * n_rows];
+        }
+    }
+}
+
+void BlockIV::end_sample() {
+    ++cur_.n;
+    ++samples_;
+    cur_.end = samples_;
+    if (gamma_ < 1.0) cur_scale_ /= gamma_;
+    if (cur_.n >= block_len_) close_block();
+}
+
+void BlockIV::close_block() {
+    if (gamma_ < 1.0) {
+        // As of the block's last sample: rows of sample j weigh gamma^(n-1-j).
+        const double g = std::pow(gamma_, static_cast<double>(cur_.n - 1));
+        cur_.G *= g;
+        cur_.c *= g;
+        cur_.xx *= g;
+        cur_.ww *= g;
+    }
+    if (gamma_ >= 1.0 && n_closed_ == k_max_) merge_pairs();
+    Block &dst = gamma_ < 1.0 ? blocks_[(head_ + n_closed_) % k_max_] : blocks_[n_closed_];
+    if (gamma_ < 1.0 && n_closed_ == k_max_) {
+        // Ring full: the slot written is the oldest block, ~6 memories old (weight e^-6).
+        head_ = (head_ + 1) % k_max_;
+    } else {
+        ++n_closed_;
+    }
+    dst.G = cur_.G;
+    dst.c = cur_.c;
+    dst.xx = cur_.xx;
+    dst.ww = cur_.ww;
+    dst.n = cur_.n;
+    dst.end = cur_.end;
+    zero_block(cur_.G, cur_.c, cur_.xx, cur_.ww);
+    cur_.n = 0;
+    cur_scale_ = 1.0;
+}
+
+void BlockIV::merge_pairs() {
+    for (std::size_t i = 0; i < k_max_ / 2; ++i) {
+        Block &a = blocks_[2 * i], &b = blocks_[2 * i + 1], &d = blocks_[i];
+        d.G = a.G + b.G;
+        d.c = a.c + b.c;
+        d.xx = a.xx + b.xx;
+        d.ww = a.ww + b.ww;
+        d.n = a.n + b.n;
+        d.end = b.end;
+    }
+    for (std::size_t i = k_max_ / 2; i < k_max_; ++i) {
+        zero_block(blocks_[i].G, blocks_[i].c, blocks_[i].xx, blocks_[i].ww);
+        blocks_[i].n = blocks_[i].end = 0;
+    }
+    n_closed_ = k_max_ / 2;
+    block_len_ *= 2;
+}
+
+std::size_t BlockIV::blocks_with_data() const { return n_closed_ + (cur_.n > 0 ? 1 : 0); }
+
+BlockIVResult BlockIV::solve() const {
+    const Index P = static_cast<Index>(p_), Q = static_cast<Index>(q_);
+    // Blocks in time order with their weights (discount to now for gamma < 1).
+    struct View {
+        const MatrixXd *G, *c;
+        const VectorXd *xx, *ww;
+        double w;
+    };
+    std::vector<View> views;
+    views.reserve(n_closed_ + 1);
+    for (std::size_t i = 0; i < n_closed_; ++i) {
+        const Block &b = gamma_ < 1.0 ? blocks_[(head_ + i) % k_max_] : blocks_[i];
+        const double w = gamma_ < 1.0 ? std::pow(gamma_, static_cast<double>(samples_ - b.end)) : 1.0;
+        views.push_back(View{&b.G, &b.c, &b.xx, &b.ww, w});
+    }
+    if (cur_.n > 0) {
+        // The current block's rows carry gamma^-j: bring them to now.
+        const double w = gamma_ < 1.0 ? std::pow(gamma_, static_cast<double>(cur_.n - 1)) : 1.0;
+        views.push_back(View{&cur_.G, &cur_.c, &cur_.xx, &cur_.ww, w});
+    }
+    if (views.empty()) throw_error(VIBID_E_INSUFFICIENT_DATA, "no equations yet: push more samples");
+
+    auto solve_range = [&](std::size_t from, std::size_t to, bool need_cov) {
+        Partial out;
+        MatrixXd A = MatrixXd::Zero(P, P), C = MatrixXd::Zero(P, Q);
+        VectorXd xx = VectorXd::Zero(P), ww = VectorXd::Zero(P);
+        for (std::size_t b = from; b < to; ++b) {
+            A += views[b].w * *views[b].G;
+            C += views[b].w * *views[b].c;
+            xx += views[b].w * *views[b].xx;
+            ww += views[b].w * *views[b].ww;
+        }
+        // Scale rows (instruments) and columns (regressors) to unit norm, so that units
+        // (N/m next to N/m^3) do not decide rank or conditioning.
+        VectorXd dx(P), dw(P);
+        for (Index i = 0; i < P; ++i) {
+            dx(i) = xx(i) > 0.0 ? 1.0 / std::sqrt(xx(i)) : 1.0;
+            dw(i) = ww(i) > 0.0 ? 1.0 / std::sqrt(ww(i)) : 1.0;
+        }
+        const MatrixXd As = dw.asDiagonal() * A * dx.asDiagonal();
+        Eigen::JacobiSVD<MatrixXd> svd(As, Eigen::ComputeFullU | Eigen::ComputeFullV);
+        const VectorXd &s = svd.singularValues();
+        const double smax = s.size() ? s(0) : 0.0;
+        if (!(smax > 0.0) || !std::isfinite(smax)) return out;
+        out.rcond = s(P - 1) / smax;
+        out.rank = 0;
+        for (Index i = 0; i < P; ++i)
+            if (s(i) > 1e-12 * smax) ++out.rank;
+        if (out.rank < p_) return out;
+        // Weak directions: scaled information below 1e-7 of the strongest; the
+        // parameters that load on them are marked (their error bars are then huge).
+        out.weak.assign(p_, 0);
+        for (Index k = 0; k < P; ++k) {
+            if (s(k) >= 1e-7 * smax) continue;
+            const auto v = svd.matrixV().col(k);
+            const double vmax = v.cwiseAbs().maxCoeff();
+            for (Index i = 0; i < P; ++i)
+                if (std::fabs(v(i)) > 0.1 * vmax) out.weak[static_cast<std::size_t>(i)] = 1;
+        }
+        // A^-1 = Dx V S^-1 U^T Dw
+        const MatrixXd Ainv = dx.asDiagonal() * svd.matrixV() * s.cwiseInverse().asDiagonal() *
+                              svd.matrixU().transpose() * dw.asDiagonal();
+        out.theta = Ainv * C;
+        out.ok = true;
+        if (!need_cov) return out;
+        const std::size_t K = to - from;
+        const Index PQ = P * Q;
+        MatrixXd meat = MatrixXd::Zero(PQ, PQ);
+        VectorXd sv(PQ);
+        for (std::size_t b = from; b < to; ++b) {
+            const MatrixXd sb = views[b].w * (*views[b].c - *views[b].G * out.theta);
+            sv = Eigen::Map<const VectorXd>(sb.data(), PQ);
+            meat.noalias() += sv * sv.transpose();
+        }
+        if (K > p_ + 1) {
+            meat *= static_cast<double>(K) / static_cast<double>(K - p_);
+        } else {
+            meat.setConstant(std::numeric_limits<double>::quiet_NaN());
+        }
+        MatrixXd bread = MatrixXd::Zero(PQ, PQ);
+        for (Index k = 0; k < Q; ++k) bread.block(k * P, k * P, P, P) = Ainv;
+        out.cov = bread * meat * bread.transpose();
+        return out;
+    };
+
+    const std::size_t K = views.size();
+    Partial all = solve_range(0, K, true);
+    if (!all.ok) {
+        if (all.rank == 0 && all.rcond == 0.0)
+            throw_error(VIBID_E_INSUFFICIENT_DATA, "no information in the equations yet (all regressors zero)");
+        throw_error(VIBID_E_NOT_IDENTIFIABLE, "the data do not separate the parameters (rank %zu of %zu)", all.rank,
+                    p_);
+    }
+    BlockIVResult r;
+    r.theta = all.theta;
+    r.cov = all.cov;
+    r.rcond = all.rcond;
+    r.rank = all.rank;
+    r.n_blocks = K;
+    r.not_excited = all.weak;
+    r.z_max = std::numeric_limits<double>::quiet_NaN();
+    if (K >= 2 * (p_ + 2)) {
+        const Partial older = solve_range(0, K / 2, true), newer = solve_range(K / 2, K, true);
+        if (older.ok && newer.ok) {
+            double z = 0.0;
+            const Index PQ = P * Q;
+            for (Index i = 0; i < PQ; ++i) {
+                const double d = older.theta.data()[i] - newer.theta.data()[i];
+                const double v = older.cov(i, i) + newer.cov(i, i);
+                if (v > 0.0 && std::isfinite(v)) z = std::max(z, std::fabs(d) / std::sqrt(v));
+            }
+            r.z_max = z;
+        }
+    }
+    return r;
+}
+
+}  // namespace vibid

@@ -1,0 +1,358 @@
+/* ident.default: identification with no estimator settings at all (vibid_ident_config_init:
+ * the automatic estimator, identify.h) on data simulated by vibid-sim's engine, for the
+ * three stand types of the issue "right answers by default":
+ *   chain  3 DOF (ground - m1 - m2 - m3), springs and dampers unknown, a held force on m3
+ *          (band-limited noise), displacement and acceleration measured on every mass;
+ *   cubic  1 DOF with a strong cubic spring (cubic force = linear force at 1 mm), force
+ *          smooth, only the displacement measured;
+ *   base   2 DOF on a moving base whose displacement is held between samples, a damper to
+ *          the base (its impulses are simulated, docs/sim.md), x1, x2 and s measured.
+ * The stands give no nominal values: the automatic choice cannot lean on them.
+ *
+ * Targets and why they are what they are:
+ *  - accuracy (one seeded realisation, 20 s at 2 kHz): chain with 0.5 % noise: every
+ *    stiffness within 0.05 %, every damping and damping ratio within 1 % (the issue's
+ *    targets); noise-free chain: stiffness 0.01 %, damping 0.5 %; noise-free cubic: linear
+ *    and cubic stiffness within 0.05 %. Each estimate also within 3 of its own standard
+ *    errors (a fixed seed: no chance of a flaky 3-sigma miss).
+ *  - coverage (Monte Carlo, 200 noise realisations per stand on one simulated response):
+ *    the fraction of |theta - truth| <= 2 se, pooled over the stand's parameters (200 p
+ *    trials, binomial standard deviation about 0.6 %), must lie in [90 %, 98 %] (the
+ *    issue's band around the nominal 95.4 %). Per-parameter figures are printed.
+ * Noise: white Gaussian, standard deviation = level x RMS of the clean channel, on every
+ * measured displacement, acceleration and base channel (not on the force: a force sensor's
+ * noise is not in the issue's cases), from a fixed xorshift seed. */
+#include <math.h>
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <cmocka.h>
+
+#include <vibid/identify.h>
+#include <vibid/modal.h>
+#include <vibid/stand_file.h>
+
+#include "sim_config.h"
+#include "sim_engine.h"
+#include "sim_test_util.h"
+
+#define FS 2000.0
+#define SECONDS 20.0
+#define MC_RUNS 200
+
+static const char *chain_stand =
+    "stand = { name = \"chain3\"; sample_rate = 2000.0;\n"
+    "  nodes = ( { name = \"m1\"; mass = 2.0; measure = { displacement = \"x1\"; acceleration = \"a1\"; }; },\n"
+    "            { name = \"m2\"; mass = 1.5; measure = { displacement = \"x2\"; acceleration = \"a2\"; }; },\n"
+    "            { name = \"m3\"; mass = 1.0; measure = { displacement = \"x3\"; acceleration = \"a3\"; }; } );\n"
+    "  elements = ( { name = \"k1\"; kind = \"spring\"; between = [\"m1\", \"ground\"]; unknown = true; true_value = 4.0e4; },\n"
+    "               { name = \"d1\"; kind = \"damper\"; between = [\"m1\", \"ground\"]; unknown = true; true_value = 20.0; },\n"
+    "               { name = \"k2\"; kind = \"spring\"; between = [\"m2\", \"m1\"]; unknown = true; true_value = 3.0e4; },\n"
+    "               { name = \"d2\"; kind = \"damper\"; between = [\"m2\", \"m1\"]; unknown = true; true_value = 15.0; },\n"
+    "               { name = \"k3\"; kind = \"spring\"; between = [\"m3\", \"m2\"]; unknown = true; true_value = 2.0e4; },\n"
+    "               { name = \"d3\"; kind = \"damper\"; between = [\"m3\", \"m2\"]; unknown = true; true_value = 10.0; } );\n"
+    "  inputs = ( { name = \"f\"; node = \"m3\"; gain = 1.0; channel = \"F\"; hold = \"zoh\"; } ); };\n"
+    "simulation = { seed = 3; excitation = ( { target = \"f\"; kind = \"noise\"; amplitude = 20.0; f_high = 150.0; } ); };\n";
+
+static const char *cubic_stand =
+    "stand = { name = \"cubic1\"; sample_rate = 2000.0;\n"
+    "  nodes = ( { name = \"m\"; mass = 1.0; measure = { displacement = \"x\"; }; } );\n"
+    "  elements = ( { name = \"k\"; kind = \"spring\"; between = [\"m\", \"ground\"]; unknown = true; true_value = 1.0e4; },\n"
+    "               { name = \"d\"; kind = \"damper\"; between = [\"m\", \"ground\"]; unknown = true; true_value = 5.0; },\n"
+    "               { name = \"eps\"; kind = \"cubic_spring\"; between = [\"m\", \"ground\"]; unknown = true; true_value = 1.0e10; } );\n"
+    "  inputs = ( { name = \"f\"; node = \"m\"; gain = 1.0; channel = \"F\"; } ); };\n"
+    "simulation = { seed = 4; excitation = ( { target = \"f\"; kind = \"noise\"; amplitude = 15.0; f_low = 2.0; f_high = 80.0; } ); };\n";
+
+static const char *base_stand =
+    "stand = { name = \"base2\"; sample_rate = 2000.0;\n"
+    "  nodes = ( { name = \"m1\"; mass = 1.5; measure = { displacement = \"x1\"; }; },\n"
+    "            { name = \"m2\"; mass = 3.0; measure = { displacement = \"x2\"; }; } );\n"
+    "  base = { hold = \"zoh\"; measure = { displacement = \"s\"; }; };\n"
+    "  elements = ( { name = \"c1\"; kind = \"spring\"; between = [\"m1\", \"m2\"]; unknown = true; true_value = 6.0e4; },\n"
+    "               { name = \"d1\"; kind = \"damper\"; between = [\"m1\", \"m2\"]; unknown = true; true_value = 15.0; },\n"
+    "               { name = \"c2\"; kind = \"spring\"; between = [\"m2\", \"base\"]; unknown = true; true_value = 1.2e5; },\n"
+    "               { name = \"d2\"; kind = \"damper\"; between = [\"m2\", \"base\"]; unknown = true; true_value = 30.0; } ); };\n"
+    "simulation = { seed = 5; excitation = ( { target = \"base\"; kind = \"noise\"; amplitude = 1.0e-4; f_high = 150.0; } ); };\n";
+
+typedef struct capture {
+    vibid_stand *stand;
+    size_t n, nch, p;
+    double *clean;    /* n x nch column-major */
+    double *noisy;    /* scratch */
+    int *noisy_chan;  /* 1 where sensor noise is added */
+    double *rms;
+    const double *truth;
+} capture;
+
+static uint64_t rng_state = 0x9E3779B97F4A7C15ull;
+static double normal(void)
+{
+    double u, v, s;
+    do {
+        rng_state ^= rng_state << 13; rng_state ^= rng_state >> 7; rng_state ^= rng_state << 17;
+        u = 2.0 * ((double)(rng_state >> 11) / 9007199254740992.0) - 1.0;
+        rng_state ^= rng_state << 13; rng_state ^= rng_state >> 7; rng_state ^= rng_state << 17;
+        v = 2.0 * ((double)(rng_state >> 11) / 9007199254740992.0) - 1.0;
+        s = u * u + v * v;
+    } while (s >= 1.0 || s == 0.0);
+    return u * sqrt(-2.0 * log(s) / s);
+}
+
+static void simulate(capture *c, const char *name, const char *text)
+{
+    const char *path = write_tmp(name, text);
+    assert_non_null(path);
+    vibid_stand_error serr;
+    c->stand = vibid_stand_load(path, &serr);
+    if (!c->stand) fail_msg("%s", serr.text);
+    sim_config cfg;
+    char err[1024];
+    if (sim_config_load(path, c->stand, NULL, &cfg, err, sizeof err)) fail_msg("%s", err);
+    sim_engine *e = sim_engine_create(c->stand, &cfg, err, sizeof err);
+    if (!e) fail_msg("%s", err);
+    const vibid_model *m = vibid_stand_model(c->stand);
+    vibid_model_dims d;
+    assert_int_equal(vibid_model_get_dims(m, &d), VIBID_OK);
+    c->n = (size_t)(SECONDS * FS);
+    c->nch = d.n_channels;
+    c->p = d.n_params;
+    c->truth = vibid_stand_true_values(c->stand);
+    c->clean = malloc(c->n * c->nch * sizeof(double));
+    c->noisy = malloc(c->n * c->nch * sizeof(double));
+    c->noisy_chan = calloc(c->nch, sizeof(int));
+    c->rms = calloc(c->nch, sizeof(double));
+    double *vals = malloc(c->nch * sizeof(double)), *cl = malloc(c->nch * sizeof(double));
+    assert_true(c->clean && c->noisy && c->noisy_chan && c->rms && vals && cl);
+    for (size_t k = 0; k < c->n; k++) {
+        uint64_t kk;
+        double t;
+        if (sim_engine_next(e, &kk, &t, vals, cl)) fail_msg("%s", sim_engine_error(e));
+        for (size_t j = 0; j < c->nch; j++) c->clean[k + j * c->n] = cl[j];
+    }
+    for (size_t j = 0; j < c->nch; j++) {
+        vibid_channel_info ci;
+        assert_int_equal(vibid_model_channel_info(m, j, &ci), VIBID_OK);
+        c->noisy_chan[j] = ci.kind != VIBID_CHANNEL_INPUT;
+        double s2 = 0.0;
+        for (size_t k = 0; k < c->n; k++) s2 += c->clean[k + j * c->n] * c->clean[k + j * c->n];
+        c->rms[j] = sqrt(s2 / (double)c->n);
+    }
+    free(vals);
+    free(cl);
+    sim_engine_destroy(e);
+    sim_config_free(&cfg);
+}
+
+static void capture_free(capture *c)
+{
+    free(c->clean);
+    free(c->noisy);
+    free(c->noisy_chan);
+    free(c->rms);
+    vibid_stand_destroy(c->stand);
+}
+
+static void add_noise(capture *c, double level)
+{
+    for (size_t j = 0; j < c->nch; j++)
+        for (size_t k = 0; k < c->n; k++)
+            c->noisy[k + j * c->n] =
+                c->clean[k + j * c->n] + (c->noisy_chan[j] && level > 0.0 ? level * c->rms[j] * normal() : 0.0);
+}
+
+typedef struct result {
+    double theta[8], se[8];
+    double zeta[4], zeta_se[4];
+    unsigned flags;
+} result;
+
+/* Identification of c->noisy: the defaults, or (est != NULL) explicit settings. */
+static result identify_with(const capture *c, int print, const vibid_ident_config *est);
+static result identify(const capture *c, int print) { return identify_with(c, print, NULL); }
+
+static result identify_with(const capture *c, int print, const vibid_ident_config *est)
+{
+    const vibid_model *m = vibid_stand_model(c->stand);
+    vibid_ident_config cfg;
+    vibid_ident_config_init(&cfg, 1.0 / FS);
+    if (est) cfg = *est;
+    vibid_ident *id = vibid_ident_create(m, &cfg);
+    if (!id) fail_msg("vibid_ident_create: %s", vibid_last_error());
+    if (print) {
+        char buf[2048];
+        vibid_ident_describe(id, buf, sizeof buf, NULL);
+        printf("%s", buf);
+    }
+    if (vibid_ident_push_block(id, c->n, c->noisy) != VIBID_OK) fail_msg("push: %s", vibid_last_error());
+    result r;
+    double cov[64];
+    if (vibid_ident_estimate(id, r.theta, r.se, NULL) != VIBID_OK) fail_msg("estimate: %s", vibid_last_error());
+    assert_int_equal(vibid_ident_covariance(id, cov), VIBID_OK);
+    vibid_ident_quality q;
+    assert_int_equal(vibid_ident_get_quality(id, &q, NULL), VIBID_OK);
+    r.flags = q.flags;
+    vibid_model_dims d;
+    vibid_model_get_dims(m, &d);
+    double f[4], fse[4];
+    assert_int_equal(vibid_model_modal(m, r.theta, cov, f, fse, r.zeta, r.zeta_se, NULL, NULL), VIBID_OK);
+    if (print)
+        printf("  quality: flags %u, consistency z %.2f, %zu blocks, bias bound %.2g\n", q.flags, q.z_consistency,
+               q.n_blocks, q.bias_relative);
+    vibid_ident_destroy(id);
+    return r;
+}
+
+static void true_zeta(const capture *c, double *zeta)
+{
+    double f[4];
+    assert_int_equal(vibid_model_modal(vibid_stand_model(c->stand), c->truth, NULL, f, NULL, zeta, NULL, NULL, NULL),
+                     VIBID_OK);
+}
+
+/* One realisation against per-kind bounds (relative): stiffness/cubic, damping/zeta. */
+static void check_accuracy(capture *c, double level, double tol_stiff, double tol_damp, int check_3se)
+{
+    add_noise(c, level);
+    result r = identify(c, 1);
+    const vibid_model *m = vibid_stand_model(c->stand);
+    for (size_t i = 0; i < c->p; i++) {
+        vibid_param_info pi;
+        vibid_model_param_info(m, i, &pi);
+        double rel = (r.theta[i] - c->truth[i]) / c->truth[i];
+        double z = (r.theta[i] - c->truth[i]) / r.se[i];
+        double tol = pi.kind == VIBID_PARAM_DAMPING ? tol_damp : tol_stiff;
+        printf("  %-4s %14.8g  truth %-10g  err %+9.5f %%  se %8.5f %%  z %+5.2f  (bound %g %%)\n", pi.name, r.theta[i],
+               c->truth[i], 100 * rel, 100 * r.se[i] / fabs(c->truth[i]), z, 100 * tol);
+        assert_true(fabs(rel) <= tol);
+        if (check_3se) assert_true(fabs(z) <= 3.0);
+    }
+    vibid_model_dims d;
+    vibid_model_get_dims(m, &d);
+    double zt[4];
+    true_zeta(c, zt);
+    for (size_t i = 0; i < d.n_dof; i++) {
+        double rel = (r.zeta[i] - zt[i]) / zt[i];
+        printf("  zeta%zu %.6f  truth %.6f  err %+8.4f %%  se %.4f %%\n", i + 1, r.zeta[i], zt[i], 100 * rel,
+               100 * r.zeta_se[i] / zt[i]);
+        assert_true(fabs(rel) <= tol_damp);
+    }
+    assert_int_equal(r.flags & VIBID_QUALITY_SE_INVALID, 0);
+}
+
+/* For the README: one realisation (the next noise draw) with plain LS on central
+ * differences (1.17), RLS on (1.17) without pre-filter (the former default, now with the hold equivalents) and the automatic
+ * estimator; relative errors in % and |error| / se. Prints only. */
+static void compare(capture *c, double level)
+{
+    add_noise(c, level);
+    const vibid_model *m = vibid_stand_model(c->stand);
+    vibid_ident_config ls, rls, aut;
+    vibid_ident_config_init(&ls, 1.0 / FS);
+    ls.estimator = VIBID_ESTIMATOR_LS;
+    ls.prefilter_hz = 0.0;
+    ls.difference_order = 2;
+    rls = ls;
+    rls.estimator = VIBID_ESTIMATOR_RLS;
+    vibid_ident_config_init(&aut, 1.0 / FS);
+    const char *names[3] = {"plain LS, (1.17)", "RLS, (1.17), no filter", "automatic (default)"};
+    const vibid_ident_config *cfgs[3] = {&ls, &rls, &aut};
+    printf("comparison at %.1f %% noise (one realisation): error %% [|error| / se]\n", 100 * level);
+    for (int k = 0; k < 3; k++) {
+        result r = identify_with(c, 0, cfgs[k]);
+        printf("  %-22s", names[k]);
+        for (size_t i = 0; i < c->p; i++) {
+            vibid_param_info pi;
+            vibid_model_param_info(m, i, &pi);
+            printf("  %s %+.3f [%.1f]", pi.name, 100 * (r.theta[i] - c->truth[i]) / c->truth[i],
+                   fabs(r.theta[i] - c->truth[i]) / r.se[i]);
+        }
+        printf("\n");
+    }
+}
+
+/* Monte Carlo: MC_RUNS noise realisations on the same clean response. */
+static void check_coverage(capture *c, const char *what, double level)
+{
+    const vibid_model *m = vibid_stand_model(c->stand);
+    size_t in2[8] = {0}, total = 0, inside = 0, flagged = 0;
+    double sum_z2[8] = {0};
+    for (int run = 0; run < MC_RUNS; run++) {
+        add_noise(c, level);
+        result r = identify(c, 0);
+        if (r.flags & VIBID_QUALITY_SE_INVALID) flagged++;
+        for (size_t i = 0; i < c->p; i++) {
+            double z = (r.theta[i] - c->truth[i]) / r.se[i];
+            sum_z2[i] += z * z;
+            if (fabs(z) <= 2.0) {
+                in2[i]++;
+                inside++;
+            }
+            total++;
+        }
+    }
+    double cov = (double)inside / (double)total;
+    printf("%s, %.1f %% noise, %d realisations: 2-se coverage %.1f %% pooled over %zu parameters; rows flagged "
+           "SE-invalid: %zu\n",
+           what, 100 * level, MC_RUNS, 100 * cov, c->p, flagged);
+    for (size_t i = 0; i < c->p; i++) {
+        vibid_param_info pi;
+        vibid_model_param_info(m, i, &pi);
+        printf("  %-4s coverage %5.1f %%  rms(z) %.2f\n", pi.name, 100.0 * (double)in2[i] / MC_RUNS,
+               sqrt(sum_z2[i] / MC_RUNS));
+    }
+    assert_true(cov >= 0.90 && cov <= 0.98);
+}
+
+static void test_chain(void **state)
+{
+    (void)state;
+    capture c;
+    simulate(&c, "ident_chain.cfg", chain_stand);
+    printf("chain, noise-free:\n");
+    check_accuracy(&c, 0.0, 1e-4, 5e-3, 0);
+    printf("chain, 0.5 %% noise:\n");
+    check_accuracy(&c, 0.005, 5e-4, 1e-2, 1);
+    compare(&c, 0.005);
+    check_coverage(&c, "chain", 0.005);
+    capture_free(&c);
+}
+
+static void test_cubic(void **state)
+{
+    (void)state;
+    capture c;
+    simulate(&c, "ident_cubic.cfg", cubic_stand);
+    printf("cubic, noise-free:\n");
+    check_accuracy(&c, 0.0, 5e-4, 5e-3, 0);
+    compare(&c, 0.0);
+    compare(&c, 0.005);
+    check_coverage(&c, "cubic", 0.005);
+    capture_free(&c);
+}
+
+static void test_base(void **state)
+{
+    (void)state;
+    capture c;
+    simulate(&c, "ident_base.cfg", base_stand);
+    printf("base-excited, held base, noise-free:\n");
+    check_accuracy(&c, 0.0, 1e-4, 5e-3, 0);
+    printf("base-excited, held base, 0.5 %% noise:\n");
+    check_accuracy(&c, 0.005, 5e-3, 5e-2, 1);
+    compare(&c, 0.005);
+    check_coverage(&c, "base-excited", 0.005);
+    capture_free(&c);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_chain),
+        cmocka_unit_test(test_cubic),
+        cmocka_unit_test(test_base),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}
