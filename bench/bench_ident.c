@@ -8,6 +8,7 @@
  *
  * Usage: bench_ident [scale]  (scale multiplies the samples timed, default 1)
  * Each figure is the best of 3 repetitions. Prints a table; never fails on time. */
+#define _POSIX_C_SOURCE 200809L
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>

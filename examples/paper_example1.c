@@ -97,6 +97,7 @@ int main(int argc, char **argv) {
         {"noisy_zoh_ls", VIBID_DISC_ZOH, VIBID_ESTIMATOR_LS, 0.0, 0, 1, 1},
         {"noisy_zoh_iv", VIBID_DISC_ZOH, VIBID_ESTIMATOR_IV, 0.0, 3, 1, 1},
         {"noisy_zoh_ls_pf150", VIBID_DISC_ZOH, VIBID_ESTIMATOR_LS, 150.0, 0, 1, 1},
+        {"noisy_auto", VIBID_DISC_CENTRAL_DIFFERENCE, VIBID_ESTIMATOR_AUTO, 0.0, 0, 1, 0},
     };
     char path[1024];
     FILE *csv = example_open_tracks(outdir, "example1", model, path, sizeof path);
@@ -106,7 +107,9 @@ int main(int argc, char **argv) {
         const example_case *c = &cases[i];
         const double *r = rec[(c->noisy ? 2 : 0) + (c->held ? 1 : 0)];
         printf("case %s: %s, %s%s, %s base, %s\n", c->name,
-               c->disc == VIBID_DISC_ZOH ? "ZOH (1.16) + matrix log" : "central differences (1.17)",
+               c->disc == VIBID_DISC_ZOH                ? "ZOH (1.16) + matrix log"
+               : c->estimator == VIBID_ESTIMATOR_AUTO ? "settings chosen by"
+                                                      : "central differences (1.17)",
                example_estimator_label(c->estimator),
                c->prefilter_hz > 0 ? " + 150 Hz pre-filter" : "", c->held ? "held" : "continuous",
                c->noisy ? "1 % noise" : "noise-free");

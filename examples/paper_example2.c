@@ -133,6 +133,7 @@ int main(int argc, char **argv) {
         {"noisy_cd_iv", VIBID_DISC_CENTRAL_DIFFERENCE, VIBID_ESTIMATOR_IV, 0.0, 3, 1, 0},
         {"noisy_cd_ls_pf150", VIBID_DISC_CENTRAL_DIFFERENCE, VIBID_ESTIMATOR_LS, 150.0, 0, 1, 0},
         {"noisy_cd_iv_pf150", VIBID_DISC_CENTRAL_DIFFERENCE, VIBID_ESTIMATOR_IV, 150.0, 30, 1, 0},
+        {"noisy_auto", VIBID_DISC_CENTRAL_DIFFERENCE, VIBID_ESTIMATOR_AUTO, 0.0, 0, 1, 0},
     };
     char path[1024];
     FILE *csv = example_open_tracks(outdir, "example2", model, path, sizeof path);
@@ -140,7 +141,8 @@ int main(int argc, char **argv) {
     int rc = 0;
     for (size_t i = 0; i < sizeof cases / sizeof cases[0]; ++i) {
         const example_case *c = &cases[i];
-        printf("case %s: central differences (1.17), %s%s, continuous base, %s\n", c->name,
+        printf("case %s: %s, %s%s, continuous base, %s\n", c->name,
+               c->estimator == VIBID_ESTIMATOR_AUTO ? "settings chosen by" : "central differences (1.17)",
                example_estimator_label(c->estimator),
                c->prefilter_hz > 0 ? " + 150 Hz pre-filter" : "", c->noisy ? "1 % noise" : "noise-free");
         if (example_run_case(c, model, h, rec[c->noisy ? 1 : 0], N, example_checkpoints, example_n_checkpoints, truth,

@@ -613,7 +613,7 @@ static int load_estimator(ctx *c, config_t *cf)
      * a given value overrides the choice. */
     if (get_double(c, g, "estimator", "forgetting", 1.0, 0.9, 1.0, &cfg->forgetting) ||
         get_double(c, g, "estimator", "prefilter_hz", -1.0, 0.0, 0.45 * fa, &cfg->prefilter_hz) ||
-        get_double(c, g, "estimator", "rls_alpha", 1e-9, 1e-30, 1e30, &cfg->rls_alpha) ||
+        get_double(c, g, "estimator", "rls_alpha", 0.0 /* automatic */, 1e-30, 1e30, &cfg->rls_alpha) ||
         get_int(c, g, "estimator", "iv_lag", 0, 3, 4096, &v))
         return -1;
     cfg->iv_lag = (unsigned)v;
@@ -942,7 +942,10 @@ void vd_config_print(const vd_config *cfg, FILE *o)
         fprintf(o, "  prefilter_hz = %s;\n", num(cfg->prefilter_hz));
     else
         fprintf(o, "  # prefilter_hz: automatic\n");
-    fprintf(o, "  rls_alpha = %s;\n", num(cfg->rls_alpha));
+    if (cfg->rls_alpha > 0.0)
+        fprintf(o, "  rls_alpha = %s;\n", num(cfg->rls_alpha));
+    else
+        fprintf(o, "  # rls_alpha: automatic\n");
     if (cfg->iv_lag)
         fprintf(o, "  iv_lag = %u;\n", cfg->iv_lag);
     else

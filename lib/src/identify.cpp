@@ -37,6 +37,12 @@ struct vibid_ident {
     std::size_t n = 0, p = 0, p_reg = 0, m = 0, q = 0, n_channels = 0;
     bool zoh = false;
     bool has_prior = false;  // RLS started from vibid_ident_set_prior
+    // RLS with rls_alpha = 0 (automatic prior): the first prior_len samples' rows are kept,
+    // the prior P0 = diag(1 / (1e-6 sum x_i^2)) is formed from them (1e-6 of their
+    // information in every direction, whatever the units), then they are replayed.
+    bool auto_prior = false, prior_done = false;
+    std::size_t prior_len = 0, prior_count = 0;
+    std::vector<double> prior_rows, prior_ss, prior_P0, prior_theta;
     // Per-sample scratch (sized in create).
     std::vector<double> x, y, rows_x, rows_w;
     std::vector<double> ring;  // IV: the last iv_lag + 1 regressors x (p_reg * m each)
@@ -201,6 +207,11 @@ vibid_ident_config resolve_config(const vibid_model &m, const vibid_ident_config
     case VIBID_ESTIMATOR_RLS:
         why += "estimator: recursive least squares (configured); biased by noise on the measured channels, "
                "standard errors assume white equation errors (flagged as not valid)\n";
+        if (cfg.rls_alpha == 0.0)
+            why += "RLS prior: scaled to the data (automatic): P0 = diag(1 / (1e-6 sum x_i^2)) over the first "
+                   "samples, so that no parameter's units make it strong\n";
+        else
+            why += strprintf("RLS prior: P0 = I / %g (configured)\n", cfg.rls_alpha);
         break;
     }
     if (zoh) {
@@ -273,6 +284,37 @@ vibid_ident_config resolve_config(const vibid_model &m, const vibid_ident_config
     return r;
 }
 
+// Automatic RLS prior (see vibid_ident::auto_prior): keeps this sample's rows; at the
+// last one of the first prior_len, sets the prior and replays them. Allocation-free.
+vibid_status collect_prior_rows(vibid_ident &id) {
+    const std::size_t nx = id.p_reg * id.m, ny = id.m * id.q, stride = nx + ny;
+    if (!vibid::all_finite(id.x.data(), nx) || !vibid::all_finite(id.y.data(), ny))
+        return VIBID_FAIL(VIBID_E_NONFINITE, "regressor overflow (non-finite row)");
+    double *slot = id.prior_rows.data() + id.prior_count * stride;
+    std::copy(id.x.begin(), id.x.end(), slot);
+    std::copy(id.y.begin(), id.y.end(), slot + nx);
+    if (id.prior_count == 0) std::fill(id.prior_ss.begin(), id.prior_ss.end(), 0.0);
+    for (std::size_t e = 0; e < id.m; ++e)
+        for (std::size_t i = 0; i < id.p_reg; ++i) id.prior_ss[i] += id.x[i + e * id.p_reg] * id.x[i + e * id.p_reg];
+    if (++id.prior_count < id.prior_len) return VIBID_OK;
+    // P0 = diag(1 / (1e-6 S_i)): the prior is worth 1e-6 of these samples' information in
+    // each regressor's own units; a column that stayed zero gets the largest variance.
+    double smax = 0.0;
+    for (double v : id.prior_ss) smax = std::max(smax, v);
+    if (!(smax > 0.0)) smax = 1.0;
+    std::fill(id.prior_P0.begin(), id.prior_P0.end(), 0.0);
+    for (std::size_t i = 0; i < id.p_reg; ++i)
+        id.prior_P0[i + i * id.p_reg] = 1.0 / (1e-6 * std::max(id.prior_ss[i], 1e-30 * smax));
+    vibid_status s = vibid_rls_set_prior(id.rls, id.prior_theta.data(), id.prior_P0.data());
+    if (s != VIBID_OK) return s;
+    id.prior_done = true;
+    for (std::size_t k = 0; k < id.prior_len && s == VIBID_OK; ++k) {
+        const double *r = id.prior_rows.data() + k * stride;
+        s = vibid_rls_update(id.rls, r, r + nx);
+    }
+    return s;
+}
+
 }  // namespace
 
 extern "C" {
@@ -284,7 +326,7 @@ VIBID_API void vibid_ident_config_init(vibid_ident_config *cfg, double sample_ti
     cfg->prefilter_hz = -1.0;
     cfg->iv_lag = 0;
     cfg->forgetting = 1.0;
-    cfg->rls_alpha = 1e-9;
+    cfg->rls_alpha = 0.0;
     cfg->difference_order = 0;
 }
 
@@ -302,6 +344,8 @@ VIBID_API vibid_ident *vibid_ident_create(const vibid_model *model, const vibid_
                         cfg->difference_order);
         if (!(cfg->forgetting > 0.0 && cfg->forgetting <= 1.0))
             throw_error(VIBID_E_OUT_OF_RANGE, "forgetting = %g outside (0, 1]", cfg->forgetting);
+        if (!(cfg->rls_alpha >= 0.0) || !std::isfinite(cfg->rls_alpha))
+            throw_error(VIBID_E_OUT_OF_RANGE, "rls_alpha = %g: > 0, or 0 for the automatic prior", cfg->rls_alpha);
         if (cfg->iv_lag != 0 && (cfg->iv_lag < 3 || cfg->iv_lag > 4096))
             throw_error(VIBID_E_OUT_OF_RANGE, "iv_lag = %zu outside 3..4096 (0 = automatic)", cfg->iv_lag);
         // Identifiability before any sample.
@@ -360,8 +404,21 @@ VIBID_API vibid_ident *vibid_ident_create(const vibid_model *model, const vibid_
             vibid_rls_config_init(&rc, id->p_reg, id->q);
             rc.n_equations = id->m;
             rc.forgetting = cfg->forgetting;
-            rc.alpha = cfg->rls_alpha;
-            rc.trace_max = static_cast<double>(id->p_reg) / cfg->rls_alpha;
+            // Automatic prior (rls_alpha = 0): the RLS starts from a prior scaled to the
+            // data (push); until then, and for start values given without P0, 1e-9.
+            const double alpha = rcfg.rls_alpha > 0.0 ? rcfg.rls_alpha : 1e-9;
+            rc.alpha = alpha;
+            rc.trace_max = static_cast<double>(id->p_reg) / alpha;
+            if (rcfg.rls_alpha == 0.0) {
+                id->auto_prior = true;
+                id->prior_len = std::max<std::size_t>(8 * id->p_reg, 100);
+                id->prior_rows.assign(id->prior_len * (id->p_reg * id->m + id->m * id->q), 0.0);
+                id->prior_ss.assign(id->p_reg, 0.0);
+                id->prior_P0.assign(id->p_reg * id->p_reg, 0.0);
+                id->prior_theta.assign(id->p_reg * id->q, 0.0);
+                if (!id->zoh && vibid_model_nominal(model, id->prior_theta.data()) != VIBID_OK)
+                    std::fill(id->prior_theta.begin(), id->prior_theta.end(), 0.0);
+            }
             id->rls = vibid_rls_create(&rc);
             if (!id->rls) throw_error(VIBID_E_OUT_OF_RANGE, "vibid_rls_create: %s", vibid_last_error());
             break;
@@ -410,6 +467,8 @@ VIBID_API vibid_status vibid_ident_reset(vibid_ident *ident) {
         if (ident->biv) ident->biv->reset();
         if (ident->rls) check_status(vibid_rls_reset(ident->rls), "rls reset");
         ident->n_built = ident->n_samples = ident->n_rows = 0;
+        ident->prior_done = ident->has_prior;
+        ident->prior_count = 0;
         ident->have_cov = false;
         return VIBID_OK;);
 }
@@ -445,6 +504,7 @@ VIBID_API vibid_status vibid_ident_set_prior(vibid_ident *ident, const double *t
                 check_status(vibid_rls_set_prior(id.rls, nominal, P0), "prior");
             }
             id.has_prior = true;
+            id.prior_done = true;  // start values replace the automatic prior
             return VIBID_OK;
         }
         if (P0)
@@ -478,6 +538,7 @@ VIBID_API vibid_status vibid_ident_set_prior(vibid_ident *ident, const double *t
         const MatrixXd Th = ThT.transpose();
         check_status(vibid_rls_set_prior(id.rls, Th.data(), nullptr), "prior");
         id.has_prior = true;
+        id.prior_done = true;
         return VIBID_OK;);
 }
 
@@ -523,7 +584,13 @@ VIBID_API vibid_status vibid_ident_push(vibid_ident *ident, const double *channe
         }
         break;
     }
-    case VIBID_ESTIMATOR_RLS: s = vibid_rls_update(ident->rls, ident->x.data(), ident->y.data()); break;
+    case VIBID_ESTIMATOR_RLS:
+        if (ident->auto_prior && !ident->prior_done) {
+            s = collect_prior_rows(*ident);
+            break;
+        }
+        s = vibid_rls_update(ident->rls, ident->x.data(), ident->y.data());
+        break;
     }
     if (s != VIBID_OK) return s;
     ++ident->n_built;
@@ -558,6 +625,10 @@ VIBID_API vibid_status vibid_ident_estimate(vibid_ident *ident, double *theta, d
         vibid_ident_info out{};
         if (id.n_rows <= pr && !(id.rls && id.has_prior))
             throw_error(VIBID_E_INSUFFICIENT_DATA, "%llu equations for %zu regressors: push more samples", id.n_rows, pr);
+        if (id.rls && id.auto_prior && !id.prior_done)
+            throw_error(VIBID_E_INSUFFICIENT_DATA,
+                        "%zu of the first %zu samples collected to scale the RLS prior: push more samples",
+                        id.prior_count, id.prior_len);
         vibid_ident_quality qual{};
         qual.z_consistency = std::nan("");
         std::vector<int> weak;

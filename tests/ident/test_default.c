@@ -320,6 +320,30 @@ static void test_chain(void **state)
     capture_free(&c);
 }
 
+/* RLS with the automatic prior (rls_alpha 0, scaled to the data) on the noise-free cubic
+ * oscillator: the cubic coefficient (N/m^3, ~1e10) must come out like batch LS on the same
+ * data, within 0.05 % as the automatic estimator; with the fixed alpha = 1e-9 (the former
+ * default) the prior outweighs the x^3 column (sum of squares ~1e-14) and eps is lost. */
+static void check_rls_prior(capture *c)
+{
+    add_noise(c, 0.0);
+    vibid_ident_config rls;
+    vibid_ident_config_init(&rls, 1.0 / FS);
+    rls.estimator = VIBID_ESTIMATOR_RLS;
+    result r = identify_with(c, 0, &rls);
+    rls.rls_alpha = 1e-9;
+    result fixed = identify_with(c, 0, &rls);
+    const vibid_model *m = vibid_stand_model(c->stand);
+    for (size_t i = 0; i < c->p; i++) {
+        vibid_param_info pi;
+        vibid_model_param_info(m, i, &pi);
+        double rel = (r.theta[i] - c->truth[i]) / c->truth[i];
+        printf("  RLS, automatic prior: %s err %+.5f %%  (alpha 1e-9: %+.3f %%)\n", pi.name, 100 * rel,
+               100 * (fixed.theta[i] - c->truth[i]) / c->truth[i]);
+        assert_true(fabs(rel) <= (pi.kind == VIBID_PARAM_DAMPING ? 5e-3 : 5e-4));
+    }
+}
+
 static void test_cubic(void **state)
 {
     (void)state;
@@ -327,6 +351,7 @@ static void test_cubic(void **state)
     simulate(&c, "ident_cubic.cfg", cubic_stand);
     printf("cubic, noise-free:\n");
     check_accuracy(&c, 0.0, 5e-4, 5e-3, 0);
+    check_rls_prior(&c);
     compare(&c, 0.0);
     compare(&c, 0.005);
     check_coverage(&c, "cubic", 0.005);

@@ -144,6 +144,10 @@ static vibid_ident *rls_ident(const vibid_model *m) {
     vibid_ident_config cfg;
     vibid_ident_config_init(&cfg, H);
     cfg.estimator = VIBID_ESTIMATOR_RLS;
+    /* the fixed weak prior and (1.17) without pre-filter, on which the figures below rest */
+    cfg.rls_alpha = 1e-9;
+    cfg.prefilter_hz = 0.0;
+    cfg.difference_order = 2;
     vibid_ident *id = vibid_ident_create(m, &cfg);
     if (!id) fail_msg("ident_create: %s", vibid_last_error());
     return id;

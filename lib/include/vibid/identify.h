@@ -83,7 +83,13 @@ typedef struct vibid_ident_config {
     size_t iv_lag;        /* instrument delay in samples (IV, AUTO), 3..4096; 0 = automatic (default):
                              the difference window plus 1 / (prefilter_hz h) */
     double forgetting;    /* forgetting gamma in (0, 1], default 1 (RLS, and the AUTO/IV sums) */
-    double rls_alpha;     /* RLS P0 = alpha^-1 I, > 0, default 1e-9 (weak prior) */
+    double rls_alpha;     /* RLS P0 = alpha^-1 I, > 0; 0 = automatic (default): the first
+                             max(8 p, 100) samples are collected, P0 = diag(1 / (1e-6 sum x_i^2))
+                             over them (1e-6 of their information in every direction, in each
+                             parameter's own units; a fixed alpha is not weak for a cubic
+                             coefficient in N/m^3), theta0 the nominal values, then the samples
+                             are replayed. Start values without P0 (vibid_ident_set_prior)
+                             use alpha 1e-9. */
     unsigned difference_order; /* 2 (1.17) or 4 (five-point), 0 = automatic (default: 4) */
 } vibid_ident_config;
 
@@ -114,7 +120,7 @@ typedef struct vibid_ident_quality {
 } vibid_ident_quality;
 
 /* Defaults for sample time h (s): AUTO estimator, automatic pre-filter, lag and
- * difference order, forgetting 1, alpha 1e-9. */
+ * difference order, forgetting 1, automatic RLS prior (rls_alpha 0). */
 VIBID_API void vibid_ident_config_init(vibid_ident_config *cfg, double sample_time);
 
 /* Creates an identification for a finalized model (copied). Runs
