@@ -71,7 +71,8 @@ typedef enum vibid_estimator {
  * means), which holds for the coloured equation errors that differences and the
  * pre-filter produce; the remaining discretization bias, bounded by
  * |theta_i| (w_max h)^2 / 6 for (1.17) and |theta_i| (w_max h)^4 / 30 for five-point
- * stencils (w_max the highest natural frequency of the estimate), is added to each
+ * stencils (w_max the highest natural frequency of the estimate), at least
+ * |theta_i| (w_max h)^4 with a damper to a held base (its impulses), is added to each
  * variance. A consistency check compares the estimates of
  * the older and the newer half of the blocks (vibid_ident_get_quality). LS and RLS report
  * the textbook covariance, which assumes white equation errors: their quality says
