@@ -37,8 +37,10 @@ daemon_pid=$!
 truth() { sed -n "s/.*name = \"$1\";.*true_value = \([^;]*\);.*/\1/p" "$stand"; }
 c1_true=$(truth c1) d_true=$(truth d) c2_true=$(truth c2)
 echo "vibid-sim serves paper example 1 on 127.0.0.1:$port; vibidd identifies (Modbus FIFO, 2 kHz)"
-printf '%8s %10s  %-30s %-30s %-30s\n' "t [s]" samples "c1 [N/m] (error)" "d [N s/m] (error)" "c2 [N/m] (error)"
-printf '%8s %10s  %-30s %-30s %-30s\n' truth "" "$c1_true" "$d_true" "$c2_true"
+# each estimate with its standard error and the error in standard errors (z): the truth
+# should lie within about 2 of them
+printf '%8s %10s  %-36s %-36s %-36s\n' "t [s]" samples "c1 [N/m] +- se (error, z)" "d [N s/m] +- se (error, z)" "c2 [N/m] +- se (error, z)"
+printf '%8s %10s  %-36s %-36s %-36s\n' truth "" "$c1_true" "$d_true" "$c2_true"
 for ((t = 2; t <= seconds; t += 2)); do
   sleep 2
   kill -0 "$daemon_pid" 2>/dev/null || { echo "demo: vibidd stopped: $(cat "$out/vibidd.log")" >&2; exit 1; }
@@ -47,10 +49,10 @@ for ((t = 2; t <= seconds; t += 2)); do
     { v[$1] = $2 }
     END {
       if (v["estimate.c1"] == "" || v["estimate.c1"] == "nan") { printf "%8d %10s  (no estimate yet)\n", t, v["samples"]; exit }
-      printf "%8d %10s  %-30s %-30s %-30s\n", t, v["samples"],
-        sprintf("%.6g (%+.3f %%)", v["estimate.c1"], 100 * (v["estimate.c1"] / c1t - 1)),
-        sprintf("%.6g (%+.3f %%)", v["estimate.d"], 100 * (v["estimate.d"] / dt - 1)),
-        sprintf("%.6g (%+.3f %%)", v["estimate.c2"], 100 * (v["estimate.c2"] / c2t - 1)) }' "$out/vibidd.status"
+      printf "%8d %10s  %-36s %-36s %-36s\n", t, v["samples"],
+        sprintf("%.6g +- %.2g (%+.3f %%, %+.1f)", v["estimate.c1"], v["estimate.c1_se"], 100 * (v["estimate.c1"] / c1t - 1), (v["estimate.c1"] - c1t) / v["estimate.c1_se"]),
+        sprintf("%.5g +- %.2g (%+.3f %%, %+.1f)", v["estimate.d"], v["estimate.d_se"], 100 * (v["estimate.d"] / dt - 1), (v["estimate.d"] - dt) / v["estimate.d_se"]),
+        sprintf("%.6g +- %.2g (%+.3f %%, %+.1f)", v["estimate.c2"], v["estimate.c2_se"], 100 * (v["estimate.c2"] / c2t - 1), (v["estimate.c2"] - c2t) / v["estimate.c2_se"]) }' "$out/vibidd.status"
 done
 kill -TERM "$daemon_pid"
 wait "$daemon_pid" || { echo "demo: vibidd exit status $?: $(cat "$out/vibidd.log")" >&2; exit 1; }

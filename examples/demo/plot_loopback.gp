@@ -6,7 +6,7 @@ set output png
 set multiplot layout 3,1 title "vibidd on vibid-sim (paper example 1, Modbus TCP loopback): estimate / truth - 1"
 set grid
 set ylabel "%"
-t0 = system(sprintf("awk -F, 'NR==2{print $1}' %s", tracks)) + 0
+t0 = system(sprintf("grep -v '^#' %s | awk -F, 'NR==2{print $1}'", tracks)) + 0
 set xlabel "time [s]"
 set yrange [-5:5]
 plot tracks every ::1 using ($1-t0):(100*($3/c1t-1)):(200*$4/c1t) with yerrorlines title "c1"
