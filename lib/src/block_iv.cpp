@@ -140,7 +140,7 @@ void BlockIV::merge_pairs() {
 
 std::size_t BlockIV::blocks_with_data() const { return n_closed_ + (cur_.n > 0 ? 1 : 0); }
 
-BlockIVResult BlockIV::solve() const {
+BlockIVResult BlockIV::solve(const double *theta_ref) const {
     const Index P = static_cast<Index>(p_), Q = static_cast<Index>(q_);
     // Blocks in time order with their weights (discount to now for gamma < 1).
     struct View {
@@ -185,24 +185,28 @@ BlockIVResult BlockIV::solve() const {
         const double smax = s.size() ? s(0) : 0.0;
         if (!(smax > 0.0) || !std::isfinite(smax)) return out;
         out.rcond = s(P - 1) / smax;
-        out.rank = 0;
-        for (Index i = 0; i < P; ++i)
-            if (s(i) > 1e-12 * smax) ++out.rank;
-        if (out.rank < p_) return out;
-        // Weak directions: scaled information below 1e-7 of the strongest; the
-        // parameters that load on them are marked (their error bars are then huge).
+        // Informed directions: scaled singular value at least 1e-7 of the largest. The
+        // parameters that load on the others are marked; there the estimate keeps the
+        // reference's component (a pseudo-inverse about theta_ref).
         out.weak.assign(p_, 0);
+        VectorXd sinv = VectorXd::Zero(P);
+        out.rank = 0;
         for (Index k = 0; k < P; ++k) {
-            if (s(k) >= 1e-7 * smax) continue;
+            if (s(k) >= 1e-7 * smax) {
+                sinv(k) = 1.0 / s(k);
+                ++out.rank;
+                continue;
+            }
             const auto v = svd.matrixV().col(k);
             const double vmax = v.cwiseAbs().maxCoeff();
             for (Index i = 0; i < P; ++i)
                 if (std::fabs(v(i)) > 0.1 * vmax) out.weak[static_cast<std::size_t>(i)] = 1;
         }
-        // A^-1 = Dx V S^-1 U^T Dw
-        const MatrixXd Ainv = dx.asDiagonal() * svd.matrixV() * s.cwiseInverse().asDiagonal() *
-                              svd.matrixU().transpose() * dw.asDiagonal();
-        out.theta = Ainv * C;
+        // A^+ = Dx V S^+ U^T Dw; theta = ref + A^+ (C - A ref)
+        const MatrixXd Ainv = dx.asDiagonal() * svd.matrixV() * sinv.asDiagonal() * svd.matrixU().transpose() *
+                              dw.asDiagonal();
+        const MatrixXd ref = theta_ref ? MatrixXd(Eigen::Map<const MatrixXd>(theta_ref, P, Q)) : MatrixXd::Zero(P, Q);
+        out.theta = ref + Ainv * (C - A * ref);
         out.ok = true;
         if (!need_cov) return out;
         const std::size_t K = to - from;
@@ -227,12 +231,7 @@ BlockIVResult BlockIV::solve() const {
 
     const std::size_t K = views.size();
     Partial all = solve_range(0, K, true);
-    if (!all.ok) {
-        if (all.rank == 0 && all.rcond == 0.0)
-            throw_error(VIBID_E_INSUFFICIENT_DATA, "no information in the equations yet (all regressors zero)");
-        throw_error(VIBID_E_NOT_IDENTIFIABLE, "the data do not separate the parameters (rank %zu of %zu)", all.rank,
-                    p_);
-    }
+    if (!all.ok) throw_error(VIBID_E_INSUFFICIENT_DATA, "no information in the equations yet (all regressors zero)");
     BlockIVResult r;
     r.theta = all.theta;
     r.cov = all.cov;

@@ -65,8 +65,13 @@ public:
     unsigned long long samples() const { return samples_; }
     std::size_t blocks_with_data() const;
 
-    // Throws vibid::Error (VIBID_E_INSUFFICIENT_DATA, VIBID_E_NOT_IDENTIFIABLE).
-    BlockIVResult solve() const;
+    // theta_ref (p x q, may be nullptr = 0): where a direction is hardly informed
+    // (scaled singular value below 1e-7 of the largest: the excitation does not
+    // separate some parameters in this window), the estimate keeps theta_ref's component
+    // there and solves the informed directions only; those parameters are marked in
+    // not_excited. Throws vibid::Error (VIBID_E_INSUFFICIENT_DATA when nothing is
+    // informed at all).
+    BlockIVResult solve(const double *theta_ref) const;
 
 private:
     struct Block {

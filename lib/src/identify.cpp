@@ -53,6 +53,8 @@ struct vibid_ident {
     // Last estimate
     std::vector<double> cov;
     bool have_cov = false;
+    std::vector<double> last_theta;  // IV/AUTO: the last estimate (p_reg x q), kept in unexcited directions
+    bool have_theta = false;
     vibid_ident_quality quality{};
     std::vector<unsigned> param_flags;
     // Automatic choices: the highest natural frequency of the nominal model (0 = unknown)
@@ -467,6 +469,7 @@ VIBID_API vibid_status vibid_ident_reset(vibid_ident *ident) {
         if (ident->biv) ident->biv->reset();
         if (ident->rls) check_status(vibid_rls_reset(ident->rls), "rls reset");
         ident->n_built = ident->n_samples = ident->n_rows = 0;
+        ident->have_theta = false;
         ident->prior_done = ident->has_prior;
         ident->prior_count = 0;
         ident->have_cov = false;
@@ -646,7 +649,8 @@ VIBID_API vibid_status vibid_ident_estimate(vibid_ident *ident, double *theta, d
             if (id.biv->samples() * id.m <= pr)
                 throw_error(VIBID_E_INSUFFICIENT_DATA, "%llu instrumented samples for %zu regressors: push more samples",
                             id.biv->samples(), pr);
-            const vibid::BlockIVResult res = id.biv->solve();
+            // In directions the data of this window hardly inform, the last estimate stays.
+            const vibid::BlockIVResult res = id.biv->solve(id.have_theta ? id.last_theta.data() : nullptr);
             Th = res.theta;
             cov_reg = res.cov;
             li.rank = res.rank;
@@ -733,6 +737,10 @@ VIBID_API vibid_status vibid_ident_estimate(vibid_ident *ident, double *theta, d
                                     : std::sqrt(std::max(cov(static_cast<Eigen::Index>(i), static_cast<Eigen::Index>(i)), 0.0));
         std::copy(cov.data(), cov.data() + p * p, id.cov.begin());
         id.have_cov = true;
+        if (id.biv) {
+            id.last_theta.assign(Th.data(), Th.data() + Th.size());
+            id.have_theta = true;
+        }
         qual.rcond = li.rcond;
         id.quality = qual;
         id.param_flags = pflags;
