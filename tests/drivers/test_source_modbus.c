@@ -272,19 +272,29 @@ static void test_snapshot(void **state)
     FILE *srv = start_server(port, "1.5");
     vibid_source_modbus_config cfg = base_cfg(rm, port);
     cfg.mode = VIBID_MODBUS_SNAPSHOT;
-    cfg.sample_period_s = 0.01;
+    /* 30 ms: the Python server answers within ~7 ms here, but this 2-core VM stalls now
+     * and then for tens of ms; a tick missed that way is a GAP record (counted, not
+     * invented), which is correct behaviour: at most 3 are tolerated below (at 10 ms
+     * without tolerance the test failed 2 runs in 3 here) */
+    cfg.sample_period_s = 0.03;
     vibid_drv_error err = {0};
     vibid_source *s = vibid_source_open(&vibid_source_modbus_ops, &cfg, &err);
     if (!s)
         fail_msg("%s", err.text);
     vibid_record r[16];
-    size_t n, samples = 0;
-    int64_t end = mono() + (int64_t)0.8e9;
+    size_t n, samples = 0, missed = 0;
+    int64_t end = mono() + (int64_t)1.2e9; /* the server's schedule serves 1.5 s */
     long last = -1;
     while (mono() < end) {
         vibid_drv_status st = vibid_source_read(s, r, 16, &n, 20, &err);
         assert_true(st == VIBID_DRV_OK || st == VIBID_DRV_E_AGAIN);
         for (size_t i = 0; i < n; i++) {
+            if (r[i].kind == VIBID_REC_GAP) { /* ticks missed: indices skip by exactly the count */
+                assert_int_equal(r[i].index, samples);
+                missed += r[i].count;
+                samples += r[i].count;
+                continue;
+            }
             if (r[i].kind != VIBID_REC_SAMPLE)
                 fail_msg("unexpected record kind %d: %s", r[i].kind, r[i].text);
             assert_int_equal(r[i].index, samples);
@@ -296,15 +306,17 @@ static void test_snapshot(void **state)
     }
     vibid_source_stats st;
     vibid_source_stats_get(s, &st);
-    print_message("snapshot: %zu samples in 0.8 s, interval mean %.4f ms std %.4f ms max %.4f ms, blocks: %llu "
-                  "requests / %llu polls\n",
-                  samples, st.jitter.mean_s * 1e3, st.jitter.std_s * 1e3, st.jitter.max_s * 1e3,
+    print_message("snapshot: %zu ticks (%zu missed) in 1.2 s, interval mean %.4f ms std %.4f ms max %.4f ms, "
+                  "blocks: %llu requests / %llu polls\n",
+                  samples, missed, st.jitter.mean_s * 1e3, st.jitter.std_s * 1e3, st.jitter.max_s * 1e3,
                   (unsigned long long)st.requests, (unsigned long long)st.polls);
-    /* 0.8 s / 10 ms = 80 ticks (+1 for the first); registers 0..2 and 10..11 fit in one
-     * request (1 request per poll); the mean interval is the period to 0.5 ms */
-    assert_true(samples >= 78 && samples <= 81);
+    /* 1.2 s / 30 ms = 40 ticks (+1 for the first); registers 0..2 and 10..11 fit in one
+     * request (1 request per poll); the mean interval is the period to 1 ms */
+    assert_true(samples >= 39 && samples <= 41);
+    assert_true(missed <= 3);
     assert_int_equal(st.requests, st.polls);
-    assert_true(fabs(st.jitter.mean_s - 0.01) < 5e-4);
+    /* each missed tick stretches one interval by a period: 0.75 ms on the mean of 40 */
+    assert_true(fabs(st.jitter.mean_s - 0.03) < 1e-3 + 0.03 * (double)missed / 40.0);
     vibid_source_close(s);
     while (fgets((char[128]){0}, 128, srv)) {
     }
