@@ -60,25 +60,34 @@ int vd_est_init(vd_est *e, const vd_config *cfg, char *err, size_t cap)
     return 0;
 }
 
+int vd_next_line(const char **text, int *len)
+{
+    const char *l = *text;
+    if (!l || !*l)
+        return 0;
+    const char *nl = strchr(l, '\n');
+    *len = nl ? (int)(nl - l) : (int)strlen(l);
+    *text = l + *len + (nl ? 1 : 0);
+    return 1;
+}
+
 void vd_est_print_choices(const vd_est *e, FILE *out, const char *prefix)
 {
-    const char *line = e->choices;
-    while (*line) {
-        const char *nl = strchr(line, '\n');
-        int len = nl ? (int)(nl - line) : (int)strlen(line);
+    const char *rest = e->choices, *line = rest;
+    int len;
+    while (vd_next_line(&rest, &len)) {
         fprintf(out, "%s%.*s\n", prefix, len, line);
-        line += len + (nl ? 1 : 0);
+        line = rest;
     }
 }
 
 void vd_est_log_choices(const vd_est *e)
 {
-    const char *line = e->choices;
-    while (*line) {
-        const char *nl = strchr(line, '\n');
-        int len = nl ? (int)(nl - line) : (int)strlen(line);
+    const char *rest = e->choices, *line = rest;
+    int len;
+    while (vd_next_line(&rest, &len)) {
         vd_info("%.*s", len, line);
-        line += len + (nl ? 1 : 0);
+        line = rest;
     }
 }
 

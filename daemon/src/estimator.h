@@ -106,6 +106,10 @@ void vd_est_print_choices(const vd_est *e, FILE *out, const char *prefix);
 /* The same lines in the log (info level), at start. */
 void vd_est_log_choices(const vd_est *e);
 
+/* Line iterator over a '\n'-separated text: 1 with the line starting at the old *text
+ * (len characters, no '\n') and *text advanced past it; 0 at the end. */
+int vd_next_line(const char **text, int *len);
+
 /* Feeds one record. Returns 1 when *row was filled (a row is due), else 0. FAULT
  * records are not handled here (the caller logs and counts them). */
 int vd_est_record(vd_est *e, const vibid_record *rec, vd_row *row);

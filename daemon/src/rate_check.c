@@ -70,27 +70,37 @@ static double median_inplace(double *a, size_t n)
     return a[want];
 }
 
+/* Means of the kept points of stretch seg[s]..seg[s+1]; returns their number (0: none). */
+static size_t stretch_means(const double *x, const double *y, const unsigned char *keep, const size_t *seg, size_t s,
+                            double *mx, double *my)
+{
+    double sx = 0, sy = 0;
+    size_t m = 0;
+    for (size_t i = seg[s]; i < seg[s + 1]; i++)
+        if (keep[i]) {
+            sx += x[i];
+            sy += y[i];
+            m++;
+        }
+    if (m) {
+        *mx = sx / (double)m;
+        *my = sy / (double)m;
+    }
+    return m;
+}
+
 /* Pooled least squares over the kept points: common slope, one intercept per stretch.
  * seg[s]..seg[s+1] are the stretches. Fills *slope, *se; -1 if no stretch has two kept
  * points with different x. Intercepts (per stretch) go to icpt. */
 static int pooled_fit(const double *x, const double *y, const unsigned char *keep, const size_t *seg, size_t nseg,
                       double *slope, double *se, double *icpt)
 {
-    double sxx = 0, sxy = 0;
+    double sxx = 0, sxy = 0, mx = 0, my = 0;
     size_t used = 0, groups = 0;
     for (size_t s = 0; s < nseg; s++) {
-        double mx = 0, my = 0;
-        size_t m = 0;
-        for (size_t i = seg[s]; i < seg[s + 1]; i++)
-            if (keep[i]) {
-                mx += x[i];
-                my += y[i];
-                m++;
-            }
+        size_t m = stretch_means(x, y, keep, seg, s, &mx, &my);
         if (m == 0)
             continue;
-        mx /= (double)m;
-        my /= (double)m;
         for (size_t i = seg[s]; i < seg[s + 1]; i++)
             if (keep[i]) {
                 sxx += (x[i] - mx) * (x[i] - mx);
@@ -103,18 +113,8 @@ static int pooled_fit(const double *x, const double *y, const unsigned char *kee
         return -1;
     double b = sxy / sxx, ss = 0;
     for (size_t s = 0; s < nseg; s++) {
-        double mx = 0, my = 0;
-        size_t m = 0;
-        for (size_t i = seg[s]; i < seg[s + 1]; i++)
-            if (keep[i]) {
-                mx += x[i];
-                my += y[i];
-                m++;
-            }
-        if (m == 0)
+        if (stretch_means(x, y, keep, seg, s, &mx, &my) == 0)
             continue;
-        mx /= (double)m;
-        my /= (double)m;
         icpt[s] = my - b * mx;
         for (size_t i = seg[s]; i < seg[s + 1]; i++)
             if (keep[i]) {

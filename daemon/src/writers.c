@@ -284,14 +284,14 @@ static int open_files(vd_writers *w, char *err, size_t cap)
         /* The preamble: "# " before every line, then the column header (a CSV reader
          * skips it with comment='#'). */
         size_t off = 0;
-        for (const char *l = w->tracks_preamble; l && *l && off < sizeof w->linebuf / 2;) {
-            const char *nl = strchr(l, '\n');
-            int len = nl ? (int)(nl - l) : (int)strlen(l);
-            int k = snprintf(w->linebuf + off, sizeof w->linebuf / 2 - off, "# %.*s\n", len, l);
+        const char *rest = w->tracks_preamble, *line = rest;
+        int len;
+        while (off < sizeof w->linebuf / 2 && vd_next_line(&rest, &len)) {
+            int k = snprintf(w->linebuf + off, sizeof w->linebuf / 2 - off, "# %.*s\n", len, line);
             if (k < 0 || (size_t)k >= sizeof w->linebuf / 2 - off)
                 break;
             off += (size_t)k;
-            l += len + (nl ? 1 : 0);
+            line = rest;
         }
         int n = vd_format_tracks_header(w->linebuf + off, sizeof w->linebuf - off, cfg);
         if (n >= 0)
