@@ -10,6 +10,7 @@
 
 #include "api_guard.hpp"
 #include "block_iv.hpp"
+#include "stand_ekf.hpp"
 #include "discretize_internal.hpp"
 #include "model_internal.hpp"
 
@@ -33,6 +34,7 @@ struct vibid_ident {
     vibid_regressor *reg = nullptr;
     vibid_lsq *lsq = nullptr;
     std::unique_ptr<vibid::BlockIV> biv;  // IV and AUTO: sums per block (block_iv.hpp)
+    std::unique_ptr<vibid::StandEkf> ekf;  // EKF: the state-space estimator (stand_ekf.hpp)
     vibid_rls *rls = nullptr;
     std::size_t n = 0, p = 0, p_reg = 0, m = 0, q = 0, n_channels = 0;
     bool zoh = false;
@@ -202,6 +204,7 @@ vibid_ident_config resolve_config(const vibid_model &m, const vibid_ident_config
                "over 32..64 blocks, valid for coloured equation errors\n";
         break;
     case VIBID_ESTIMATOR_IV: why += "estimator: instrumental variables with block statistics (configured)\n"; break;
+    case VIBID_ESTIMATOR_EKF: break;  // create_state_space describes it
     case VIBID_ESTIMATOR_LS:
         why += "estimator: batch least squares (configured); biased by noise on the measured channels, standard "
                "errors assume white equation errors (flagged as not valid)\n";
@@ -332,12 +335,90 @@ VIBID_API void vibid_ident_config_init(vibid_ident_config *cfg, double sample_ti
     cfg->difference_order = 0;
 }
 
+}  // extern "C"
+
+namespace {
+
+// The state-space estimator (stand_ekf.hpp): identifiability from the sensitivity of
+// the measured responses, then the filter. why_auto is empty when it was configured.
+std::unique_ptr<vibid_ident> create_state_space(const vibid_model &model, const vibid_ident_config &cfg,
+                                                const std::string &why_auto) {
+    std::string ident_report;
+    vibid::check_identifiable_state_space(model, cfg.sample_time, ident_report);
+    auto id = std::make_unique<vibid_ident>();
+    id->model = model;
+    id->cfg = cfg;
+    id->cfg.estimator = VIBID_ESTIMATOR_EKF;
+    id->n = model.nodes.size();
+    id->p = model.param_term.size();
+    id->n_channels = model.channels.size();
+    id->f_nominal_max = nominal_max_frequency(model);
+    vibid::StandEkfSettings st;
+    st.h = cfg.sample_time;
+    st.forgetting = cfg.forgetting;
+    id->ekf = std::make_unique<vibid::StandEkf>(id->model, st);
+    std::string &why = id->description;
+    if (why_auto.empty())
+        why += "estimator: extended Kalman filter on the stand's states and physical parameters (configured)\n";
+    else
+        why += "estimator: extended Kalman filter on the stand's states and physical parameters (automatic: " +
+               why_auto + ")\n";
+    why += "discretization: exact over each sample (matrix exponential; smooth inputs linear between samples, held "
+           "inputs constant, cubic springs linearised per step)\n";
+    why += ident_report + "\n";
+    why += strprintf("start: the stand's nominal values, relative standard deviation %.2g; measurement noise and "
+                     "scales from the first %zu samples\n",
+                     st.prior_rel, st.window);
+    for (const auto &w : model.disturbances)
+        why += w.std_dev > 0.0 ? strprintf("disturbance %s: std %.6g N (declared)\n", w.name.c_str(), w.std_dev)
+                               : strprintf("disturbance %s: intensity estimated from the first %zu samples (largest "
+                                           "innovation likelihood)\n",
+                                           w.name.c_str(), st.window);
+    if (cfg.forgetting < 1.0)
+        why += strprintf("forgetting: %.6g on the parameters' covariance (memory about %.4g samples = %.4g s)\n",
+                         cfg.forgetting, 1.0 / (1.0 - cfg.forgetting), cfg.sample_time / (1.0 - cfg.forgetting));
+    else
+        why += "forgetting: none (every sample counts alike)\n";
+    id->cov.assign(id->p * id->p, 0.0);
+    return id;
+}
+
+// Estimate of the state-space estimator: the filter's parameters and the parameter
+// block of its covariance. The error bars are the filter's own; they hold when its
+// innovations are consistent (averaged NIS near 1), so an NIS above 2 flags them.
+vibid_status estimate_state_space(vibid_ident &id, double *theta, double *se, vibid_ident_info *info) {
+    const vibid_status s = id.ekf->estimate(theta, se, id.cov.data());
+    if (s != VIBID_OK) return s;
+    const vibid::StandEkfStats &st = id.ekf->stats();
+    vibid_ident_quality qual{};
+    qual.z_consistency = std::nan("");
+    qual.rcond = std::nan("");
+    qual.bias_relative = 0.0;
+    if (!(st.nis_avg <= 2.0) || st.n_steps < 2 * id.p) qual.flags |= VIBID_QUALITY_SE_INVALID;
+    id.param_flags.assign(id.p, qual.flags);
+    id.quality = qual;
+    id.have_cov = true;
+    if (info) {
+        *info = vibid_ident_info{};
+        info->n_samples = id.n_samples;
+        info->n_rows = st.n_steps;
+        info->rank = id.p;
+        info->rcond = std::nan("");
+    }
+    return VIBID_OK;
+}
+
+}  // namespace
+
+extern "C" {
+
 VIBID_API vibid_ident *vibid_ident_create(const vibid_model *model, const vibid_ident_config *cfg) {
     return vibid::guard_create<vibid_ident>(__func__, [&] {
         vibid::require_finalized(model);
         if (!cfg) throw_error(VIBID_E_NULL_ARGUMENT, "cfg is NULL");
         if (cfg->estimator != VIBID_ESTIMATOR_LS && cfg->estimator != VIBID_ESTIMATOR_IV &&
-            cfg->estimator != VIBID_ESTIMATOR_RLS && cfg->estimator != VIBID_ESTIMATOR_AUTO)
+            cfg->estimator != VIBID_ESTIMATOR_RLS && cfg->estimator != VIBID_ESTIMATOR_AUTO &&
+            cfg->estimator != VIBID_ESTIMATOR_EKF)
             throw_error(VIBID_E_OUT_OF_RANGE, "estimator %d unknown", static_cast<int>(cfg->estimator));
         if (!(cfg->sample_time > 0.0) || !std::isfinite(cfg->sample_time))
             throw_error(VIBID_E_OUT_OF_RANGE, "sample_time = %g s must be > 0 and finite", cfg->sample_time);
@@ -350,6 +431,25 @@ VIBID_API vibid_ident *vibid_ident_create(const vibid_model *model, const vibid_
             throw_error(VIBID_E_OUT_OF_RANGE, "rls_alpha = %g: > 0, or 0 for the automatic prior", cfg->rls_alpha);
         if (cfg->iv_lag != 0 && (cfg->iv_lag < 3 || cfg->iv_lag > 4096))
             throw_error(VIBID_E_OUT_OF_RANGE, "iv_lag = %zu outside 3..4096 (0 = automatic)", cfg->iv_lag);
+        // A stand that leaves coordinates unmeasured (some signal of the equations can
+        // not be formed from the channels) or declares an unmeasured random force gets
+        // the state-space estimator under AUTO; the regression estimators cannot run on it.
+        bool state_space = cfg->estimator == VIBID_ESTIMATOR_EKF;
+        std::string why_state_space;
+        if (cfg->estimator == VIBID_ESTIMATOR_AUTO) {
+            if (!model->disturbances.empty()) {
+                state_space = true;
+                why_state_space = "the stand declares an unmeasured random force";
+            } else {
+                try {
+                    vibid::check_signals_available(*model);
+                } catch (const vibid::Error &e) {
+                    state_space = true;
+                    why_state_space = std::string("the stand is not fully measured (") + e.what() + ")";
+                }
+            }
+        }
+        if (state_space) return create_state_space(*model, *cfg, why_state_space).release();
         // Identifiability before any sample.
         // The check's own message says why (not identifiable, a signal not measured, a
         // discretization that does not support the model): no prefix that would claim
@@ -383,6 +483,7 @@ VIBID_API vibid_ident *vibid_ident_create(const vibid_model *model, const vibid_
         id->rows_x.assign(id->p_reg * id->m, 0.0);
         id->rows_w.assign(id->p_reg * id->m, 0.0);
         switch (rcfg.estimator) {
+        case VIBID_ESTIMATOR_EKF: break;  // create_state_space
         case VIBID_ESTIMATOR_LS:
             id->lsq = vibid_lsq_create(id->p_reg, id->q);
             if (!id->lsq) throw_error(VIBID_E_NO_MEMORY, "vibid_lsq_create: %s", vibid_last_error());
@@ -464,7 +565,8 @@ VIBID_API vibid_ident *vibid_ident_create(const vibid_model *model, const vibid_
 VIBID_API vibid_status vibid_ident_reset(vibid_ident *ident) {
     VIBID_GUARD(
         if (!ident) throw_error(VIBID_E_NULL_ARGUMENT, "ident is NULL");
-        check_status(vibid_regressor_reset(ident->reg), "regressor reset");
+        if (ident->ekf) ident->ekf->reset();
+        if (ident->reg) check_status(vibid_regressor_reset(ident->reg), "regressor reset");
         if (ident->lsq) check_status(vibid_lsq_reset(ident->lsq), "lsq reset");
         if (ident->biv) ident->biv->reset();
         if (ident->rls) check_status(vibid_rls_reset(ident->rls), "rls reset");
@@ -488,8 +590,27 @@ VIBID_API vibid_status vibid_ident_dims(const vibid_ident *ident, size_t *n_chan
 VIBID_API vibid_status vibid_ident_set_prior(vibid_ident *ident, const double *theta0, const double *P0) {
     VIBID_GUARD(
         if (!ident) throw_error(VIBID_E_NULL_ARGUMENT, "ident is NULL");
+        if (ident->ekf) {
+            // The filter's start values (used at its next start: now, or after a reset).
+            if (P0)
+                throw_error(VIBID_E_OUT_OF_RANGE, "EKF: the start covariance is relative (50 %% of each start value): "
+                                                  "pass P0 = NULL");
+            std::vector<double> th(ident->p);
+            if (theta0) {
+                for (std::size_t i = 0; i < ident->p; ++i)
+                    if (!std::isfinite(theta0[i]) || theta0[i] == 0.0)
+                        throw_error(VIBID_E_OUT_OF_RANGE, "theta0[%zu] = %g: EKF start values must be finite and != 0",
+                                    i, theta0[i]);
+                th.assign(theta0, theta0 + ident->p);
+            } else {
+                check_status(vibid_model_nominal(&ident->model, th.data()), "nominal values");
+            }
+            ident->ekf->set_start(th.data());
+            return VIBID_OK;
+        }
         if (!ident->rls)
-            throw_error(VIBID_E_STATE, "start values are for the RLS estimator only (LS and IV are batch estimators)");
+            throw_error(VIBID_E_STATE, "start values are for the RLS and EKF estimators only (LS and IV are batch "
+                                       "estimators)");
         vibid_ident &id = *ident;
         const std::size_t p = id.p;
         if (!id.zoh) {
@@ -548,6 +669,12 @@ VIBID_API vibid_status vibid_ident_set_prior(vibid_ident *ident, const double *t
 // Real-time path for every estimator: no exceptions, no allocation.
 VIBID_API vibid_status vibid_ident_push(vibid_ident *ident, const double *channels) {
     if (!ident || !channels) return VIBID_FAIL(VIBID_E_NULL_ARGUMENT, "ident and channels are required");
+    if (ident->ekf) {
+        const vibid_status st = ident->ekf->push(channels);
+        if (st == VIBID_OK || st == VIBID_E_DIVERGED) ++ident->n_samples;
+        ident->n_rows = ident->ekf->stats().n_steps;
+        return st;
+    }
     int ready = 0;
     vibid_status s = vibid_regressor_push(ident->reg, channels, ident->x.data(), ident->y.data(), &ready);
     if (s != VIBID_OK) {
@@ -563,6 +690,7 @@ VIBID_API vibid_status vibid_ident_push(vibid_ident *ident, const double *channe
     if (!ready) return VIBID_OK;
     const std::size_t p = ident->p_reg, m = ident->m;
     switch (ident->cfg.estimator) {
+    case VIBID_ESTIMATOR_EKF: break;  // handled above
     case VIBID_ESTIMATOR_LS:
         transpose_into(ident->x.data(), p, m, ident->rows_x.data());
         s = vibid_lsq_add_rows(ident->lsq, m, ident->rows_x.data(), ident->y.data(), nullptr);
@@ -621,6 +749,7 @@ VIBID_API vibid_status vibid_ident_estimate(vibid_ident *ident, double *theta, d
     VIBID_GUARD(
         if (!ident || !theta) throw_error(VIBID_E_NULL_ARGUMENT, "ident and theta are required");
         vibid_ident &id = *ident;
+        if (id.ekf) return estimate_state_space(id, theta, stderr_out, info);
         const std::size_t pr = id.p_reg, q = id.q, P = pr * q;
         MatrixXd Th(pr, q);
         MatrixXd cov_reg = MatrixXd::Zero(P, P);  // Cov(vec Theta), vec column-major

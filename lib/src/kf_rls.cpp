@@ -16,6 +16,7 @@
 #include <vibid/rls.h>
 
 #include "api_guard.hpp"
+#include "small_linalg.hpp"
 
 #include <Eigen/Core>
 
@@ -25,6 +26,9 @@
 namespace {
 
 using Eigen::Index;
+using vibid::chol_solve;
+using vibid::cholesky;
+using vibid::symmetrise;
 using Mat = Eigen::MatrixXd;
 using Vec = Eigen::VectorXd;
 using CMapM = Eigen::Map<const Mat>;
@@ -43,53 +47,6 @@ bool symmetric(const double *a, Index n) {
             if (std::fabs(a[i + j * n] - a[j + i * n]) > tol) return false;
         }
     return true;
-}
-
-// In-place lower Cholesky of the n x n symmetric A (lower triangle read). False if not
-// positive definite (or not finite).
-bool cholesky(Mat &A) {
-    const Index n = A.rows();
-    for (Index j = 0; j < n; ++j) {
-        double d = A(j, j);
-        for (Index k = 0; k < j; ++k) d -= A(j, k) * A(j, k);
-        if (!(d > 0.0) || !std::isfinite(d)) return false;
-        d = std::sqrt(d);
-        A(j, j) = d;
-        for (Index i = j + 1; i < n; ++i) {
-            double s = A(i, j);
-            for (Index k = 0; k < j; ++k) s -= A(i, k) * A(j, k);
-            A(i, j) = s / d;
-        }
-    }
-    return true;
-}
-
-// Solves (L L^T) y = b in place; returns ||L^-1 b||^2 (b^T A^-1 b).
-double chol_solve(const Mat &L, double *b) {
-    const Index n = L.rows();
-    double q = 0.0;
-    for (Index i = 0; i < n; ++i) {
-        double s = b[i];
-        for (Index k = 0; k < i; ++k) s -= L(i, k) * b[k];
-        b[i] = s / L(i, i);
-        q += b[i] * b[i];
-    }
-    for (Index i = n - 1; i >= 0; --i) {
-        double s = b[i];
-        for (Index k = i + 1; k < n; ++k) s -= L(k, i) * b[k];
-        b[i] = s / L(i, i);
-    }
-    return q;
-}
-
-void symmetrise(Mat &S) {
-    const Index n = S.rows();
-    for (Index j = 0; j < n; ++j)
-        for (Index i = 0; i < j; ++i) {
-            const double m = 0.5 * (S(i, j) + S(j, i));
-            S(i, j) = m;
-            S(j, i) = m;
-        }
 }
 
 }  // namespace

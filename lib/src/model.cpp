@@ -56,6 +56,19 @@ void check_name(const vibid_model *model, const char *name, const char *what) {
         if (e.name == name) throw_error(VIBID_E_OUT_OF_RANGE, "%s name '%s' is already used by an element", what, name);
     for (const auto &u : model->inputs)
         if (u.name == name) throw_error(VIBID_E_OUT_OF_RANGE, "%s name '%s' is already used by an input", what, name);
+    for (const auto &w : model->disturbances)
+        if (w.name == name)
+            throw_error(VIBID_E_OUT_OF_RANGE, "%s name '%s' is already used by a disturbance", what, name);
+}
+
+// Index 0..2 of a single VIBID_MEASURE_* bit; throws otherwise.
+int quantity_index(unsigned quantity) {
+    switch (quantity) {
+    case VIBID_MEASURE_DISPLACEMENT: return 0;
+    case VIBID_MEASURE_VELOCITY: return 1;
+    case VIBID_MEASURE_ACCELERATION: return 2;
+    }
+    throw_error(VIBID_E_OUT_OF_RANGE, "quantity 0x%x is not one VIBID_MEASURE_* bit", quantity);
 }
 
 const char *end_name(const vibid_model &m, std::size_t node) {
@@ -469,6 +482,73 @@ VIBID_API vibid_status vibid_model_add_input(vibid_model *model, const char *nam
         return VIBID_OK;);
 }
 
+VIBID_API vibid_status vibid_model_add_disturbance(vibid_model *model, const char *name, size_t node,
+                                                   double std_dev, size_t *index_out) {
+    VIBID_GUARD(
+        require_editable(model);
+        if (model->full_matrix) throw_error(VIBID_E_STATE, "model was given as full matrices");
+        check_name(model, name, "disturbance");
+        if (node >= model->nodes.size())
+            throw_error(VIBID_E_OUT_OF_RANGE, "disturbance '%s': node %zu is not a declared node (%zu nodes)", name,
+                        node, model->nodes.size());
+        if (!std::isfinite(std_dev) || std_dev < 0.0)
+            throw_error(VIBID_E_OUT_OF_RANGE, "disturbance '%s': std_dev = %g must be >= 0 and finite (0 = unknown)",
+                        name, std_dev);
+        model->disturbances.push_back(vibid::Disturbance{name, node, std_dev});
+        if (index_out) *index_out = model->disturbances.size() - 1;
+        return VIBID_OK;);
+}
+
+VIBID_API vibid_status vibid_model_disturbance_info(const vibid_model *model, size_t index,
+                                                    vibid_disturbance_info *info) {
+    VIBID_GUARD(
+        require_model(model);
+        if (!info) throw_error(VIBID_E_NULL_ARGUMENT, "info is NULL");
+        if (index >= model->disturbances.size())
+            throw_error(VIBID_E_OUT_OF_RANGE, "disturbance %zu of %zu", index, model->disturbances.size());
+        const auto &w = model->disturbances[index];
+        info->name = w.name.c_str();
+        info->node = w.node;
+        info->std_dev = w.std_dev;
+        return VIBID_OK;);
+}
+
+VIBID_API vibid_status vibid_model_set_noise(vibid_model *model, size_t node, unsigned quantity, double std_dev) {
+    VIBID_GUARD(
+        require_editable(model);
+        const int q = quantity_index(quantity);
+        if (std::isnan(std_dev) || std::isinf(std_dev))
+            throw_error(VIBID_E_NONFINITE, "noise std_dev is not finite (< 0 means unknown)");
+        const double v = std_dev < 0.0 ? -1.0 : std_dev;
+        if (node == VIBID_BASE) {
+            model->base_noise[static_cast<std::size_t>(q)] = v;
+        } else {
+            if (node >= model->nodes.size())
+                throw_error(VIBID_E_OUT_OF_RANGE, "node %zu is not a declared node (%zu nodes)", node,
+                            model->nodes.size());
+            model->node_noise.resize(model->nodes.size(), {{-1.0, -1.0, -1.0}});
+            model->node_noise[node][static_cast<std::size_t>(q)] = v;
+        }
+        return VIBID_OK;);
+}
+
+VIBID_API vibid_status vibid_model_get_noise(const vibid_model *model, size_t node, unsigned quantity,
+                                             double *std_dev) {
+    VIBID_GUARD(
+        require_model(model);
+        if (!std_dev) throw_error(VIBID_E_NULL_ARGUMENT, "std_dev is NULL");
+        const int q = quantity_index(quantity);
+        if (node == VIBID_BASE) {
+            *std_dev = model->base_noise[static_cast<std::size_t>(q)];
+        } else {
+            if (node >= model->nodes.size())
+                throw_error(VIBID_E_OUT_OF_RANGE, "node %zu is not a declared node (%zu nodes)", node,
+                            model->nodes.size());
+            *std_dev = node < model->node_noise.size() ? model->node_noise[node][static_cast<std::size_t>(q)] : -1.0;
+        }
+        return VIBID_OK;);
+}
+
 VIBID_API vibid_status vibid_model_set_measured(vibid_model *model, size_t node, unsigned quantities) {
     VIBID_GUARD(
         require_editable(model);
@@ -594,6 +674,7 @@ VIBID_API vibid_status vibid_model_finalize(vibid_model *model) {
                 if (e.b < work.nodes.size()) touched[e.b] = 1;
             }
             for (const auto &u : work.inputs) touched[u.node] = 1;
+            for (const auto &w : work.disturbances) touched[w.node] = 1;
             for (std::size_t i = 0; i < work.nodes.size(); ++i)
                 if (!touched[i])
                     throw_error(VIBID_E_OUT_OF_RANGE, "node '%s' is not connected: no element and no input touches it",
@@ -601,6 +682,7 @@ VIBID_API vibid_status vibid_model_finalize(vibid_model *model) {
             if (work.base_measured && !work.has_base)
                 throw_error(VIBID_E_OUT_OF_RANGE, "base motion is measured but no element connects to the base");
         }
+        work.node_noise.resize(work.nodes.size(), {{-1.0, -1.0, -1.0}});
         work.frozen = true;
         *model = std::move(work);
         return VIBID_OK;);
@@ -657,6 +739,7 @@ VIBID_API vibid_status vibid_model_get_dims(const vibid_model *model, vibid_mode
         dims->has_base = model->has_base ? 1 : 0;
         dims->nonlinear = model->nonlinear ? 1 : 0;
         dims->discretization = model->discretization;
+        dims->n_disturbances = model->disturbances.size();
         return VIBID_OK;);
 }
 

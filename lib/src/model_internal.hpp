@@ -67,6 +67,13 @@ struct Input {
     vibid_hold hold = VIBID_HOLD_SMOOTH;
 };
 
+// Unmeasured random force (vibid_model_add_disturbance).
+struct Disturbance {
+    std::string name;
+    std::size_t node;
+    double std_dev;  // N; 0 = unknown
+};
+
 struct Channel {
     std::string name;
     vibid_channel_kind kind;
@@ -83,7 +90,12 @@ struct vibid_model {
     std::vector<vibid::Element> elements;
     std::vector<vibid::Input> inputs;
     std::vector<vibid::Term> matrix_terms;  // full-matrix models only
+    std::vector<vibid::Disturbance> disturbances;
     unsigned base_measured = 0;
+    // Measurement noise std per quantity (disp, vel, acc) of each node and of the base;
+    // < 0 = unknown (vibid_model_set_noise). node_noise grows with the nodes.
+    std::vector<std::array<double, 3>> node_noise;
+    std::array<double, 3> base_noise{{-1.0, -1.0, -1.0}};
     vibid_hold base_hold = VIBID_HOLD_SMOOTH;
     bool full_matrix = false;
     vibid_discretization discretization = VIBID_DISC_CENTRAL_DIFFERENCE;

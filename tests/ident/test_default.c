@@ -40,6 +40,7 @@
 #include "sim_config.h"
 #include "sim_engine.h"
 #include "sim_test_util.h"
+#include "capture.h"
 
 #define FS 2000.0
 #define SECONDS 20.0
@@ -78,92 +79,6 @@ static const char *base_stand =
     "               { name = \"c2\"; kind = \"spring\"; between = [\"m2\", \"base\"]; unknown = true; true_value = 1.2e5; },\n"
     "               { name = \"d2\"; kind = \"damper\"; between = [\"m2\", \"base\"]; unknown = true; true_value = 30.0; } ); };\n"
     "simulation = { seed = 5; excitation = ( { target = \"base\"; kind = \"noise\"; amplitude = 1.0e-4; f_high = 150.0; } ); };\n";
-
-typedef struct capture {
-    vibid_stand *stand;
-    size_t n, nch, p;
-    double *clean;    /* n x nch column-major */
-    double *noisy;    /* scratch */
-    int *noisy_chan;  /* 1 where sensor noise is added */
-    double *rms;
-    const double *truth;
-} capture;
-
-static uint64_t rng_state = 0x9E3779B97F4A7C15ull;
-static double normal(void)
-{
-    double u, v, s;
-    do {
-        rng_state ^= rng_state << 13; rng_state ^= rng_state >> 7; rng_state ^= rng_state << 17;
-        u = 2.0 * ((double)(rng_state >> 11) / 9007199254740992.0) - 1.0;
-        rng_state ^= rng_state << 13; rng_state ^= rng_state >> 7; rng_state ^= rng_state << 17;
-        v = 2.0 * ((double)(rng_state >> 11) / 9007199254740992.0) - 1.0;
-        s = u * u + v * v;
-    } while (s >= 1.0 || s == 0.0);
-    return u * sqrt(-2.0 * log(s) / s);
-}
-
-static void simulate(capture *c, const char *name, const char *text)
-{
-    const char *path = write_tmp(name, text);
-    assert_non_null(path);
-    vibid_stand_error serr;
-    c->stand = vibid_stand_load(path, &serr);
-    if (!c->stand) fail_msg("%s", serr.text);
-    sim_config cfg;
-    char err[1024];
-    if (sim_config_load(path, c->stand, NULL, &cfg, err, sizeof err)) fail_msg("%s", err);
-    sim_engine *e = sim_engine_create(c->stand, &cfg, err, sizeof err);
-    if (!e) fail_msg("%s", err);
-    const vibid_model *m = vibid_stand_model(c->stand);
-    vibid_model_dims d;
-    assert_int_equal(vibid_model_get_dims(m, &d), VIBID_OK);
-    c->n = (size_t)(SECONDS * FS);
-    c->nch = d.n_channels;
-    c->p = d.n_params;
-    c->truth = vibid_stand_true_values(c->stand);
-    c->clean = malloc(c->n * c->nch * sizeof(double));
-    c->noisy = malloc(c->n * c->nch * sizeof(double));
-    c->noisy_chan = calloc(c->nch, sizeof(int));
-    c->rms = calloc(c->nch, sizeof(double));
-    double *vals = malloc(c->nch * sizeof(double)), *cl = malloc(c->nch * sizeof(double));
-    assert_true(c->clean && c->noisy && c->noisy_chan && c->rms && vals && cl);
-    for (size_t k = 0; k < c->n; k++) {
-        uint64_t kk;
-        double t;
-        if (sim_engine_next(e, &kk, &t, vals, cl)) fail_msg("%s", sim_engine_error(e));
-        for (size_t j = 0; j < c->nch; j++) c->clean[k + j * c->n] = cl[j];
-    }
-    for (size_t j = 0; j < c->nch; j++) {
-        vibid_channel_info ci;
-        assert_int_equal(vibid_model_channel_info(m, j, &ci), VIBID_OK);
-        c->noisy_chan[j] = ci.kind != VIBID_CHANNEL_INPUT;
-        double s2 = 0.0;
-        for (size_t k = 0; k < c->n; k++) s2 += c->clean[k + j * c->n] * c->clean[k + j * c->n];
-        c->rms[j] = sqrt(s2 / (double)c->n);
-    }
-    free(vals);
-    free(cl);
-    sim_engine_destroy(e);
-    sim_config_free(&cfg);
-}
-
-static void capture_free(capture *c)
-{
-    free(c->clean);
-    free(c->noisy);
-    free(c->noisy_chan);
-    free(c->rms);
-    vibid_stand_destroy(c->stand);
-}
-
-static void add_noise(capture *c, double level)
-{
-    for (size_t j = 0; j < c->nch; j++)
-        for (size_t k = 0; k < c->n; k++)
-            c->noisy[k + j * c->n] =
-                c->clean[k + j * c->n] + (c->noisy_chan[j] && level > 0.0 ? level * c->rms[j] * normal() : 0.0);
-}
 
 typedef struct result {
     double theta[8], se[8];
@@ -312,7 +227,7 @@ static void test_chain(void **state)
 {
     (void)state;
     capture c;
-    simulate(&c, "ident_chain.cfg", chain_stand);
+    simulate(&c, "ident_chain.cfg", chain_stand, (size_t)(SECONDS * FS));
     printf("chain, noise-free:\n");
     check_accuracy(&c, 0.0, 1e-4, 5e-3, 1);
     printf("chain, 0.5 %% noise:\n");
@@ -350,7 +265,7 @@ static void test_cubic(void **state)
 {
     (void)state;
     capture c;
-    simulate(&c, "ident_cubic.cfg", cubic_stand);
+    simulate(&c, "ident_cubic.cfg", cubic_stand, (size_t)(SECONDS * FS));
     printf("cubic, noise-free:\n");
     check_accuracy(&c, 0.0, 5e-4, 5e-3, 1);
     check_rls_prior(&c);
@@ -364,7 +279,7 @@ static void test_base(void **state)
 {
     (void)state;
     capture c;
-    simulate(&c, "ident_base.cfg", base_stand);
+    simulate(&c, "ident_base.cfg", base_stand, (size_t)(SECONDS * FS));
     printf("base-excited, held base, noise-free:\n");
     check_accuracy(&c, 0.0, 1e-4, 5e-3, 1);
     printf("base-excited, held base, 0.5 %% noise:\n");

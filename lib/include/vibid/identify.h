@@ -14,7 +14,13 @@
  *       (2.14 a).
  *  RLS  recursive least squares (2.6)/(2.7), Bierman form, with forgetting: for tracking
  *       and the daemon. The per-sample push is real-time safe in this mode.
- *  AUTO (default) IV with block statistics, settings chosen from the model; below.
+ *  AUTO (default) IV with block statistics, settings chosen from the model; below. A
+ *       stand that is not fully measured gets the EKF.
+ *  EKF  joint estimation of the states [y; y'] and the physical parameters by an extended
+ *       Kalman filter on the stand's own model (paper section 3.2, ref. [11]). For stands
+ *       where some coordinate is not measured (no sensor on a mass, only an accelerometer
+ *       where a spring needs the displacement) or that are excited by unmeasured random
+ *       forces (vibid_model_add_disturbance). Details below.
  * With the regressor pre-filter (prefilter_hz > 0) the noise that central differences
  * amplify is removed before it reaches any estimator; for example 1 of the paper at
  * 1 % noise that is what brings every estimator from tens of percent to below 1 %
@@ -45,7 +51,9 @@ typedef enum vibid_estimator {
     VIBID_ESTIMATOR_LS = 0,
     VIBID_ESTIMATOR_IV = 1,
     VIBID_ESTIMATOR_RLS = 2,
-    VIBID_ESTIMATOR_AUTO = 3   /* the default: chosen from the model (see below) */
+    VIBID_ESTIMATOR_AUTO = 3,  /* the default: chosen from the model (see below) */
+    VIBID_ESTIMATOR_EKF = 4    /* extended Kalman filter on the stand's states and physical
+                                  parameters, for stands that are not fully measured (below) */
 } vibid_estimator;
 
 /* The automatic estimator (VIBID_ESTIMATOR_AUTO, the default of vibid_ident_config_init)
@@ -78,6 +86,41 @@ typedef enum vibid_estimator {
  * the older and the newer half of the blocks (vibid_ident_get_quality). LS and RLS report
  * the textbook covariance, which assumes white equation errors: their quality says
  * VIBID_QUALITY_SE_INVALID. */
+/* The state-space estimator (VIBID_ESTIMATOR_EKF; AUTO chooses it when some signal the
+ * regression needs cannot be formed from the measured channels, or when the stand
+ * declares a disturbance):
+ *  - model: M y'' + D y' + C y + cubic = B u + c_b s + d_b s' + w over each sample
+ *    interval, discretised exactly (matrix exponential of the system augmented with the
+ *    inputs and their slopes): smooth inputs linear between samples, held inputs constant
+ *    (a held base kicks the velocities through its dampers), disturbances held white
+ *    samples (model.h). Cubic springs are linearised about the state at each sample.
+ *    Filter state [y; y'; theta]; the Jacobian's parameter columns are the Frechet
+ *    derivative of the exponential (Boole's rule on quarter steps, relative error about
+ *    (w h)^6 / 2e6).
+ *  - before any sample (vibid_ident_create): every unknown needs a nominal (start) value;
+ *    the base's displacement must be measured when something connects to it; and the
+ *    measured channels must determine the unknowns: the sensitivity of the transfer
+ *    functions from the measured inputs, and of the output spectra of the disturbances,
+ *    to the parameters at the nominal values has full rank on a frequency grid over the
+ *    modes. Otherwise VIBID_E_NOT_IDENTIFIABLE names the parameters it cannot determine.
+ *    Cubic coefficients are not part of that test (they show only with amplitude).
+ *  - start: the first 100 samples are collected; measurement noise of each measured
+ *    channel (vibid_model_set_noise, else from its 2nd..6th differences), the typical
+ *    state size, and unknown disturbance intensities (largest innovation likelihood over
+ *    those samples) are taken from them; then the filter runs over them from the nominal
+ *    values (or vibid_ident_set_prior's theta0), each with a relative standard deviation
+ *    of 50 %.
+ *  - per sample O((2n + p)^3 + (2n + 2r)^3), allocation-free. forgetting < 1 divides the
+ *    parameter block of the covariance by it each sample (tracking).
+ *  - error bars: the filter's covariance of the parameters. They hold when the model and
+ *    the noise levels are right, which the innovations show: VIBID_QUALITY_SE_INVALID when
+ *    their averaged normalised square (NIS per measurement, memory 100 samples) exceeds 2.
+ *  - a gap (non-finite sample, VIBID_E_NONFINITE): the state restarts at the next sample,
+ *    the parameters carry on. Divergence (non-finite values, a mass <= 0, a state beyond
+ *    1e6 typical sizes, or the averaged NIS above 10): vibid_ident_push returns
+ *    VIBID_E_DIVERGED for that sample and the filter restarts from its start values;
+ *    the next samples are processed normally.
+ */
 typedef struct vibid_ident_config {
     vibid_estimator estimator; /* default VIBID_ESTIMATOR_AUTO */
     double sample_time;   /* h in s, > 0 */

@@ -129,7 +129,14 @@ typedef struct vibid_model_dims {
     int has_base;       /* non-zero if an element connects to the base */
     int nonlinear;      /* non-zero if a cubic spring is present */
     vibid_discretization discretization;
+    size_t n_disturbances; /* unmeasured random forces (vibid_model_add_disturbance) */
 } vibid_model_dims;
+
+typedef struct vibid_disturbance_info {
+    const char *name;   /* lives as long as the model */
+    size_t node;        /* node the force acts on */
+    double std_dev;     /* N: standard deviation of the held samples; 0 = unknown (estimated) */
+} vibid_disturbance_info;
 
 typedef struct vibid_param_info {
     const char *name;      /* e.g. "c1" (element name), "m2" (node name for a mass),
@@ -190,6 +197,34 @@ VIBID_API vibid_status vibid_model_add_element(vibid_model *model, const char *n
  *   input_out receives the input index j (0-based); may be NULL. */
 VIBID_API vibid_status vibid_model_add_input(vibid_model *model, const char *name, size_t node, double gain,
                                              int unknown, size_t *input_out);
+
+/* Declares an unmeasured random force w on node (the paper's Q w of (1.7)/(3.11)): a
+ * force nobody measures, e.g. the excitation of a machine in service. Its samples are
+ * white, zero-mean, with standard deviation std_dev (N), and each is held over its
+ * sample interval [t_k, t_k + h) (the discrete white noise of the paper's example 3;
+ * vibid-sim produces it so, docs/sim.md). R_w = std_dev^2.
+ *   name     as for elements (unique among nodes, elements, inputs and disturbances).
+ *   std_dev  > 0: known intensity; 0: unknown, estimated from the data by the filter
+ *            (identify.h, estimator EKF). Finite.
+ * A disturbance has no channel. Only the state-space estimator (VIBID_ESTIMATOR_EKF)
+ * uses it; the regression estimators treat it as part of the equation error.
+ * index_out receives its index (0-based); may be NULL. */
+VIBID_API vibid_status vibid_model_add_disturbance(vibid_model *model, const char *name, size_t node,
+                                                   double std_dev, size_t *index_out);
+
+/* Disturbance `index` (0..n_disturbances-1), any state. */
+VIBID_API vibid_status vibid_model_disturbance_info(const vibid_model *model, size_t index,
+                                                    vibid_disturbance_info *info);
+
+/* Standard deviation of the white measurement noise of one measured quantity of node
+ * (index or VIBID_BASE): quantity one VIBID_MEASURE_* bit, std_dev >= 0 in the channel's
+ * units (m, m/s, m/s^2), or < 0 for "unknown" (the default: the state-space estimator
+ * estimates it from the data, identify.h). May be set before the quantity is declared
+ * measured; it only matters for a measured one. */
+VIBID_API vibid_status vibid_model_set_noise(vibid_model *model, size_t node, unsigned quantity, double std_dev);
+/* The declared noise of that quantity (< 0: unknown); any state. */
+VIBID_API vibid_status vibid_model_get_noise(const vibid_model *model, size_t node, unsigned quantity,
+                                             double *std_dev);
 
 /* Sets which quantities of node (index or VIBID_BASE) are measured: a combination of
  * VIBID_MEASURE_* bits (0 = nothing). Default: nothing measured. */

@@ -1,0 +1,1009 @@
+// stand_ekf.cpp: extended Kalman filter on [y; y'; theta] of a lumped network
+// (stand_ekf.hpp), and the identifiability check for partially measured stands.
+//
+// Per-sample code allocates nothing: every matrix is sized in the constructor and the
+// products are written as noalias() lazyProduct into preallocated storage
+// (coefficient-based, no GEMM blocking workspace), as in kf_rls.cpp.
+#include "stand_ekf.hpp"
+
+#include "api_guard.hpp"
+#include "small_linalg.hpp"
+
+#include <vibid/model.h>
+
+#include <Eigen/Dense>
+
+#include <algorithm>
+#include <cmath>
+#include <complex>
+#include <cstdio>
+#include <cstring>
+
+namespace vibid {
+
+namespace {
+
+using Eigen::Index;
+using MatX = Eigen::MatrixXd;
+using VecX = Eigen::VectorXd;
+using CMat = Eigen::MatrixXcd;
+using CVec = Eigen::VectorXcd;
+
+bool measured_disp(const vibid_model &m, std::size_t node) {
+    return node == VIBID_BASE ? (m.base_measured & VIBID_MEASURE_DISPLACEMENT) != 0
+                              : (m.nodes[node].measured & VIBID_MEASURE_DISPLACEMENT) != 0;
+}
+
+// exp(B) for a small matrix with |B|_1 of order 1 or less: scaling by 2^s until
+// |B|_1 <= 1/2, Taylor polynomial of degree 12 (truncation below 2e-14 relative), s
+// squarings. Allocation-free: T1, T2 are scratch of B's size.
+void expm_small(const MatX &B, MatX &out, MatX &T1, MatX &T2) {
+    const Index N = B.rows();
+    double norm = 0.0;
+    for (Index j = 0; j < N; ++j) norm = std::max(norm, B.col(j).cwiseAbs().sum());
+    int s = 0;
+    while (norm > 0.5 && s < 60) {
+        norm *= 0.5;
+        ++s;
+    }
+    const double scale = std::ldexp(1.0, -s);
+    // Horner: T = I + B/1 (I + B/2 (I + ... (I + B/12)))
+    out.setIdentity();
+    for (int k = 12; k >= 1; --k) {
+        T1.noalias() = B.lazyProduct(out);
+        T1 *= scale / static_cast<double>(k);
+        out = T1;
+        out.diagonal().array() += 1.0;
+    }
+    for (int i = 0; i < s; ++i) {
+        T2.noalias() = out.lazyProduct(out);
+        out = T2;
+    }
+}
+
+// Noise variance of a sampled signal from its k-th differences: for white noise
+// var(diff_k) = C(2k, k) sigma^2, while a smooth signal's k-th difference shrinks as
+// (w h)^k. The smallest of k = 2..6 bounds the noise from above and meets it when the
+// signal is sampled finely enough (20 samples per period: (w h)^4 = 0.0024).
+double difference_noise_var(const double *x, std::size_t stride, std::size_t len) {
+    static const double binom[7] = {1, 2, 6, 20, 70, 252, 924};
+    double best = HUGE_VAL;
+    for (int k = 2; k <= 6; ++k) {
+        if (len < static_cast<std::size_t>(k) + 8) break;
+        double ss = 0.0;
+        std::size_t cnt = 0;
+        for (std::size_t t = static_cast<std::size_t>(k); t < len; ++t) {
+            // k-th difference by binomial coefficients (-1)^j C(k, j)
+            double d = 0.0, c = 1.0;
+            for (int j = 0; j <= k; ++j) {
+                d += ((j & 1) ? -c : c) * x[(t - static_cast<std::size_t>(j)) * stride];
+                c = c * static_cast<double>(k - j) / static_cast<double>(j + 1);
+            }
+            ss += d * d;
+            ++cnt;
+        }
+        best = std::min(best, ss / static_cast<double>(cnt) / binom[k]);
+    }
+    return best;
+}
+
+// Natural frequencies (rad/s) of the linear part at theta (nullptr = nominal): smallest
+// and largest; 0 when not available.
+void nominal_omega_range(const vibid_model &m, double &wmin, double &wmax) {
+    const Index n = static_cast<Index>(m.nodes.size());
+    MatX M(n, n), D(n, n), C(n, n);
+    wmin = wmax = 0.0;
+    if (vibid_model_assemble(&m, nullptr, M.data(), D.data(), C.data(), nullptr, nullptr, nullptr) != VIBID_OK) return;
+    Eigen::GeneralizedSelfAdjointEigenSolver<MatX> es(C, M, Eigen::EigenvaluesOnly);
+    if (es.info() != Eigen::Success) return;
+    wmin = HUGE_VAL;
+    for (Index i = 0; i < n; ++i) {
+        const double w = std::sqrt(std::max(es.eigenvalues()(i), 0.0));
+        if (w > 0.0) wmin = std::min(wmin, w);
+        wmax = std::max(wmax, w);
+    }
+    if (!(wmin < HUGE_VAL)) wmin = 0.0;
+}
+
+}  // namespace
+
+// ---------------------------------------------------------------------------------
+// Identifiability from the measured channels (before any sample)
+
+void check_identifiable_state_space(const vibid_model &m, double h, std::string &report) {
+    const std::size_t n = m.nodes.size(), p = m.param_term.size(), r = m.inputs.size();
+    if (p == 0) throw_error(VIBID_E_OUT_OF_RANGE, "nothing unknown: every mass, element and gain is known");
+    if (m.full_matrix)
+        throw_error(VIBID_E_UNSUPPORTED, "the state-space estimator needs a lumped network (nodes and elements), not "
+                                         "full matrices");
+    std::string missing;
+    for (std::size_t i = 0; i < p; ++i) {
+        const Term &t = m.terms[m.param_term[i]];
+        if (!(t.value != 0.0) || !std::isfinite(t.value)) missing += (missing.empty() ? "'" : ", '") + t.name + "'";
+    }
+    if (!missing.empty())
+        throw_error(VIBID_E_OUT_OF_RANGE,
+                    "the state-space estimator (the stand is not fully measured) starts from the stand's nominal "
+                    "values; these unknowns have none: %s (give `value`/`mass`/`gain` as the start value)",
+                    missing.c_str());
+    if (m.has_base && !measured_disp(m, VIBID_BASE))
+        throw_error(VIBID_E_DIMENSION, "base: its displacement must be measured (it is an input of the stand's "
+                                       "model; an unmeasured base motion cannot be told from the stand's response)");
+    std::size_t nmeas = 0;
+    for (const auto &nd : m.nodes) nmeas += static_cast<std::size_t>(__builtin_popcount(nd.measured));
+    if (nmeas == 0) throw_error(VIBID_E_DIMENSION, "no node is measured: nothing to compare the model with");
+    if (r == 0 && !m.has_base && m.disturbances.empty())
+        throw_error(VIBID_E_NOT_IDENTIFIABLE, "nothing excites the stand: no measured force input, no base motion "
+                                              "and no disturbance (declare the random excitation as a disturbance)");
+    bool any_known = false;
+    for (const auto &t : m.terms)
+        if (!t.unknown && t.value != 0.0) any_known = true;
+    for (const auto &w : m.disturbances)
+        if (w.std_dev > 0.0) any_known = true;
+    if (!any_known)
+        throw_error(VIBID_E_NOT_IDENTIFIABLE,
+                    "nothing known fixes the scale: with every mass, element, gain and disturbance intensity unknown, "
+                    "all of them times any factor fit the data equally well; make one known");
+
+    // Frequency grid spanning the nominal modes, below the Nyquist frequency.
+    double wmin = 0.0, wmax = 0.0;
+    nominal_omega_range(m, wmin, wmax);
+    const double wnyq = M_PI / h;
+    if (!(wmax > 0.0)) wmin = wmax = 0.1 * wnyq;
+    const double lo = std::max(0.2 * wmin, 1e-6 * wnyq), hi = std::min(5.0 * wmax, 0.95 * wnyq);
+    const int nf = 96;
+
+    const Index ni = static_cast<Index>(r) + (m.has_base ? 1 : 0);  // measured inputs (base last)
+    const std::size_t nw = m.disturbances.size();
+    std::vector<std::size_t> unknown_w;
+    for (std::size_t l = 0; l < nw; ++l)
+        if (m.disturbances[l].std_dev == 0.0) unknown_w.push_back(l);
+    // Columns: the linear parameters (cubic ones have no linear sensitivity), then the
+    // unknown disturbance variances.
+    std::vector<std::size_t> cols;
+    std::string cubic_names;
+    for (std::size_t i = 0; i < p; ++i) {
+        if (m.terms[m.param_term[i]].kind == VIBID_PARAM_CUBIC)
+            cubic_names += (cubic_names.empty() ? "'" : ", '") + m.terms[m.param_term[i]].name + "'";
+        else
+            cols.push_back(i);
+    }
+    const std::size_t nq = cols.size() + unknown_w.size();
+    if (nq == 0) {
+        report = "identifiability: only cubic coefficients are unknown; they are determined by the amplitude of the "
+                 "response, not checked before the data";
+        return;
+    }
+    struct Out {
+        std::size_t node;
+        int q;
+    };
+    std::vector<Out> outs;
+    for (std::size_t i = 0; i < n; ++i)
+        for (int q = 0; q < 3; ++q)
+            if (m.nodes[i].measured & (1u << q)) outs.push_back({i, q});
+    const Index no = static_cast<Index>(outs.size());
+    const Index nn = static_cast<Index>(n);
+
+    MatX M0(nn, nn), D0(nn, nn), C0(nn, nn), B0(nn, static_cast<Index>(r));
+    VecX db0(nn), cb0(nn);
+    std::vector<double> th(p);
+    vibid_model_nominal(&m, th.data());
+    vibid_model_assemble(&m, th.data(), M0.data(), D0.data(), C0.data(), B0.data(), db0.data(), cb0.data());
+    std::vector<MatX> Mi(p, MatX(nn, nn)), Di(p, MatX(nn, nn)), Ci(p, MatX(nn, nn)),
+        Bi(p, MatX(nn, static_cast<Index>(r)));
+    std::vector<VecX> dbi(p, VecX(nn)), cbi(p, VecX(nn));
+    for (std::size_t i = 0; i < p; ++i)
+        vibid_model_structure(&m, i, Mi[i].data(), Di[i].data(), Ci[i].data(), Bi[i].data(), dbi[i].data(),
+                              cbi[i].data());
+
+    std::vector<VecX> rows;  // each a real row of length nq
+    for (int f = 0; f < nf; ++f) {
+        const double w = lo * std::pow(hi / lo, static_cast<double>(f) / (nf - 1));
+        const std::complex<double> iw(0.0, w);
+        CMat Z = (-w * w) * M0.cast<std::complex<double>>() + iw * D0.cast<std::complex<double>>() +
+                 C0.cast<std::complex<double>>();
+        Eigen::PartialPivLU<CMat> lu(Z);
+        // Input matrix: measured forces, base (c_b + i w d_b), disturbances (unit force).
+        CMat F(nn, ni + static_cast<Index>(nw));
+        F.setZero();
+        for (Index j = 0; j < static_cast<Index>(r); ++j) F.col(j) = B0.col(j).cast<std::complex<double>>();
+        if (m.has_base)
+            F.col(static_cast<Index>(r)) = cb0.cast<std::complex<double>>() + iw * db0.cast<std::complex<double>>();
+        for (std::size_t l = 0; l < nw; ++l) F(static_cast<Index>(m.disturbances[l].node), ni + static_cast<Index>(l)) = 1.0;
+        const CMat Y = lu.solve(F);
+        auto out_factor = [&](int q) {
+            return q == 0 ? std::complex<double>(1.0) : q == 1 ? iw : std::complex<double>(-w * w);
+        };
+        std::vector<CMat> dY(nq);
+        for (std::size_t c = 0; c < cols.size(); ++c) {
+            const std::size_t i = cols[c];
+            CMat dZ = (-w * w) * Mi[i].cast<std::complex<double>>() + iw * Di[i].cast<std::complex<double>>() +
+                      Ci[i].cast<std::complex<double>>();
+            CMat dF(nn, ni + static_cast<Index>(nw));
+            dF.setZero();
+            for (Index j = 0; j < static_cast<Index>(r); ++j) dF.col(j) = Bi[i].col(j).cast<std::complex<double>>();
+            if (m.has_base)
+                dF.col(static_cast<Index>(r)) =
+                    cbi[i].cast<std::complex<double>>() + iw * dbi[i].cast<std::complex<double>>();
+            // relative sensitivity: d/d log theta
+            dY[c] = lu.solve(dF - dZ * Y) * th[i];
+        }
+        // Measured inputs: the transfer functions themselves, relative to their size.
+        for (Index o = 0; o < no; ++o) {
+            const std::complex<double> g = out_factor(outs[static_cast<std::size_t>(o)].q);
+            const Index node = static_cast<Index>(outs[static_cast<std::size_t>(o)].node);
+            for (Index j = 0; j < ni; ++j) {
+                const double mag = std::abs(g * Y(node, j));
+                if (!(mag > 1e-300)) continue;
+                VecX re = VecX::Zero(static_cast<Index>(nq)), im = VecX::Zero(static_cast<Index>(nq));
+                for (std::size_t c = 0; c < cols.size(); ++c) {
+                    const std::complex<double> v = g * dY[c](node, j) / mag;
+                    re(static_cast<Index>(c)) = v.real();
+                    im(static_cast<Index>(c)) = v.imag();
+                }
+                rows.push_back(re);
+                rows.push_back(im);
+            }
+        }
+        // Disturbances: only the output (cross-)spectra are observable:
+        // S_oo' = sum_l R_l T_ol conj(T_o'l).
+        if (nw) {
+            for (Index o = 0; o < no; ++o)
+                for (Index o2 = o; o2 < no; ++o2) {
+                    const Index a = static_cast<Index>(outs[static_cast<std::size_t>(o)].node),
+                                b = static_cast<Index>(outs[static_cast<std::size_t>(o2)].node);
+                    const std::complex<double> ga = out_factor(outs[static_cast<std::size_t>(o)].q),
+                                               gb = out_factor(outs[static_cast<std::size_t>(o2)].q);
+                    std::complex<double> S(0.0);
+                    std::vector<double> Rl(nw);
+                    for (std::size_t l = 0; l < nw; ++l) {
+                        Rl[l] = m.disturbances[l].std_dev > 0.0 ? m.disturbances[l].std_dev * m.disturbances[l].std_dev
+                                                                : 1.0;
+                        S += Rl[l] * ga * Y(a, ni + static_cast<Index>(l)) *
+                             std::conj(gb * Y(b, ni + static_cast<Index>(l)));
+                    }
+                    const double mag = std::abs(S);
+                    if (!(mag > 1e-300)) continue;
+                    VecX re = VecX::Zero(static_cast<Index>(nq)), im = VecX::Zero(static_cast<Index>(nq));
+                    for (std::size_t c = 0; c < cols.size(); ++c) {
+                        std::complex<double> d(0.0);
+                        for (std::size_t l = 0; l < nw; ++l) {
+                            const Index cl = ni + static_cast<Index>(l);
+                            d += Rl[l] * (ga * dY[c](a, cl) * std::conj(gb * Y(b, cl)) +
+                                          ga * Y(a, cl) * std::conj(gb * dY[c](b, cl)));
+                        }
+                        re(static_cast<Index>(c)) = (d / mag).real();
+                        im(static_cast<Index>(c)) = (d / mag).imag();
+                    }
+                    for (std::size_t u = 0; u < unknown_w.size(); ++u) {
+                        const std::size_t l = unknown_w[u];
+                        const Index cl = ni + static_cast<Index>(l);
+                        const std::complex<double> d = Rl[l] * ga * Y(a, cl) * std::conj(gb * Y(b, cl));
+                        re(static_cast<Index>(cols.size() + u)) = (d / mag).real();
+                        im(static_cast<Index>(cols.size() + u)) = (d / mag).imag();
+                    }
+                    rows.push_back(re);
+                    if (o2 != o) rows.push_back(im);
+                }
+        }
+    }
+    MatX J(static_cast<Index>(rows.size()), static_cast<Index>(nq));
+    for (std::size_t k = 0; k < rows.size(); ++k) J.row(static_cast<Index>(k)) = rows[k].transpose();
+    Eigen::JacobiSVD<MatX> svd(J, Eigen::ComputeFullV);
+    const VecX sv = svd.singularValues();
+    // Structural non-identifiability gives singular values at rounding level (1e-15 of
+    // the largest); a poorly excited but identifiable direction stays far above 1e-9.
+    const double tol = 1e-9 * (sv.size() ? sv(0) : 0.0);
+    std::string bad;
+    Index rank = 0;
+    for (Index k = 0; k < sv.size(); ++k)
+        if (sv(k) > tol) ++rank;
+    if (rank < static_cast<Index>(nq)) {
+        VecX weight = VecX::Zero(static_cast<Index>(nq));
+        for (Index k = rank; k < static_cast<Index>(nq); ++k) weight += svd.matrixV().col(k).cwiseAbs2();
+        for (Index c = 0; c < static_cast<Index>(nq); ++c)
+            if (weight(c) > 1e-3) {
+                const std::string name = c < static_cast<Index>(cols.size())
+                                             ? m.terms[m.param_term[cols[static_cast<std::size_t>(c)]]].name
+                                             : "intensity of " + m.disturbances[unknown_w[static_cast<std::size_t>(
+                                                                     c - static_cast<Index>(cols.size()))]].name;
+                bad += (bad.empty() ? "'" : ", '") + name + "'";
+            }
+        throw_error(VIBID_E_NOT_IDENTIFIABLE,
+                    "not identifiable from the measured channels: %s (at the nominal values the measured responses "
+                    "determine only %ld of these %zu unknowns; sensitivity rank test over %.3g..%.3g Hz); make them "
+                    "known or measure more of the stand",
+                    bad.c_str(), static_cast<long>(rank), nq, lo / (2 * M_PI), hi / (2 * M_PI));
+    }
+    char buf[320];
+    std::snprintf(buf, sizeof buf,
+                  "identifiability: the measured channels determine all %zu unknowns at the nominal values "
+                  "(sensitivity rank %zu over %.3g..%.3g Hz, smallest relative singular value %.2g)%s",
+                  nq, nq, lo / (2 * M_PI), hi / (2 * M_PI), sv(sv.size() - 1) / sv(0),
+                  cubic_names.empty() ? "" : "; cubic coefficients are not part of the test");
+    report = buf;
+}
+
+// ---------------------------------------------------------------------------------
+// The filter
+
+StandEkf::StandEkf(const vibid_model &m, const StandEkfSettings &s) : model_(&m), set_(s) {
+    n_ = static_cast<Index>(m.nodes.size());
+    p_ = static_cast<Index>(m.param_term.size());
+    r_ = static_cast<Index>(m.inputs.size());
+    base_smooth_ = m.base_hold != VIBID_HOLD_ZOH;
+    nb_ = m.has_base ? 1 : 0;
+    nw_ = static_cast<Index>(m.disturbances.size());
+    nc_ = m.nonlinear ? 1 : 0;
+    ne_ = r_ + nb_ + nw_ + nc_;
+    nx_ = 2 * n_;
+    N_ = nx_ + 2 * ne_;
+    na_ = nx_ + p_;
+    nch_ = static_cast<Index>(m.channels.size());
+    if (nb_) {
+        col_s_ = nx_ + r_;
+        if (base_smooth_) col_sd_ = nx_ + ne_ + r_;  // its slope: the base velocity over the interval
+    }
+    held_base_kick_ = m.has_base && !base_smooth_ && m.base_damper;
+    for (const auto &u : m.inputs) input_smooth_.push_back(u.hold != VIBID_HOLD_ZOH);
+    input_ch_.assign(m.input_channel.begin(), m.input_channel.end());
+    base_disp_ch_ = m.base_channel[0];
+    base_vel_ch_ = m.base_channel[1];
+    for (std::size_t i = 0; i < m.nodes.size(); ++i)
+        for (int q = 0; q < 3; ++q)
+            if (m.node_channel[i][static_cast<std::size_t>(q)] != kNoChannel)
+                meas_.push_back(Meas{m.node_channel[i][static_cast<std::size_t>(q)], i, q,
+                                     m.node_noise[i][static_cast<std::size_t>(q)]});
+    base_declared_std_ = m.base_noise[0];
+    nz_ = static_cast<Index>(meas_.size());
+    for (const auto &e : m.elements)
+        if (e.kind == VIBID_ELEMENT_CUBIC_SPRING) {
+            long param = -1;
+            for (const auto &t : m.terms)
+                if (t.name == e.name) param = t.param;
+            cubics_.push_back(Cubic{e.a, e.b, param, e.value});
+        }
+    for (const auto &w : m.disturbances) {
+        dist_declared_.push_back(w.std_dev);
+        dist_node_.push_back(w.node);
+    }
+
+
+    // Structure matrices: the known part (theta = 0) and each unknown's derivative.
+    const Index n = n_, r = r_;
+    MatX Mm(n, n);
+    auto fetch = [&](long i, VecX &Md, MatX &Dm, MatX &Cm, MatX &Bm, VecX &dbv, VecX &cbv) {
+        Dm.resize(n, n);
+        Cm.resize(n, n);
+        Bm.resize(n, r);
+        dbv.resize(n);
+        cbv.resize(n);
+        vibid_status st;
+        if (i < 0) {
+            std::vector<double> zero(static_cast<std::size_t>(p_), 0.0);
+            st = vibid_model_assemble(&m, zero.data(), Mm.data(), Dm.data(), Cm.data(), Bm.data(), dbv.data(),
+                                      cbv.data());
+        } else {
+            st = vibid_model_structure(&m, static_cast<std::size_t>(i), Mm.data(), Dm.data(), Cm.data(), Bm.data(),
+                                       dbv.data(), cbv.data());
+        }
+        if (st != VIBID_OK) throw_error(st, "%s", vibid_last_error());
+        Md = Mm.diagonal();
+    };
+    fetch(-1, M0_, D0_, C0_, B0_, db0_, cb0_);
+    Mi_.resize(static_cast<std::size_t>(p_));
+    Di_.resize(static_cast<std::size_t>(p_));
+    Ci_.resize(static_cast<std::size_t>(p_));
+    Bi_.resize(static_cast<std::size_t>(p_));
+    dbi_.resize(static_cast<std::size_t>(p_));
+    cbi_.resize(static_cast<std::size_t>(p_));
+    for (Index i = 0; i < p_; ++i) {
+        const std::size_t k = static_cast<std::size_t>(i);
+        fetch(i, Mi_[k], Di_[k], Ci_[k], Bi_[k], dbi_[k], cbi_[k]);
+    }
+    theta0_.resize(p_);
+    vibid_model_nominal(&m, theta0_.data());
+    theta_start_ = theta0_;
+
+    Mv_.resize(n);
+    Minv_.resize(n);
+    cb_.resize(n);
+    db_.resize(n);
+    cbt_.resize(n);
+    gconst_.resize(n);
+    D_.resize(n, n);
+    C_.resize(n, n);
+    Ct_.resize(n, n);
+    B_.resize(n, r);
+    for (MatX *X : {&A_, &E4_, &E2_, &E1_, &T1_, &T2_, &Pow_}) X->setZero(N_, N_);
+    dArows_.assign(static_cast<std::size_t>(p_), MatX::Zero(n, N_));
+    for (auto &x : xi_) x.setZero(N_);
+    acc_.setZero(N_);
+    gv_.setZero(n);
+    a_.setZero(na_);
+    scale_.setOnes(na_);
+    P_.setZero(na_, na_);
+    for (MatX *X : {&F_, &FP_, &IKH_}) X->setZero(na_, na_);
+    Hm_.setZero(nz_, na_);
+    PHt_.setZero(na_, nz_);
+    K_.setZero(na_, nz_);
+    Sz_.setZero(nz_, nz_);
+    Rz_.setZero(nz_, nz_);
+    zhat_.setZero(nz_);
+    nu_.setZero(nz_);
+    Rv_.setZero(nz_);
+    meas_std_.assign(static_cast<std::size_t>(nz_), 0.0);
+    dist_std_.assign(static_cast<std::size_t>(nw_), 0.0);
+    Rw_.setZero(nw_);
+    window_.assign(set_.window * static_cast<std::size_t>(nch_), 0.0);
+    prev_.assign(static_cast<std::size_t>(nch_), 0.0);
+    prev2_.assign(static_cast<std::size_t>(nch_), 0.0);
+    double wmin = 0.0, wmax = 0.0;
+    nominal_omega_range(m, wmin, wmax);
+    omega_ref_ = wmax > 0.0 ? wmax : 0.1 * M_PI / set_.h;
+}
+
+void StandEkf::reset() {
+    n_window_ = 0;
+    have_prev_ = have_prev2_ = false;
+    state_fresh_ = true;
+    stats_ = StandEkfStats{};
+}
+
+void StandEkf::set_start(const double *theta0) {
+    for (Index i = 0; i < p_; ++i) theta_start_(i) = theta0[i];
+}
+
+// X(theta) = X0 + sum theta_i X_i at the parameters in a_.
+void StandEkf::assemble() {
+    Mv_ = M0_;
+    D_ = D0_;
+    C_ = C0_;
+    B_ = B0_;
+    cb_ = cb0_;
+    db_ = db0_;
+    for (Index i = 0; i < p_; ++i) {
+        const double t = a_(nx_ + i);
+        const std::size_t k = static_cast<std::size_t>(i);
+        Mv_.noalias() += t * Mi_[k];
+        D_.noalias() += t * Di_[k];
+        C_.noalias() += t * Ci_[k];
+        if (r_) B_.noalias() += t * Bi_[k];
+        cb_.noalias() += t * cbi_[k];
+        db_.noalias() += t * dbi_[k];
+    }
+    Minv_ = Mv_.cwiseInverse();
+}
+
+// Relative displacement of cubic spring e: y_a - y_b (y_ground = 0, y_base = s).
+double StandEkf::cubic_rho(std::size_t e, const double *y, double s) const {
+    const Cubic &c = cubics_[e];
+    const double yb = c.b == VIBID_GROUND ? 0.0 : c.b == VIBID_BASE ? s : y[c.b];
+    return y[c.a] - yb;
+}
+
+// Cubic springs about the state at t_k: f = eps rho^3 ~ 3 eps rho0^2 rho - 2 eps rho0^3,
+// i.e. a spring 3 eps rho0^2 (into Ct_, cbt_) and a constant force (gconst_).
+void StandEkf::linearise_cubics(const double *y, double s) {
+    Ct_ = C_;
+    cbt_ = cb_;
+    gconst_.setZero();
+    for (std::size_t e = 0; e < cubics_.size(); ++e) {
+        const Cubic &c = cubics_[e];
+        const double eps = c.param >= 0 ? a_(nx_ + c.param) : c.value;
+        const double rho = cubic_rho(e, y, s), k = 3.0 * eps * rho * rho, g = 2.0 * eps * rho * rho * rho;
+        const Index ia = static_cast<Index>(c.a);
+        Ct_(ia, ia) += k;
+        gconst_(ia) += g;
+        if (c.b == VIBID_BASE) {
+            cbt_(ia) += k;
+        } else if (c.b != VIBID_GROUND) {
+            const Index ib = static_cast<Index>(c.b);
+            Ct_(ia, ib) -= k;
+            Ct_(ib, ia) -= k;
+            Ct_(ib, ib) += k;
+            gconst_(ib) -= g;
+        }
+    }
+}
+
+// A~ (velocity rows; the others are constant) and its derivatives d A~ / d theta_i.
+// Columns: [y | v | e = (u, s, w, 1) | e' (slopes)].
+void StandEkf::build_transition() {
+    const Index n = n_, eu = nx_, ew = eu + r_ + nb_, e1 = ew + nw_, es = col_s_, ds = col_sd_;
+    A_.setZero();
+    for (Index i = 0; i < n; ++i) A_(i, n + i) = 1.0;
+    for (Index j = 0; j < ne_; ++j) A_(nx_ + j, nx_ + ne_ + j) = 1.0;
+    for (Index i = 0; i < n; ++i) {
+        const double mi = Minv_(i);
+        for (Index j = 0; j < n; ++j) {
+            A_(n + i, j) = -mi * Ct_(i, j);
+            A_(n + i, n + j) = -mi * D_(i, j);
+        }
+        for (Index j = 0; j < r_; ++j) A_(n + i, eu + j) = mi * B_(i, j);
+        if (es >= 0) A_(n + i, es) = mi * cbt_(i);
+        if (ds >= 0) A_(n + i, ds) = mi * db_(i);
+        if (nc_) A_(n + i, e1) = mi * gconst_(i);
+    }
+    for (Index l = 0; l < nw_; ++l) {
+        const Index node = static_cast<Index>(dist_node_[static_cast<std::size_t>(l)]);
+        A_(n + node, ew + l) = Minv_(node);
+    }
+    // d(M^-1 X)/d theta_i = M^-1 (X_i - M_i M^-1 X), M diagonal.
+    for (Index k = 0; k < p_; ++k) {
+        const std::size_t kk = static_cast<std::size_t>(k);
+        MatX &dA = dArows_[kk];
+        dA.setZero();
+        const VecX &Mk = Mi_[kk];
+        for (Index i = 0; i < n; ++i) {
+            const double mi = Minv_(i), dmi = -mi * mi * Mk(i);  // d(1/m_i)
+            for (Index j = 0; j < n; ++j) {
+                dA(i, j) = -(dmi * Ct_(i, j) + mi * Ci_[kk](i, j));
+                dA(i, n + j) = -(dmi * D_(i, j) + mi * Di_[kk](i, j));
+            }
+            for (Index j = 0; j < r_; ++j) dA(i, eu + j) = dmi * B_(i, j) + mi * Bi_[kk](i, j);
+            if (es >= 0) dA(i, es) = dmi * cbt_(i) + mi * cbi_[kk](i);
+            if (ds >= 0) dA(i, ds) = dmi * db_(i) + mi * dbi_[kk](i);
+            if (nc_) dA(i, e1) = dmi * gconst_(i);
+        }
+        for (Index l = 0; l < nw_; ++l) {
+            const Index nd = static_cast<Index>(dist_node_[static_cast<std::size_t>(l)]);
+            dA(nd, ew + l) = -Minv_(nd) * Minv_(nd) * Mk(nd);
+        }
+    }
+    // Cubic coefficients: their linearisation's derivative (3 rho0^2 spring, 2 rho0^3 force).
+    for (std::size_t e = 0; e < cubics_.size(); ++e) {
+        const Cubic &c = cubics_[e];
+        if (c.param < 0) continue;
+        MatX &dA = dArows_[static_cast<std::size_t>(c.param)];
+        const double rho = cubic_rho(e, xi_[0].data(), es >= 0 ? xi_[0](es) : 0.0);
+        const double k = 3.0 * rho * rho, g = 2.0 * rho * rho * rho;
+        const Index ia = static_cast<Index>(c.a);
+        dA(ia, ia) -= Minv_(ia) * k;
+        dA(ia, e1) += Minv_(ia) * g;
+        if (c.b == VIBID_BASE) {
+            dA(ia, es) += Minv_(ia) * k;
+        } else if (c.b != VIBID_GROUND) {
+            const Index ib = static_cast<Index>(c.b);
+            dA(ia, ib) += Minv_(ia) * k;
+            dA(ib, ia) += Minv_(ib) * k;
+            dA(ib, ib) -= Minv_(ib) * k;
+            dA(ib, e1) -= Minv_(ib) * g;
+        }
+    }
+}
+
+double StandEkf::base_disp(const double *ch) const { return base_disp_ch_ >= 0 ? ch[base_disp_ch_] : 0.0; }
+
+// Base displacement and velocity at the instant of `ch` (prev: the sample before, or
+// nullptr): the sample and, for a smooth base, its measured velocity or else the slope of
+// the interval ending there; 0 for a held base (constant between its jumps).
+void StandEkf::base_now(const double *ch, const double *prev, double &s, double &sd) const {
+    s = base_disp(ch);
+    sd = 0.0;
+    if (!nb_ || !base_smooth_) return;
+    if (base_vel_ch_ >= 0)
+        sd = ch[base_vel_ch_];
+    else if (prev)
+        sd = (s - base_disp(prev)) / set_.h;
+}
+
+// Fresh state (after a start or a gap): zero with the prior variance (3 typical
+// amplitudes); the parameters and their covariance carry on, cross terms dropped.
+void StandEkf::init_state() {
+    const Index nx = nx_;
+    for (Index i = 0; i < nx; ++i) a_(i) = 0.0;
+    P_.topRows(nx).setZero();
+    P_.leftCols(nx).setZero();
+    for (Index i = 0; i < nx; ++i) P_(i, i) = 9.0;
+}
+
+void StandEkf::restart_parameters() {
+    const Index nx = nx_;
+    P_.setZero();
+    for (Index i = 0; i < p_; ++i) {
+        a_(nx + i) = theta_start_(i);
+        scale_(nx + i) = std::fabs(theta_start_(i)) > 0.0 ? std::fabs(theta_start_(i)) : 1.0;
+        P_(nx + i, nx + i) = set_.prior_rel * set_.prior_rel;
+    }
+    init_state();
+    stats_.nis_avg = 1.0;
+    boosts_in_row_ = 0;
+    have_prev_ = have_prev2_ = false;
+}
+
+// Noise levels and scales from the start window, then the filter runs over it.
+void StandEkf::start_from_window() {
+    const std::size_t len = n_window_, nch = static_cast<std::size_t>(nch_);
+    // Typical displacement amplitude: measured displacements, else velocities / w,
+    // accelerations / w^2 (w the highest nominal natural frequency).
+    double sy = 0.0;
+    for (std::size_t k = 0; k < meas_.size(); ++k) {
+        const Meas &mm = meas_[k];
+        double mean = 0.0, ss = 0.0;
+        for (std::size_t t = 0; t < len; ++t) mean += window_[t * nch + static_cast<std::size_t>(mm.channel)];
+        mean /= static_cast<double>(len);
+        for (std::size_t t = 0; t < len; ++t) {
+            const double d = window_[t * nch + static_cast<std::size_t>(mm.channel)] - mean;
+            ss += d * d;
+        }
+        const double sd = std::sqrt(ss / static_cast<double>(len)) / std::pow(omega_ref_, mm.q);
+        sy = std::max(sy, sd);
+        // Measurement noise: declared, else from the differences (with a floor of 1e-6 of
+        // the signal's spread, so that a noise-free channel does not make the update
+        // singular).
+        double var = mm.declared_std >= 0.0 ? mm.declared_std * mm.declared_std
+                                            : difference_noise_var(window_.data() + mm.channel, nch, len);
+        const double floor = 1e-12 * (ss / static_cast<double>(len)) + 1e-300;
+        var = std::max(var, floor);
+        Rv_(static_cast<Index>(k)) = var;
+        meas_std_[k] = std::sqrt(var);
+    }
+    sigma_y_ = sy > 0.0 ? sy : 1.0;
+    for (Index i = 0; i < n_; ++i) {
+        scale_(i) = sigma_y_;
+        scale_(n_ + i) = sigma_y_ * omega_ref_;
+    }
+    // Noise on the base channel: the filter takes the base as an exact input, so its noise
+    // reaches the states through c_b s and d_b s' (the slope, where it is amplified by
+    // 1/h): entered as process noise (step()).
+    if (nb_) {
+        const std::size_t ch = static_cast<std::size_t>(base_disp_ch_);
+        base_noise_var_ = base_declared_std_ >= 0.0 ? base_declared_std_ * base_declared_std_
+                                                    : difference_noise_var(window_.data() + ch, nch, len);
+    }
+    for (Index l = 0; l < nw_; ++l) {
+        const double s = dist_declared_[static_cast<std::size_t>(l)];
+        Rw_(l) = s * s;
+    }
+    // Unknown disturbance intensities: the value that best explains the window (largest
+    // innovation likelihood), by golden-section search over log10 R_w, one at a time.
+    for (Index l = 0; l < nw_; ++l) {
+        if (dist_declared_[static_cast<std::size_t>(l)] > 0.0) continue;
+        // Centre of the search: the force that moves the node by the typical amplitude at
+        // the highest mode.
+        const Index nd = static_cast<Index>(dist_node_[static_cast<std::size_t>(l)]);
+        double mass = M0_(nd);
+        for (Index i = 0; i < p_; ++i) mass += theta_start_(i) * Mi_[static_cast<std::size_t>(i)](nd);
+        const double centre = std::log10(std::pow(mass * omega_ref_ * omega_ref_ * sigma_y_, 2.0));
+        double lo = centre - 6.0, hi = centre + 6.0;
+        const double gr = 0.5 * (std::sqrt(5.0) - 1.0);
+        double x1 = hi - gr * (hi - lo), x2 = lo + gr * (hi - lo);
+        Rw_(l) = std::pow(10.0, x1);
+        double f1 = window_misfit();
+        Rw_(l) = std::pow(10.0, x2);
+        double f2 = window_misfit();
+        for (int it = 0; it < 40 && hi - lo > 0.01; ++it) {
+            if (f1 < f2) {
+                hi = x2;
+                x2 = x1;
+                f2 = f1;
+                x1 = hi - gr * (hi - lo);
+                Rw_(l) = std::pow(10.0, x1);
+                f1 = window_misfit();
+            } else {
+                lo = x1;
+                x1 = x2;
+                f1 = f2;
+                x2 = lo + gr * (hi - lo);
+                Rw_(l) = std::pow(10.0, x2);
+                f2 = window_misfit();
+            }
+        }
+        Rw_(l) = std::pow(10.0, 0.5 * (lo + hi));
+    }
+    for (Index l = 0; l < nw_; ++l) dist_std_[static_cast<std::size_t>(l)] = std::sqrt(Rw_(l));
+    restart_parameters();
+    stats_.started = true;
+    for (std::size_t t = 0; t < len; ++t) (void)push(window_.data() + t * nch);
+}
+
+// Innovation misfit (minus twice the log-likelihood, constants dropped) of the filter
+// run over the start window from the start values, for the current R_w.
+double StandEkf::window_misfit() {
+    restart_parameters();
+    const bool was = stats_.started;
+    stats_.started = true;
+    double total = 0.0;
+    const std::size_t nch = static_cast<std::size_t>(nch_);
+    for (std::size_t t = 0; t < n_window_; ++t) {
+        const double *cur = window_.data() + t * nch;
+        vibid_status st;
+        if (!have_prev_) {
+            st = update(cur);
+        } else {
+            st = step(prev_.data(), cur);
+        }
+        if (st != VIBID_OK) {
+            total = HUGE_VAL;
+            break;
+        }
+        // log det S + nu' S^-1 nu from the factor left in Sz_ and the NIS
+        double logdet = 0.0;
+        for (Index i = 0; i < nz_; ++i) logdet += 2.0 * std::log(Sz_(i, i));
+        total += logdet + last_nis_;
+        prev2_ = prev_;
+        have_prev2_ = have_prev_;
+        std::copy(cur, cur + nch, prev_.begin());
+        have_prev_ = true;
+    }
+    stats_.started = was;
+    return total;
+}
+
+vibid_status StandEkf::push(const double *ch) {
+    const std::size_t nch = static_cast<std::size_t>(nch_);
+    for (std::size_t c = 0; c < nch; ++c)
+        if (!std::isfinite(ch[c])) {
+            // A gap: the elapsed time and the inputs in it are unknown, so the state
+            // restarts at the next sample; the parameters carry on.
+            ++stats_.gaps;
+            have_prev_ = have_prev2_ = false;
+            return VIBID_FAIL(VIBID_E_NONFINITE, "channel %zu is not finite (sample skipped, state restarts)", c);
+        }
+    if (!stats_.started) {
+        std::copy(ch, ch + nch, window_.begin() + static_cast<std::ptrdiff_t>(n_window_ * nch));
+        if (++n_window_ == set_.window) start_from_window();
+        return VIBID_OK;
+    }
+    vibid_status st;
+    if (!have_prev_) {
+        init_state();
+        st = update(ch);
+    } else {
+        st = step(prev_.data(), ch);
+    }
+    if (st == VIBID_E_DIVERGED) {
+        ++stats_.restarts;
+        restart_parameters();
+        return st;
+    }
+    if (st != VIBID_OK) return st;
+    ++stats_.n_steps;
+    std::copy(prev_.begin(), prev_.end(), prev2_.begin());
+    have_prev2_ = have_prev_;
+    std::copy(ch, ch + nch, prev_.begin());
+    have_prev_ = true;
+    return VIBID_OK;
+}
+
+// Prediction over [t_k, t_{k+1}] (samples prev = k and cur = k+1), then the update.
+vibid_status StandEkf::step(const double *prev, const double *cur) {
+    const Index n = n_, nx = nx_;
+    const double h = set_.h;
+    assemble();
+    const double s_k = base_disp(prev);
+    // xi0 = [x_k (+ kick); e_k; slopes]
+    VecX &x0 = xi_[0];
+    x0.setZero();
+    x0.head(nx) = a_.head(nx);
+    const Index eu = nx, ew = eu + r_ + nb_, e1 = ew + nw_;
+    for (Index j = 0; j < r_; ++j) {
+        const double uk = prev[input_ch_[static_cast<std::size_t>(j)]], uk1 = cur[input_ch_[static_cast<std::size_t>(j)]];
+        x0(eu + j) = uk;
+        x0(eu + ne_ + j) = input_smooth_[static_cast<std::size_t>(j)] ? (uk1 - uk) / h : 0.0;
+    }
+    double ds_kick = 0.0;
+    if (nb_) {
+        x0(col_s_) = s_k;
+        if (col_sd_ >= 0) x0(col_sd_) = (base_disp(cur) - s_k) / h;  // smooth: linear over the interval
+        if (held_base_kick_ && have_prev2_) ds_kick = s_k - base_disp(prev2_.data());  // held: a jump at t_k
+    }
+    if (nc_) x0(e1) = 1.0;
+    if (held_base_kick_)
+        for (Index i = 0; i < n; ++i) x0(n + i) += Minv_(i) * db_(i) * ds_kick;
+    linearise_cubics(x0.data(), s_k);
+    build_transition();
+    T2_ = A_ * (h / 4.0);
+    expm_small(T2_, E4_, T1_, Pow_);
+    E2_.noalias() = E4_.lazyProduct(E4_);
+    E1_.noalias() = E2_.lazyProduct(E2_);
+    for (int j = 1; j <= 4; ++j) xi_[j].noalias() = E4_.lazyProduct(xi_[j - 1]);
+
+    // Jacobian: F = [[Phi, J], [0, I]] in scaled coordinates.
+    F_.setIdentity();
+    for (Index i = 0; i < nx; ++i)
+        for (Index j = 0; j < nx; ++j) F_(i, j) = E1_(i, j) * scale_(j) / scale_(i);
+    static const double w[5] = {7.0, 32.0, 12.0, 32.0, 7.0};
+    for (Index k = 0; k < p_; ++k) {
+        const MatX &dA = dArows_[static_cast<std::size_t>(k)];
+        acc_.setZero();
+        for (int j = 0; j < 5; ++j) {
+            if (j > 0) {
+                T1_.col(0).noalias() = E4_.lazyProduct(acc_);
+                acc_ = T1_.col(0);
+            }
+            gv_.noalias() = dA.lazyProduct(xi_[j]);
+            acc_.segment(n, n) += w[j] * gv_;
+        }
+        acc_ *= h / 90.0;
+        if (held_base_kick_ && ds_kick != 0.0) {
+            // kick derivative d(M^-1 d_b)/d theta_k * ds, propagated by Phi
+            const double *Mk = Mi_[static_cast<std::size_t>(k)].data();
+            for (Index i = 0; i < n; ++i) {
+                const double mi = Minv_(i);
+                const double dkick = (-mi * mi * Mk[i] * db_(i) + mi * dbi_[static_cast<std::size_t>(k)](i)) * ds_kick;
+                for (Index r = 0; r < nx; ++r) acc_(r) += E1_(r, n + i) * dkick;
+            }
+        }
+        for (Index i = 0; i < nx; ++i) F_(i, nx + k) = acc_(i) * scale_(nx + k) / scale_(i);
+    }
+    // Predicted state.
+    a_.head(nx) = xi_[4].head(nx);
+    // Covariance: P = F P F' + Q; Q from the held disturbances, Gamma_w = columns of exp(A~ h).
+    FP_.noalias() = F_.lazyProduct(P_);
+    P_.noalias() = FP_.lazyProduct(F_.transpose());
+    for (Index l = 0; l < nw_; ++l) {
+        const double q = Rw_(l);
+        for (Index i = 0; i < nx; ++i)
+            for (Index j = 0; j < nx; ++j)
+                P_(i, j) += q * E1_(i, ew + l) * E1_(j, ew + l) / (scale_(i) * scale_(j));
+    }
+    // The base channel's noise sigma^2: on s_k directly, on the slope as 2 sigma^2 / h^2
+    // (correlation between neighbouring intervals neglected).
+    if (nb_ && base_noise_var_ > 0.0) {
+        const double vs = base_noise_var_, vd = 2.0 * base_noise_var_ / (h * h);
+        for (Index i = 0; i < nx; ++i)
+            for (Index j = 0; j < nx; ++j) {
+                double q = vs * E1_(i, col_s_) * E1_(j, col_s_);
+                if (col_sd_ >= 0) q += vd * E1_(i, col_sd_) * E1_(j, col_sd_);
+                P_(i, j) += q / (scale_(i) * scale_(j));
+            }
+    }
+    if (set_.forgetting < 1.0) P_.bottomRightCorner(p_, p_) /= set_.forgetting;
+    symmetrise(P_);
+    return update(cur);
+}
+
+// Measurement update with sample cur (at t_{k+1}). Leaves nu' S^-1 nu in last_nis_ and the
+// Cholesky factor of S in Sz_. On a failure the state is not committed beyond the
+// prediction; divergence is reported as VIBID_E_DIVERGED.
+vibid_status StandEkf::update(const double *cur) {
+    const Index n = n_, nx = nx_;
+    assemble();
+    double s = 0.0, sd = 0.0;
+    base_now(cur, have_prev_ ? prev_.data() : nullptr, s, sd);
+    const double *y = a_.data(), *v = a_.data() + n;
+    Hm_.setZero();
+    Rz_.setZero();
+    for (Index k = 0; k < nz_; ++k) {
+        const Meas &mm = meas_[static_cast<std::size_t>(k)];
+        Rz_(k, k) = Rv_(k);
+        const Index i = static_cast<Index>(mm.node);
+        if (mm.q == 0) {
+            zhat_(k) = y[i];
+            Hm_(k, i) = scale_(i);
+            continue;
+        }
+        if (mm.q == 1) {
+            zhat_(k) = v[i];
+            Hm_(k, n + i) = scale_(n + i);
+            continue;
+        }
+        // acceleration: a_i = (f_i) / m_i, f = B u + c_b s + d_b s' - D v - C y - cubic
+        double f = 0.0;
+        for (Index j = 0; j < r_; ++j) f += B_(i, j) * cur[input_ch_[static_cast<std::size_t>(j)]];
+        f += cb_(i) * s + db_(i) * sd;
+        for (Index j = 0; j < n; ++j) f -= D_(i, j) * v[j] + C_(i, j) * y[j];
+        for (std::size_t e = 0; e < cubics_.size(); ++e) {
+            const Cubic &c = cubics_[e];
+            const double eps = c.param >= 0 ? a_(nx + c.param) : c.value, rho = cubic_rho(e, y, s);
+            const double sign = c.a == static_cast<std::size_t>(i) ? 1.0 : (c.b == static_cast<std::size_t>(i) ? -1.0 : 0.0);
+            if (sign == 0.0) continue;
+            f -= sign * eps * rho * rho * rho;
+            const double k3 = 3.0 * eps * rho * rho;
+            Hm_(k, static_cast<Index>(c.a)) -= sign * Minv_(i) * k3 * scale_(static_cast<Index>(c.a));
+            if (c.b < static_cast<std::size_t>(n))
+                Hm_(k, static_cast<Index>(c.b)) += sign * Minv_(i) * k3 * scale_(static_cast<Index>(c.b));
+
+            if (c.param >= 0) Hm_(k, nx + c.param) -= sign * Minv_(i) * rho * rho * rho * scale_(nx + c.param);
+        }
+        const double acc = Minv_(i) * f;
+        zhat_(k) = acc;
+        for (Index j = 0; j < n; ++j) {
+            Hm_(k, j) -= Minv_(i) * C_(i, j) * scale_(j);
+            Hm_(k, n + j) -= Minv_(i) * D_(i, j) * scale_(n + j);
+        }
+
+        for (Index q = 0; q < p_; ++q) {
+            const std::size_t qq = static_cast<std::size_t>(q);
+            double df = 0.0;
+            for (Index j = 0; j < r_; ++j) df += Bi_[qq](i, j) * cur[input_ch_[static_cast<std::size_t>(j)]];
+            df += cbi_[qq](i) * s + dbi_[qq](i) * sd;
+            for (Index j = 0; j < n; ++j) df -= Di_[qq](i, j) * v[j] + Ci_[qq](i, j) * y[j];
+            Hm_(k, nx + q) += (Minv_(i) * df - Minv_(i) * Mi_[qq](i) * acc) * scale_(nx + q);
+        }
+        // A disturbance on this node is felt by its accelerometer directly: its held
+        // value over [t_{k+1}, t_{k+2}) is independent of the state.
+        for (Index l = 0; l < nw_; ++l)
+            if (dist_node_[static_cast<std::size_t>(l)] == mm.node) Rz_(k, k) += Minv_(i) * Minv_(i) * Rw_(l);
+    }
+    for (Index k = 0; k < nz_; ++k) nu_(k) = cur[meas_[static_cast<std::size_t>(k)].channel] - zhat_(k);
+    PHt_.noalias() = P_.lazyProduct(Hm_.transpose());
+    Sz_.noalias() = Hm_.lazyProduct(PHt_);
+    Sz_ += Rz_;
+    if (!cholesky(Sz_)) return VIBID_FAIL(VIBID_E_DIVERGED, "innovation covariance not positive definite");
+    // K = P H' S^-1, row by row through the factor.
+    for (Index i = 0; i < na_; ++i) {
+        // solve S x = (P H')_i^T
+        for (Index k = 0; k < nz_; ++k) zhat_(k) = PHt_(i, k);
+        chol_solve(Sz_, zhat_.data());
+        for (Index k = 0; k < nz_; ++k) K_(i, k) = zhat_(k);
+    }
+    for (Index k = 0; k < nz_; ++k) zhat_(k) = nu_(k);
+    const double q = chol_solve(Sz_, zhat_.data());  // nu' S^-1 nu
+    last_nis_ = q;
+    // State: a += T K nu
+    for (Index i = 0; i < na_; ++i) {
+        double d = 0.0;
+        for (Index k = 0; k < nz_; ++k) d += K_(i, k) * nu_(k);
+        a_(i) += scale_(i) * d;
+    }
+    // Joseph form: P = (I - K H) P (I - K H)' + K R K'
+    IKH_.setIdentity();
+    IKH_.noalias() -= K_.lazyProduct(Hm_);
+    FP_.noalias() = IKH_.lazyProduct(P_);
+    P_.noalias() = FP_.lazyProduct(IKH_.transpose());
+    PHt_.noalias() = K_.lazyProduct(Rz_);
+    P_.noalias() += PHt_.lazyProduct(K_.transpose());
+    symmetrise(P_);
+    stats_.nis_avg = set_.nis_memory * stats_.nis_avg + (1.0 - set_.nis_memory) * q / static_cast<double>(nz_);
+
+    // Divergence: non-finite, a negative variance, a mass that is no longer positive,
+    // a state far beyond its typical size, or innovations far beyond their covariance.
+    for (Index i = 0; i < na_; ++i)
+        if (!std::isfinite(a_(i)) || !(P_(i, i) >= 0.0) || !std::isfinite(P_(i, i)))
+            return VIBID_FAIL(VIBID_E_DIVERGED, "filter diverged: non-finite state or covariance; restarted from the "
+                                                "start values");
+    for (Index i = 0; i < nx; ++i)
+        if (std::fabs(a_(i)) > 1e6 * scale_(i))
+            return VIBID_FAIL(VIBID_E_DIVERGED, "filter diverged: state %ld beyond 1e6 times its typical size; "
+                                                "restarted from the start values", static_cast<long>(i));
+    for (Index k = 0; k < p_; ++k)
+        if (model_->terms[model_->param_term[static_cast<std::size_t>(k)]].kind == VIBID_PARAM_MASS &&
+            !(a_(nx + k) > 0.0))
+            return VIBID_FAIL(VIBID_E_DIVERGED, "filter diverged: mass '%s' reached %g; restarted from the start "
+                                                "values",
+                              model_->terms[model_->param_term[static_cast<std::size_t>(k)]].name.c_str(), a_(nx + k));
+    // Innovations far beyond their covariance: the parameters changed (a crack) or the
+    // filter lost them. First the parameters' covariance is widened (x100) so that they
+    // can move to where the data are; only when that does not bring the innovations back
+    // within five tries is it divergence.
+    const double settle = 1.0 / (1.0 - set_.nis_memory);
+    if (stats_.nis_avg < 2.0) boosts_in_row_ = 0;
+    if (static_cast<double>(stats_.n_steps) > settle && stats_.nis_avg > set_.nis_limit) {
+        if (boosts_in_row_ >= 5)
+            return VIBID_FAIL(VIBID_E_DIVERGED, "filter diverged: averaged innovation NIS %.3g > %.3g after the "
+                                                "parameters' covariance was widened 5 times; restarted from the start "
+                                                "values",
+                              stats_.nis_avg, set_.nis_limit);
+        P_.bottomRightCorner(p_, p_) *= 100.0;
+        P_.topRightCorner(nx, p_) *= 10.0;
+        P_.bottomLeftCorner(p_, nx) *= 10.0;
+        stats_.nis_avg = 1.0;
+        ++boosts_in_row_;
+        ++stats_.boosts;
+    }
+    return VIBID_OK;
+}
+
+vibid_status StandEkf::estimate(double *theta, double *se, double *cov) {
+    if (!stats_.started) {
+        if (n_window_ < 10)
+            return VIBID_FAIL(VIBID_E_INSUFFICIENT_DATA, "%zu samples; the state-space estimator needs at least 10",
+                              n_window_);
+        start_from_window();
+    }
+    const Index nx = nx_;
+    for (Index i = 0; i < p_; ++i) {
+        if (theta) theta[i] = a_(nx + i);
+        if (se) se[i] = scale_(nx + i) * std::sqrt(std::max(P_(nx + i, nx + i), 0.0));
+        if (cov)
+            for (Index j = 0; j < p_; ++j)
+                cov[i + j * p_] = scale_(nx + i) * scale_(nx + j) * P_(nx + i, nx + j);
+    }
+    return VIBID_OK;
+}
+
+}  // namespace vibid

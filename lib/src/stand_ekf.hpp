@@ -1,0 +1,176 @@
+// stand_ekf.hpp: joint estimation of the state and the physical parameters of a lumped
+// network (model.h) by an extended Kalman filter on [y; y'; theta], for stands that are
+// not fully measured (paper section 3.2, example 3; ref. [11]). identify.cpp runs it as
+// VIBID_ESTIMATOR_EKF; identify.h documents the behaviour users see.
+//
+// Model over one sample interval [t_k, t_{k+1}] (exact for these input shapes):
+//   M y'' + D y' + C y + cubic(y, s) = B u + c_b s + d_b s' + B_w w,
+//   smooth inputs (forces, base) linear between their samples (first-order hold), held
+//   inputs constant (zero-order hold; a held base kicks the velocities through its
+//   dampers by M^-1 d_b (s_k - s_{k-1}) at t_k), disturbances w held white samples.
+// The augmented linear system xi = [y; y'; e; e'] (e the inputs, e' their slopes) has
+// the exact one-step map exp(A~ h). Its derivative with respect to each parameter is the
+// Frechet derivative of the exponential, integral_0^h exp(A~(h-s)) dA~ exp(A~ s) ds,
+// evaluated on the current xi by Boole's rule on quarter steps (relative error about
+// (|A~| h)^6 / 2e6, below 1e-9 at 10 samples per period). Cubic springs are linearised
+// about the state at t_k (exponential Rosenbrock-Euler: the map is then exact to
+// second order in h for the cubic force, exact for the linear part).
+//
+// Numbers: the covariance is kept in scaled coordinates (states by their typical
+// amplitude, parameters by their start values), so that metres and N/m^3 share a
+// matrix without a condition number of 1e20.
+#pragma once
+
+#include "model_internal.hpp"
+
+#include <vibid/common.h>
+
+#include <Eigen/Core>
+
+#include <string>
+#include <vector>
+
+namespace vibid {
+
+struct StandEkfSettings {
+    double h = 0.0;            // sample time, s
+    double forgetting = 1.0;   // (0, 1]: the parameter block of the covariance is divided by it each step
+    std::size_t window = 1000;  // start window, samples: noise levels and scales are taken from it
+    double prior_rel = 0.5;    // relative standard deviation of the start values
+    double nis_limit = 10.0;   // restart when the averaged NIS per measurement exceeds it
+    double nis_memory = 0.99;  // averaging factor of the NIS
+};
+
+// Before any sample: the unknowns must have nominal (start) values, the base (when
+// something connects to it) must have its displacement measured, something must excite
+// the stand (a measured input, the base, or a disturbance), and the measured channels
+// must determine every unknown: the sensitivity of the transfer functions from the
+// measured inputs (and of the output spectra of the disturbances) to the parameters, at
+// the nominal values, on a frequency grid spanning the modes, must have full rank.
+// Throws vibid::Error naming the parameters that are not determined. Cubic coefficients
+// have no linear sensitivity and are not part of the rank test. report receives one line
+// saying what was checked.
+void check_identifiable_state_space(const vibid_model &m, double h, std::string &report);
+
+struct StandEkfStats {
+    unsigned long long n_steps = 0;   // filter steps with a measurement update
+    unsigned long long restarts = 0;  // restarts after divergence
+    unsigned long long boosts = 0;    // parameter covariance widened after a jump in the innovations
+    unsigned long long gaps = 0;      // non-finite samples (state restarted, parameters kept)
+    double nis_avg = 1.0;             // averaged NIS per measurement (1 when consistent)
+    bool started = false;             // the start window is through
+};
+
+class StandEkf {
+public:
+    // Sizes everything (the only allocations). Call check_identifiable_state_space first.
+    StandEkf(const vibid_model &m, const StandEkfSettings &s);
+
+    // One sample in the model's channel layout. Allocation-free. VIBID_E_NONFINITE for a
+    // non-finite channel (the state restarts at the next sample, the parameters carry
+    // on); VIBID_E_DIVERGED when this sample made the filter diverge (restarted from the
+    // start values, reason in vibid_last_error()).
+    vibid_status push(const double *channels);
+
+    // Back to the start (the start window is collected again).
+    void reset();
+
+    // Start values of the parameters (p; in the model's order); used at the next start.
+    void set_start(const double *theta0);
+
+    // Current estimate (p), standard errors (p) and covariance (p x p, may be nullptr).
+    // Starts the filter on a partly filled window when it holds at least 10 samples.
+    // VIBID_E_INSUFFICIENT_DATA before that.
+    vibid_status estimate(double *theta, double *se, double *cov);
+
+    const StandEkfStats &stats() const { return stats_; }
+    // Noise levels in use (after the start window): measurement std per measured channel
+    // in the order of the measured node quantities, and disturbance std.
+    const std::vector<double> &measurement_std() const { return meas_std_; }
+    const std::vector<double> &disturbance_std() const { return dist_std_; }
+    std::size_t n_measurements() const { return meas_.size(); }
+
+private:
+    struct Meas {
+        long channel;   // index in the sample
+        std::size_t node;
+        int q;          // 0 displacement, 1 velocity, 2 acceleration
+        double declared_std;  // < 0: estimate
+    };
+    struct Cubic {
+        std::size_t a, b;  // b may be VIBID_GROUND or VIBID_BASE
+        long param;        // -1 known
+        double value;
+    };
+    using Mat = Eigen::MatrixXd;
+    using Vec = Eigen::VectorXd;
+
+    void start_from_window();
+    void init_state();
+    void assemble();
+    void linearise_cubics(const double *y, double s);
+    void build_transition();
+    double window_misfit();
+    vibid_status step(const double *prev, const double *cur);
+    vibid_status update(const double *cur);
+    void restart_parameters();
+    double base_disp(const double *ch) const;
+    void base_now(const double *ch, const double *prev, double &s, double &sd) const;
+    double cubic_rho(std::size_t e, const double *y, double s) const;
+
+    const vibid_model *model_ = nullptr;  // owned by the vibid_ident that owns this
+    StandEkfSettings set_;
+    // Sizes: n nodes, p unknowns, r force inputs, nb = 1 with a base, nw disturbances,
+    // nc = 1 with cubic springs (the constant of their linearisation); ne inputs in xi;
+    // nx = 2 n states.
+    Eigen::Index n_ = 0, p_ = 0, r_ = 0, nb_ = 0, nw_ = 0, nc_ = 0, ne_ = 0, nx_ = 0, N_ = 0, na_ = 0, nz_ = 0,
+                 nch_ = 0;
+    Eigen::Index col_s_ = -1, col_sd_ = -1;  // base displacement / velocity column in xi (-1: none)
+    unsigned boosts_in_row_ = 0;
+    bool held_base_kick_ = false;  // held base with dampers: velocity kicks
+    bool base_smooth_ = true;
+    std::vector<bool> input_smooth_;
+    long base_disp_ch_ = -1, base_vel_ch_ = -1;
+    std::vector<long> input_ch_;
+    std::vector<Meas> meas_;
+    std::vector<Cubic> cubics_;
+    std::vector<double> dist_declared_;   // std, 0 = estimate
+    std::vector<std::size_t> dist_node_;  // node the disturbance acts on
+    double base_declared_std_ = -1.0, base_noise_var_ = 0.0;  // base channel noise
+
+    // Structure: X(theta) = X0 + sum_i theta_i X_i, X in {M (diag), D, C, B, c_b, d_b}.
+    Vec M0_, cb0_, db0_;
+    Mat D0_, C0_, B0_;
+    std::vector<Vec> Mi_, cbi_, dbi_;
+    std::vector<Mat> Di_, Ci_, Bi_;
+    Vec theta0_, theta_start_;
+
+    // Assembled at the current parameters (and linearisation point for cubics).
+    Vec Mv_, Minv_, cb_, db_;   // linear part
+    Mat D_, C_, B_;
+    Vec cbt_, gconst_;          // with the cubic springs linearised about t_k
+    Mat Ct_;
+    Mat A_, E4_, E2_, E1_, T1_, T2_, Pow_;  // N x N
+    std::vector<Mat> dArows_;                // p of n x N: d(A~)/d theta_i, velocity rows
+    Vec xi_[5], acc_, gv_;
+
+    // Filter.
+    Vec a_;       // [y; v; theta], physical units
+    Vec scale_;   // na: scaled coordinates a_s = a / scale
+    Mat P_;       // na x na, scaled
+    Mat F_, FP_, Hm_, PHt_, Sz_, K_, IKH_, Rz_;
+    double last_nis_ = 0.0;  // nu' S^-1 nu of the last update
+    Vec zhat_, nu_, Rv_;
+    std::vector<double> meas_std_, dist_std_;
+    Vec Rw_;
+
+    // Start window and continuity.
+    std::vector<double> window_;
+    std::size_t n_window_ = 0;
+    std::vector<double> prev_, prev2_;
+    bool have_prev_ = false, have_prev2_ = false, state_fresh_ = true;
+    double sigma_y_ = 1.0, omega_ref_ = 1.0;
+    StandEkfStats stats_;
+};
+
+}  // namespace vibid
