@@ -307,7 +307,9 @@ sim_exc *sim_exc_create(const sim_exc_spec *specs, size_t n, double h, int smoot
             c->discrete = 1;
             break;
         case SIM_EXC_NOISE: {
-            if (!(s->f_low >= 0.0) || !isfinite(s->f_low) || !(s->f_high > s->f_low) || !isfinite(s->f_high))
+            /* f_high = +inf is the full band (f_high omitted in the config; a disturbance's
+             * default drive): no low-pass, like any f_high near or above Nyquist */
+            if (!(s->f_low >= 0.0) || !isfinite(s->f_low) || !(s->f_high > s->f_low) || isnan(s->f_high))
                 FAIL("noise: need 0 <= f_low < f_high (f_low = %g, f_high = %g Hz)", s->f_low, s->f_high);
             c->discrete = 1;
             if (s->f_low > 0.0) {

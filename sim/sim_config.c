@@ -301,13 +301,13 @@ int sim_config_load(const char *path, const vibid_stand *stand, const uint64_t *
         if (!config_setting_is_group(e)) { fail(&c, e, p, "must be a group { ... }"); goto out; }
         const char *tg = NULL;
         if (get_str(&c, e, p, "target", &tg) < 0) goto out;
-        if (!tg) { fail(&c, e, p, "target missing: \"base\" or the name of a force input"); goto out; }
-        int is_base = strcmp(tg, "base") == 0;
+        if (!tg) { fail(&c, e, p, "target missing: \"base\", the name of a force input or of a disturbance"); goto out; }
+        int is_base = strcmp(tg, "base") == 0, is_dist = 0;
         size_t input = 0;
         if (is_base && !d.has_base) { fail(&c, e, p, "target \"base\": no element of the stand connects to the base"); goto out; }
         if (!is_base) {
             int found = 0;
-            char names[512] = "";
+            char names[512] = "", dnames[512] = "";
             for (size_t k = 0; k < d.n_channels && !found; k++) {
                 vibid_channel_info ci;
                 vibid_model_channel_info(model, k, &ci);
@@ -317,15 +317,36 @@ int sim_config_load(const char *path, const vibid_stand *stand, const uint64_t *
                 strncat(names, ci.name, sizeof names - strlen(names) - 1);
                 strncat(names, " ", sizeof names - strlen(names) - 1);
             }
+            /* A disturbance's name is unique among the model's names, but an input's channel
+             * name may equal it: refuse the ambiguity rather than pick one. */
+            for (size_t k = 0; k < d.n_disturbances; k++) {
+                vibid_disturbance_info wi;
+                vibid_model_disturbance_info(model, k, &wi);
+                if (strcmp(wi.name, tg) == 0) {
+                    if (found) {
+                        fail(&c, config_setting_get_member(e, "target"), p,
+                             "target '%s' names both a force input's channel and a disturbance", tg);
+                        goto out;
+                    }
+                    found = is_dist = 1;
+                    input = k;
+                }
+                if (dnames[0]) strncat(dnames, ", ", sizeof dnames - strlen(dnames) - 1);
+                strncat(dnames, wi.name, sizeof dnames - strlen(dnames) - 1);
+            }
             if (!found) {
-                fail(&c, config_setting_get_member(e, "target"), p, "target '%s' is neither \"base\" nor a force input of the stand (inputs: %s)",
-                     tg, names[0] ? names : "none");
+                fail(&c, config_setting_get_member(e, "target"), p,
+                     "target '%s' is neither \"base\" nor a force input nor a disturbance of the stand (inputs: %s; "
+                     "disturbances: %s)",
+                     tg, names[0] ? names : "none", dnames[0] ? dnames : "none");
                 goto out;
             }
         }
         sim_exc_target *t = NULL;
         for (size_t k = 0; k < cfg->n_targets; k++)
-            if (cfg->targets[k].is_base == is_base && (is_base || cfg->targets[k].input == input)) t = &cfg->targets[k];
+            if (cfg->targets[k].is_base == is_base && cfg->targets[k].is_disturbance == is_dist &&
+                (is_base || cfg->targets[k].input == input))
+                t = &cfg->targets[k];
         if (!t) {
             sim_exc_target *nt = realloc(cfg->targets, (cfg->n_targets + 1) * sizeof *nt);
             if (!nt) { fail(&c, e, p, "out of memory"); goto out; }
@@ -333,6 +354,7 @@ int sim_config_load(const char *path, const vibid_stand *stand, const uint64_t *
             t = &cfg->targets[cfg->n_targets++];
             memset(t, 0, sizeof *t);
             t->is_base = is_base;
+            t->is_disturbance = is_dist;
             t->input = input;
         }
         sim_exc_spec *ns = realloc(t->specs, (t->n + 1) * sizeof *ns);
@@ -361,7 +383,7 @@ int sim_config_load(const char *path, const vibid_stand *stand, const uint64_t *
             fail(&c, config_setting_get_member(e, "channel"), p, "unknown channel '%s' (channels: %s)", ch, names);
             goto out;
         }
-        sim_noise_spec ns = {idx, 0.0, NAN, 0.0};
+        sim_noise_spec ns = {idx, NAN, NAN, 0.0}; /* std NaN: not given (the stand's noise may apply) */
         int hs, hn;
         if ((hs = get_num(&c, e, p, "std", &ns.std)) < 0 || (hn = get_num(&c, e, p, "snr_db", &ns.snr_db)) < 0 ||
             get_num(&c, e, p, "resolution", &ns.resolution) < 0)

@@ -6,6 +6,8 @@
  *                                                          # per-input `hold` (default: the stand's)
  *     integrator = { rtol = 1e-10; atol = 1e-15; method = "fehlberg8"; };  # or "dormand_prince5"
  *     excitation = ( { target = "base"; kind = "triangle"; amplitude = 1e-3; frequency = 10.0; } );
+ *                    # target: "base", a force input (name or channel) or a disturbance (name),
+ *                    # which then replaces the disturbance's default white drive
  *     noise = ( { channel = "x1"; std = 1e-7; resolution = 1e-8; }, { channel = "x2"; snr_db = 60.0; } );
  *     changes = ( { parameter = "c2"; at = 60.0; factor = 0.9; ramp = 0.0; } );
  *     can = { id = 0x100; fd = false; extended = false;
@@ -27,15 +29,17 @@
 #define SIM_MAX_CHANNELS 64
 
 typedef struct sim_exc_target {
-    int is_base;          /* 1: base motion s(t); 0: force input */
-    size_t input;         /* input index j (force inputs) */
+    int is_base;          /* 1: base motion s(t); 0: force input or disturbance */
+    int is_disturbance;   /* 1: disturbance `input` (replaces its default white drive, always held) */
+    size_t input;         /* input index j (force inputs), disturbance index (disturbances) */
     sim_exc_spec *specs;  /* summed components */
     size_t n;
 } sim_exc_target;
 
 typedef struct sim_noise_spec {
     size_t channel;       /* model channel index */
-    double std;           /* channel units; used when snr_db is not given */
+    double std;           /* channel units; NaN if not given (neither given: the stand's declared
+                             noise of the quantity applies, vibid_model_get_noise) */
     double snr_db;        /* signal RMS / noise std in dB; NaN if not given */
     double resolution;    /* quantisation step (0 = none) */
 } sim_noise_spec;

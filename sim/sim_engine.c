@@ -20,6 +20,11 @@ struct sim_engine {
     /* excitation */
     sim_exc *base_exc;
     sim_exc **in_exc;      /* r entries, NULL = zero input */
+    /* disturbances (vibid_model_add_disturbance): forces on nodes that no channel reports,
+     * always held over [t_k, t_k + h) like the model defines them */
+    size_t nw;
+    sim_exc **w_exc;       /* nw entries, NULL = zero force */
+    size_t *w_node;        /* nw node indices */
     /* held base (cfg->base_smooth == 0): s jumps by s_k - s_{k-1} at t_k, and the dampers to
      * the base turn that jump into an impulse d_base (s_k - s_{k-1}) (model.h, vibid_hold) */
     double *d_base;        /* n, N s/m, from vibid_model_assemble at the current parameters */
@@ -183,6 +188,12 @@ static int rhs(sunrealtype t, N_Vector x, N_Vector xdot, void *user)
     }
     if (vibid_model_forces(e->model, theta, y, y + n, e->has_base ? base : NULL, e->r ? e->u : NULL, e->f) != VIBID_OK)
         return -1;
+    for (size_t j = 0; j < e->nw; j++)
+        if (e->w_exc[j]) {
+            double w, dw;
+            sim_exc_eval(e->w_exc[j], t, &w, &dw);
+            e->f[e->w_node[j]] += w;
+        }
     memcpy(yd, y + n, n * sizeof *yd);
     if (e->diag) {
         for (size_t i = 0; i < n; i++) yd[n + i] = e->Minv[i] * e->f[i];
@@ -223,6 +234,7 @@ sim_engine *sim_engine_create_internal(const vibid_stand *stand, const sim_confi
     e->r = d.n_inputs;
     e->p = d.n_params;
     e->nch = d.n_channels;
+    e->nw = d.n_disturbances;
     e->has_base = d.has_base;
     e->h = 1.0 / vibid_stand_sample_rate(stand);
     size_t n = e->n;
@@ -238,11 +250,13 @@ sim_engine *sim_engine_create_internal(const vibid_stand *stand, const sim_confi
     e->f = calloc(n, sizeof(double));
     e->d_base = calloc(n, sizeof(double));
     e->in_exc = calloc(e->r + 1, sizeof(sim_exc *));
+    e->w_exc = calloc(e->nw + 1, sizeof(sim_exc *));
+    e->w_node = calloc(e->nw + 1, sizeof(size_t));
     e->ch = calloc(e->nch + 1, sizeof *e->ch);
     e->noise_std = calloc(e->nch + 1, sizeof(double));
     e->resolution = calloc(e->nch + 1, sizeof(double));
     if (!e->theta0 || !e->theta || !e->theta_k || !e->M || !e->Minv || !e->work || !e->u || !e->f || !e->in_exc ||
-        !e->d_base || !e->ch || !e->noise_std || !e->resolution)
+        !e->w_exc || !e->w_node || !e->d_base || !e->ch || !e->noise_std || !e->resolution)
         CFAIL("out of memory");
     if (e->p) memcpy(e->theta0, vibid_stand_true_values(stand), e->p * sizeof(double));
     for (size_t i = 0; i < e->p; i++) {
@@ -266,11 +280,39 @@ sim_engine *sim_engine_create_internal(const vibid_stand *stand, const sim_confi
     char xerr[256];
     for (size_t i = 0; i < cfg->n_targets; i++) {
         const sim_exc_target *t = &cfg->targets[i];
-        int smooth = t->is_base ? cfg->base_smooth : t->input < SIM_MAX_CHANNELS ? cfg->input_smooth[t->input] : 1;
+        /* a disturbance is held whatever simulation.hold says: the model defines it so */
+        int smooth = t->is_base ? cfg->base_smooth
+                     : t->is_disturbance ? 0
+                     : t->input < SIM_MAX_CHANNELS ? cfg->input_smooth[t->input] : 1;
         sim_exc *x = sim_exc_create(t->specs, t->n, e->h, smooth, xerr, sizeof xerr);
-        if (!x) CFAIL("%s: simulation.excitation (target %s): %s", cfg->file, t->is_base ? "base" : "input", xerr);
+        if (!x)
+            CFAIL("%s: simulation.excitation (target %s): %s", cfg->file,
+                  t->is_base ? "base" : t->is_disturbance ? "disturbance" : "input", xerr);
         if (t->is_base) e->base_exc = x;
+        else if (t->is_disturbance) e->w_exc[t->input] = x;
         else e->in_exc[t->input] = x;
+    }
+    /* Disturbances that no excitation drives: white Gaussian samples of std true_std, held
+     * over each interval (a full-band `noise` component, whose gain is exactly 1), each from
+     * its own stream derived from the run's seed. */
+    for (size_t j = 0; j < e->nw; j++) {
+        vibid_disturbance_info wi;
+        if (vibid_model_disturbance_info(e->model, j, &wi) != VIBID_OK) CFAIL("model: %s", vibid_last_error());
+        e->w_node[j] = wi.node;
+        if (e->w_exc[j]) continue;
+        double sd = vibid_stand_disturbance_true_std(stand)[j];
+        if (sd == 0.0 && wi.std_dev == 0.0)
+            CFAIL("stand.disturbances.[%zu].true_std: missing: disturbance '%s' has an unknown std and vibid-sim needs "
+                  "the std it simulates (give true_std > 0, or drive '%s' from simulation.excitation)",
+                  j, wi.name, wi.name);
+        if (sd == 0.0) continue; /* true_std = 0 given: the estimator's model has it, the stand does not */
+        sim_exc_spec ws;
+        sim_exc_spec_init(&ws, SIM_EXC_NOISE);
+        ws.amplitude = sd;
+        ws.f_high = INFINITY;
+        ws.seed = (cfg->seed ^ 0x6469737475726255ull) * 1000003ull + j + 1;
+        if (!(e->w_exc[j] = sim_exc_create(&ws, 1, e->h, 0, xerr, sizeof xerr)))
+            CFAIL("disturbance '%s': %s", wi.name, xerr);
     }
 
     theta_at(e, 0.0, 0.0, e->theta_k);
@@ -290,12 +332,23 @@ sim_engine *sim_engine_create_internal(const vibid_stand *stand, const sim_confi
     e->hnext = 0.0;
 
     sim_rng_seed(&e->noise_rng, cfg->seed ^ 0x6E6F697365ull);
+    /* Measurement noise: the stand's declared noise of each measured quantity (stand.nodes.[i].noise,
+     * vibid_model_get_noise), unless simulation.noise gives the channel a std or an SNR. */
+    for (size_t i = 0; with_noise && i < e->nch; i++) {
+        const vibid_channel_info *ci = &e->ch[i];
+        unsigned bit = ci->kind == VIBID_CHANNEL_DISPLACEMENT ? VIBID_MEASURE_DISPLACEMENT
+                       : ci->kind == VIBID_CHANNEL_VELOCITY   ? VIBID_MEASURE_VELOCITY
+                       : ci->kind == VIBID_CHANNEL_ACCELERATION ? VIBID_MEASURE_ACCELERATION
+                                                                : 0u;
+        double sd;
+        if (bit && vibid_model_get_noise(e->model, ci->index, bit, &sd) == VIBID_OK && sd > 0.0) e->noise_std[i] = sd;
+    }
     int need_pilot = 0;
     for (size_t i = 0; with_noise && i < cfg->n_noise; i++) {
         const sim_noise_spec *ns = &cfg->noise[i];
         e->resolution[ns->channel] = ns->resolution;
-        if (isnan(ns->snr_db)) e->noise_std[ns->channel] = ns->std;
-        else need_pilot = 1;
+        if (!isnan(ns->snr_db)) need_pilot = 1;
+        else if (!isnan(ns->std)) e->noise_std[ns->channel] = ns->std;
     }
     if (need_pilot) {
         /* SNR: noise std from the RMS of the clean signal over a pilot run of the first
@@ -313,7 +366,8 @@ sim_engine *sim_engine_create_internal(const vibid_stand *stand, const sim_confi
             if (sim_engine_next(pe, &kk, &tt, v, NULL)) bad = 2;
             for (size_t c = 0; c < e->nch && !bad; c++) sum[c] += v[c] * v[c];
         }
-        if (bad == 2) snprintf(xerr, sizeof xerr, "%s", sim_engine_error(pe));
+        /* at most 200 bytes of the pilot's message (up to 511) so that it fits xerr (256 bytes) */
+        if (bad == 2) snprintf(xerr, sizeof xerr, "%.200s", sim_engine_error(pe));
         for (size_t i = 0; !bad && i < cfg->n_noise; i++) {
             const sim_noise_spec *nsp = &cfg->noise[i];
             if (isnan(nsp->snr_db)) continue;
@@ -343,6 +397,9 @@ void sim_engine_destroy(sim_engine *e)
     sim_exc_destroy(e->base_exc);
     for (size_t j = 0; e->in_exc && j < e->r; j++) sim_exc_destroy(e->in_exc[j]);
     free(e->in_exc);
+    for (size_t j = 0; e->w_exc && j < e->nw; j++) sim_exc_destroy(e->w_exc[j]);
+    free(e->w_exc);
+    free(e->w_node);
     free(e->theta0);
     free(e->theta);
     free(e->theta_k);
@@ -381,6 +438,8 @@ int sim_engine_next(sim_engine *e, uint64_t *kout, double *tout, double *values,
     if (e->base_exc) sim_exc_begin_sample(e->base_exc, k);
     for (size_t j = 0; j < e->r; j++)
         if (e->in_exc[j]) sim_exc_begin_sample(e->in_exc[j], k);
+    for (size_t j = 0; j < e->nw; j++)
+        if (e->w_exc[j]) sim_exc_begin_sample(e->w_exc[j], k);
     /* parameters of this interval */
     int mass_changed = 0;
     theta_at(e, tk, tk, e->theta);

@@ -19,6 +19,16 @@
  * y' += M^-1 d_base (s_k - s_{k-1}) before sample k is taken (its velocities are
  * post-impulse, its accelerations those with u_k, s_k, s' = 0) and before the restart.
  *
+ * Disturbances (stand.disturbances, vibid_model_add_disturbance): a force w_k on its node,
+ * held over [t_k, t_k + h) like a held input (so the same stop and restart at t_k keeps the
+ * integration exact), added to vibid_model_forces' f. Default w_k ~ N(0, true_std^2), white,
+ * from a stream of its own derived from the run's seed; an excitation that targets the
+ * disturbance replaces that. No channel reports it; a measured acceleration at t_k includes
+ * w_k (the right-hand limit, as for the inputs).
+ *
+ * Measurement noise of channel i: simulation.noise's std or snr_db for it if given, else the
+ * stand's declared noise of that quantity (vibid_model_get_noise, stand file `noise`), else none.
+ *
  * Time-varying parameters (sim_config.changes): a step takes effect at the first sample
  * boundary t_k >= at (so the ZOH solution stays exact); a ramp is linear in continuous
  * time. A change of a mass takes effect at sample boundaries (M^-1 is refreshed there).

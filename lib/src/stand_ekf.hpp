@@ -127,6 +127,7 @@ private:
                  nch_ = 0;
     Eigen::Index col_s_ = -1, col_sd_ = -1;  // base displacement / velocity column in xi (-1: none)
     unsigned boosts_in_row_ = 0;
+    unsigned long long settle_steps_ = 0, release_at_ = 0;  // parameters held while unmeasured states settle
     bool held_base_kick_ = false;  // held base with dampers: velocity kicks
     bool base_smooth_ = true;
     std::vector<bool> input_smooth_;

@@ -16,6 +16,7 @@ struct vibid_stand {
     size_t n_channels;
     char **channel_names; /* per model channel */
     double *true_values;  /* per unknown */
+    double *true_std;     /* per disturbance, N (vibid_stand_disturbance_true_std) */
 };
 
 /* Loader context: where we are, for messages. */
@@ -118,34 +119,87 @@ static int lib_fail(const ctx *c, const config_setting_t *s, const char *field, 
     return fail(c, s, field, "%s (%s)", vibid_last_error(), vibid_strerror(st));
 }
 
+/* Index 0..2 of a measured quantity's name (bit 1 << index is its VIBID_MEASURE_*), -1 if
+ * name is none of them. */
+static int quantity_index(const char *name) {
+    static const char *const q[3] = {"displacement", "velocity", "acceleration"};
+    for (int j = 0; j < 3; ++j)
+        if (name && !strcmp(name, q[j])) return j;
+    return -1;
+}
+
+/* Group `name` of g keyed by measured quantity (`measure`, `noise`): NULL when absent or
+ * after an error (then *bad = -1). gpath receives its field path. */
+static const config_setting_t *quantity_group(const ctx *c, const config_setting_t *g, const char *path,
+                                              const char *name, const char *shape, char gpath[160], int *bad) {
+    const config_setting_t *q = config_setting_get_member(g, name);
+    *bad = 0;
+    child_path(gpath, 160, path, name, 0);
+    if (q && !config_setting_is_group(q)) {
+        *bad = fail(c, q, gpath, "must be a group %s", shape);
+        return NULL;
+    }
+    return q;
+}
+
+/* Member i of a quantity group: its setting *e, field path f and quantity index 0..2, or
+ * -1 after an error (a key that is no quantity). */
+static int quantity_member(const ctx *c, const config_setting_t *q, const char *gpath, int i,
+                           const config_setting_t **e, char f[200]) {
+    *e = config_setting_get_elem(q, (unsigned)i);
+    const char *nm = config_setting_name(*e);
+    snprintf(f, 200, "%s.%s", gpath, nm ? nm : "?");
+    int k = quantity_index(nm);
+    return k >= 0 ? k : fail(c, *e, f, "unknown quantity (displacement, velocity, acceleration)");
+}
+
 /* Per node or base: `measure = { displacement = "x1"; velocity = "v1"; acceleration = "a1"; }`.
  * Fills mask and the channel names in quantity order. */
 static int read_measure(const ctx *c, const config_setting_t *g, const char *path, unsigned *mask,
                         const char *names[3]) {
-    static const char *const q[3] = {"displacement", "velocity", "acceleration"};
     *mask = 0;
     names[0] = names[1] = names[2] = NULL;
-    const config_setting_t *m = config_setting_get_member(g, "measure");
-    if (!m) return 0;
-    char mp[160];
-    child_path(mp, sizeof mp, path, "measure", 0);
-    if (!config_setting_is_group(m))
-        return fail(c, m, mp, "must be a group { displacement = \"channel\"; ... }");
-    for (int i = 0; i < config_setting_length(m); ++i) {
-        const config_setting_t *e = config_setting_get_elem(m, (unsigned)i);
-        const char *nm = config_setting_name(e);
-        int k = -1;
-        for (int j = 0; j < 3; ++j)
-            if (nm && !strcmp(nm, q[j])) k = j;
-        char f[200];
-        snprintf(f, sizeof f, "%s.%s", mp, nm ? nm : "?");
-        if (k < 0) return fail(c, e, f, "unknown quantity (displacement, velocity, acceleration)");
+    char mp[160], f[200];
+    int bad;
+    const config_setting_t *m = quantity_group(c, g, path, "measure", "{ displacement = \"channel\"; ... }", mp, &bad);
+    for (int i = 0; m && i < config_setting_length(m); ++i) {
+        const config_setting_t *e;
+        int k = quantity_member(c, m, mp, i, &e, f);
+        if (k < 0) return -1;
         if (config_setting_type(e) != CONFIG_TYPE_STRING || !config_setting_get_string(e)[0])
             return fail(c, e, f, "channel name missing: a measured quantity needs the name of its channel");
         *mask |= 1u << k;
         names[k] = config_setting_get_string(e);
     }
-    return 0;
+    return bad;
+}
+
+/* Optional `noise = { displacement = 1e-6; acceleration = 0.02; }` of a node or the base:
+ * the declared white measurement-noise std of measured quantities (channel units, >= 0;
+ * vibid_model_set_noise). Only quantities that `measure` names (mask) may have one: noise
+ * of an unmeasured quantity is a mistake, not something to ignore. 0, or -1 after an error. */
+static int read_noise(const ctx *c, vibid_model *m, const config_setting_t *g, const char *path, size_t node,
+                      unsigned mask) {
+    static const unsigned bits[3] = {VIBID_MEASURE_DISPLACEMENT, VIBID_MEASURE_VELOCITY, VIBID_MEASURE_ACCELERATION};
+    char np[160], f[200];
+    int bad;
+    const config_setting_t *ng =
+        quantity_group(c, g, path, "noise", "{ displacement = std; ... } (std in channel units)", np, &bad);
+    for (int i = 0; ng && i < config_setting_length(ng); ++i) {
+        const config_setting_t *e;
+        int k = quantity_member(c, ng, np, i, &e, f);
+        if (k < 0) return -1;
+        const char *nm = config_setting_name(e);
+        double v;
+        if (get_number(c, ng, np, nm, &v) < 0) return -1;
+        if (v < 0) return fail(c, e, f, "%g must be >= 0 (standard deviation in channel units)", v);
+        if (!(mask & bits[k]))
+            return fail(c, e, f, "the %s is not measured (no measure.%s): noise applies to a measured quantity", nm,
+                        nm);
+        vibid_status st = vibid_model_set_noise(m, node, bits[k], v);
+        if (st != VIBID_OK) return lib_fail(c, e, f, st);
+    }
+    return bad;
 }
 
 /* Optional `hold = "zoh" | "smooth"` of an input or the base (vibid_hold: how the signal
@@ -185,6 +239,7 @@ void vibid_stand_destroy(vibid_stand *stand) {
         for (size_t i = 0; i < stand->n_channels; ++i) free(stand->channel_names[i]);
     free(stand->channel_names);
     free(stand->true_values);
+    free(stand->true_std);
     free(stand);
 }
 
@@ -224,6 +279,75 @@ static int note_true_value(const ctx *c, const config_setting_t *e, const char *
     if (r < 0) return -1;
     pd->has_true[pd->n_unknown] = r;
     pd->true_values[pd->n_unknown++] = r ? tv : nominal;
+    return 0;
+}
+
+/* Rejects a member of group g that is not in known (NULL-terminated): in a group whose
+ * fields all have defaults, a misspelt name would otherwise pass as "not given". */
+static int reject_unknown_members(const ctx *c, const config_setting_t *g, const char *path,
+                                  const char *const *known, const char *known_list) {
+    for (int i = 0; i < config_setting_length(g); ++i) {
+        const config_setting_t *e = config_setting_get_elem(g, (unsigned)i);
+        const char *nm = config_setting_name(e);
+        int ok = 0;
+        for (const char *const *k = known; *k && nm; ++k) ok |= !strcmp(*k, nm);
+        if (ok) continue;
+        char f[200];
+        snprintf(f, sizeof f, "%s.%s", path, nm ? nm : "?");
+        return fail(c, e, f, "unknown setting (%s)", known_list);
+    }
+    return 0;
+}
+
+/* `disturbances = ( { name = "w1"; node = "m1"; std = 2.0; true_std = 2.0; }, ... )`:
+ * unmeasured random forces (vibid_model_add_disturbance). std (N, >= 0): omitted or 0 =
+ * unknown, estimated. true_std (N): what vibid-sim simulates, default std; when std is
+ * unknown only vibid-sim needs it, so it is optional here (stored as 0: the simulator
+ * names the field if it lacks it); if given, > 0 then (0 would read as "missing"), else
+ * >= 0 (0: the stand has no such force, the estimator's model does). Fills st->true_std. */
+static int read_disturbances(const ctx *c, vibid_model *m, const config_setting_t *list, vibid_stand *st) {
+    static const char *const known[] = {"name", "node", "std", "true_std", NULL};
+    const char *path = "stand.disturbances";
+    if (!config_setting_is_list(list))
+        return fail(c, list, path, "must be a list ( { name = ...; node = ...; std = ...; }, ... )");
+    int n = config_setting_length(list);
+    free(st->true_std);
+    if (!(st->true_std = calloc(n ? (size_t)n : 1, sizeof(double)))) return fail(c, list, path, "out of memory");
+    for (int i = 0; i < n; ++i) {
+        const config_setting_t *e = config_setting_get_elem(list, (unsigned)i);
+        char p[64], f[160];
+        snprintf(p, sizeof p, "%s.[%d]", path, i);
+        if (!config_setting_is_group(e))
+            return fail(c, e, p, "must be a group { name = \"w1\"; node = \"m1\"; std = 1.0; }");
+        if (reject_unknown_members(c, e, p, known, "name, node, std, true_std")) return -1;
+        const char *nm, *node;
+        double sd = 0.0, tsd = 0.0;
+        int has_true;
+        if (require_string(c, e, p, "name", &nm) || require_string(c, e, p, "node", &node)) return -1;
+        if (get_number(c, e, p, "std", &sd) < 0 || (has_true = get_number(c, e, p, "true_std", &tsd)) < 0) return -1;
+        size_t idx;
+        if (vibid_model_find_node(m, node, &idx) != VIBID_OK) {
+            child_path(f, sizeof f, p, "node", 0);
+            return fail(c, config_setting_get_member(e, "node"), f, "unknown node '%s'", node);
+        }
+        if (sd < 0) {
+            child_path(f, sizeof f, p, "std", 0);
+            return fail(c, config_setting_get_member(e, "std"), f,
+                        "%g must be >= 0 N (omitted or 0: unknown, estimated)", sd);
+        }
+        if (has_true && (tsd < 0 || (tsd == 0 && sd == 0))) {
+            child_path(f, sizeof f, p, "true_std", 0);
+            return fail(c, config_setting_get_member(e, "true_std"), f,
+                        "%g must be %s (N, the standard deviation vibid-sim simulates)", tsd,
+                        sd == 0 ? "> 0 when std is unknown" : ">= 0");
+        }
+        vibid_status s = vibid_model_add_disturbance(m, nm, idx, sd, NULL);
+        if (s != VIBID_OK) {
+            child_path(f, sizeof f, p, "name", 0);
+            return lib_fail(c, e, strstr(vibid_last_error(), "name") ? f : p, s);
+        }
+        st->true_std[i] = has_true ? tsd : sd;
+    }
     return 0;
 }
 
@@ -381,6 +505,13 @@ vibid_stand *vibid_stand_from_setting(const void *setting_v, const char *file, v
         fail(&c, mats, "stand.matrices", "give either nodes/elements or matrices, not both");
         goto fail;
     }
+    const config_setting_t *dist = config_setting_get_member(g, "disturbances");
+    if (mats && dist) {
+        /* vibid_model_add_disturbance needs a node: a full-matrix model has only coordinates */
+        fail(&c, dist, "stand.disturbances", "a full-matrix stand (matrices) has no disturbances: describe it by "
+                                             "nodes and elements to declare one");
+        goto fail;
+    }
     if (mats) {
         if (read_matrices(&c, m, mats, "stand.matrices", pd)) goto fail;
     } else {
@@ -414,6 +545,7 @@ vibid_stand *vibid_stand_from_setting(const void *setting_v, const char *file, v
             unsigned mask;
             if (read_measure(&c, e, p, &mask, pd->node_names[idx])) goto fail;
             vibid_model_set_measured(m, idx, mask);
+            if (read_noise(&c, m, e, p, idx, mask)) goto fail;
             pd->n_nodes = idx + 1;
         }
         const config_setting_t *base = config_setting_get_member(g, "base");
@@ -421,6 +553,7 @@ vibid_stand *vibid_stand_from_setting(const void *setting_v, const char *file, v
             unsigned mask;
             if (read_measure(&c, base, "stand.base", &mask, pd->base_names)) goto fail;
             vibid_model_set_measured(m, VIBID_BASE, mask);
+            if (read_noise(&c, m, base, "stand.base", VIBID_BASE, mask)) goto fail;
             if (read_hold(&c, m, base, "stand.base", VIBID_BASE)) goto fail;
         }
         const config_setting_t *els = config_setting_get_member(g, "elements");
@@ -502,6 +635,7 @@ vibid_stand *vibid_stand_from_setting(const void *setting_v, const char *file, v
             if (read_hold(&c, m, e, p, in_idx)) goto fail;
             pd->input_names[pd->n_inputs++] = chan;
         }
+        if (dist && read_disturbances(&c, m, dist, st)) goto fail;
     }
     /* Unknowns of a full-matrix model have no true_value fields: nominal = true. */
     if ((s = vibid_model_finalize(m)) != VIBID_OK) {
@@ -514,7 +648,8 @@ vibid_stand *vibid_stand_from_setting(const void *setting_v, const char *file, v
     st->n_channels = dims.n_channels;
     st->channel_names = calloc(dims.n_channels ? dims.n_channels : 1, sizeof(char *));
     st->true_values = calloc(dims.n_params ? dims.n_params : 1, sizeof(double));
-    if (!st->name || !st->channel_names || !st->true_values) goto fail_oom;
+    if (!st->true_std) st->true_std = calloc(1, sizeof(double)); /* no disturbances: never NULL */
+    if (!st->name || !st->channel_names || !st->true_values || !st->true_std) goto fail_oom;
     if (mats) {
         vibid_model_nominal(m, st->true_values);
     } else {
@@ -578,6 +713,7 @@ const vibid_model *vibid_stand_model(const vibid_stand *stand) { return stand ? 
 const char *vibid_stand_name(const vibid_stand *stand) { return stand ? stand->name : NULL; }
 double vibid_stand_sample_rate(const vibid_stand *stand) { return stand ? stand->sample_rate : 0.0; }
 const double *vibid_stand_true_values(const vibid_stand *stand) { return stand ? stand->true_values : NULL; }
+const double *vibid_stand_disturbance_true_std(const vibid_stand *stand) { return stand ? stand->true_std : NULL; }
 
 const char *vibid_stand_channel_name(const vibid_stand *stand, size_t channel) {
     if (!stand || channel >= stand->n_channels) return NULL;

@@ -3,7 +3,7 @@
  * docs/stand-file.md), builds the vibid_model through the public C API only, and keeps
  * what the programs need beside the model: the stand's name and sample rate, the
  * acquisition channel name of every model channel, and the true values of the unknowns
- * (for simulation).
+ * and of the disturbances' intensities (for simulation).
  *
  * libvibid itself does no file I/O; this is the static library vibid_stand (C11,
  * links libconfig and libvibid).
@@ -63,6 +63,14 @@ size_t vibid_stand_find_channel(const vibid_stand *stand, const char *name);
  * order): the `true_value` field, or the nominal value where it is absent. Lives as
  * long as the stand. */
 const double *vibid_stand_true_values(const vibid_stand *stand);
+
+/* True standard deviations of the disturbances for simulation (N, n_disturbances of
+ * vibid_model_get_dims, in the model's disturbance order, vibid_model_disturbance_info):
+ * the `true_std` field, or `std` where it is absent. 0 where std is unknown and true_std
+ * was not given: only a simulator needs it (vibid-sim refuses such a disturbance unless
+ * its simulation drives it from an excitation), so loading does not. Lives as long as
+ * the stand; never NULL for a loaded stand, also without disturbances. */
+const double *vibid_stand_disturbance_true_std(const vibid_stand *stand);
 
 #ifdef __cplusplus
 }

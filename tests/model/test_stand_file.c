@@ -1,0 +1,184 @@
+/* model.test_stand_file: the stand-file loader's disturbances and declared measurement
+ * noise (docs/stand-file.md): what a stand declares reaches the model
+ * (vibid_model_disturbance_info, vibid_model_get_noise) and the simulator's accessor
+ * (vibid_stand_disturbance_true_std); every mistake is reported as file:line: field:
+ * message, checked here as exact text. */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdio.h>
+#include <string.h>
+#include <cmocka.h>
+
+#include <vibid/stand_file.h>
+
+#define CFG "test_stand_file.cfg"
+
+static void write_file(const char *text) {
+    FILE *f = fopen(CFG, "w");
+    assert_non_null(f);
+    fputs(text, f);
+    fclose(f);
+}
+
+static vibid_stand *load_ok(const char *text) {
+    vibid_stand_error err;
+    write_file(text);
+    vibid_stand *st = vibid_stand_load(CFG, &err);
+    if (!st) fail_msg("%s", err.text);
+    return st;
+}
+
+/* Loading text must fail with an error text that contains want (file:line: field: message). */
+static void expect_error(const char *text, const char *want) {
+    vibid_stand_error err;
+    write_file(text);
+    vibid_stand *st = vibid_stand_load(CFG, &err);
+    if (st) {
+        vibid_stand_destroy(st);
+        fail_msg("loaded, expected the error '%s'", want);
+    }
+    printf("  loader error: %s\n", err.text);
+    if (!strstr(err.text, want)) fail_msg("error '%s' does not contain '%s'", err.text, want);
+}
+
+/* A partially measured two-mass chain: m1 with displacement and acceleration sensors
+ * (noise declared for both), m2 without any, the base measured, three disturbances. */
+static const char *const good =
+    "stand = {\n"
+    "  sample_rate = 200.0;\n"
+    "  nodes = ( { name = \"m1\"; mass = 1.0;\n"
+    "              measure = { displacement = \"x1\"; acceleration = \"a1\"; };\n"
+    "              noise = { displacement = 1.0e-6; acceleration = 0.02; }; },\n"
+    "            { name = \"m2\"; mass = 2.0; } );\n"
+    "  base = { measure = { displacement = \"s\"; }; noise = { displacement = 0; }; };\n"
+    "  elements = ( { name = \"c1\"; kind = \"spring\"; between = [\"m1\", \"m2\"]; value = 100.0; },\n"
+    "               { name = \"c2\"; kind = \"spring\"; between = [\"m2\", \"base\"]; value = 200.0; } );\n"
+    "  disturbances = ( { name = \"w1\"; node = \"m2\"; std = 2.0; },\n"
+    "                   { name = \"w2\"; node = \"m1\"; true_std = 0.5; },\n"
+    "                   { name = \"w3\"; node = \"m1\"; std = 1.5; true_std = 3.0; },\n"
+    "                   { name = \"w4\"; node = \"m2\"; std = 0; } );\n"
+    "};\n";
+
+static void test_disturbances_and_noise(void **state) {
+    (void)state;
+    vibid_stand *st = load_ok(good);
+    const vibid_model *m = vibid_stand_model(st);
+    vibid_model_dims d;
+    assert_int_equal(vibid_model_get_dims(m, &d), VIBID_OK);
+    assert_int_equal(d.n_disturbances, 4);
+    assert_int_equal(d.n_channels, 3); /* x1, a1, s: disturbances have no channel */
+    static const char *const names[4] = {"w1", "w2", "w3", "w4"};
+    static const size_t nodes[4] = {1, 0, 0, 1};
+    static const double std_dev[4] = {2.0, 0.0, 1.5, 0.0};    /* 0 = unknown */
+    static const double true_std[4] = {2.0, 0.5, 3.0, 0.0};   /* default std; 0: not given */
+    const double *ts = vibid_stand_disturbance_true_std(st);
+    assert_non_null(ts);
+    for (size_t i = 0; i < 4; ++i) {
+        vibid_disturbance_info wi;
+        assert_int_equal(vibid_model_disturbance_info(m, i, &wi), VIBID_OK);
+        assert_string_equal(wi.name, names[i]);
+        assert_int_equal(wi.node, nodes[i]);
+        assert_float_equal(wi.std_dev, std_dev[i], 0.0);
+        assert_float_equal(ts[i], true_std[i], 0.0);
+    }
+    double sd;
+    assert_int_equal(vibid_model_get_noise(m, 0, VIBID_MEASURE_DISPLACEMENT, &sd), VIBID_OK);
+    assert_float_equal(sd, 1.0e-6, 0.0);
+    assert_int_equal(vibid_model_get_noise(m, 0, VIBID_MEASURE_ACCELERATION, &sd), VIBID_OK);
+    assert_float_equal(sd, 0.02, 0.0);
+    assert_int_equal(vibid_model_get_noise(m, 0, VIBID_MEASURE_VELOCITY, &sd), VIBID_OK);
+    assert_true(sd < 0.0); /* not declared: unknown */
+    assert_int_equal(vibid_model_get_noise(m, 1, VIBID_MEASURE_DISPLACEMENT, &sd), VIBID_OK);
+    assert_true(sd < 0.0);
+    assert_int_equal(vibid_model_get_noise(m, VIBID_BASE, VIBID_MEASURE_DISPLACEMENT, &sd), VIBID_OK);
+    assert_float_equal(sd, 0.0, 0.0); /* 0 declared: noise-free, not unknown */
+    vibid_stand_destroy(st);
+
+    /* without disturbances the accessor still answers (nothing to index) */
+    st = load_ok("stand = {\n  sample_rate = 100.0;\n  nodes = ( { name = \"m1\"; mass = 1.0; } );\n"
+                 "  elements = ( { name = \"k\"; kind = \"spring\"; between = [\"m1\", \"ground\"]; value = 1.0; } );\n};\n");
+    assert_int_equal(vibid_model_get_dims(vibid_stand_model(st), &d), VIBID_OK);
+    assert_int_equal(d.n_disturbances, 0);
+    assert_non_null(vibid_stand_disturbance_true_std(st));
+    vibid_stand_destroy(st);
+
+    /* a disturbance alone connects a node (the model counts it like an input) */
+    st = load_ok("stand = {\n  sample_rate = 100.0;\n"
+                 "  nodes = ( { name = \"m1\"; mass = 1.0; }, { name = \"m2\"; mass = 1.0; } );\n"
+                 "  elements = ( { name = \"k\"; kind = \"spring\"; between = [\"m1\", \"ground\"]; value = 1.0; } );\n"
+                 "  disturbances = ( { name = \"w\"; node = \"m2\"; std = 1.0; } );\n};\n");
+    vibid_stand_destroy(st);
+    remove(CFG);
+}
+
+/* Stand text with the disturbances list replaced (line 5 holds the list's entries). */
+#define HEAD "stand = {\n  sample_rate = 100.0;\n  nodes = ( { name = \"m1\"; mass = 1.0; } );\n" \
+             "  elements = ( { name = \"k\"; kind = \"spring\"; between = [\"m1\", \"ground\"]; value = 1.0; } );\n"
+
+static void test_disturbance_errors(void **state) {
+    (void)state;
+    expect_error(HEAD "  disturbances = ( { name = \"w1\";\n    node = \"m9\"; std = 1.0; } );\n};\n",
+                 CFG ":6: stand.disturbances.[0].node: unknown node 'm9'");
+    expect_error(HEAD "  disturbances = ( { name = \"w1\"; node = \"m1\"; std = 1.0; },\n"
+                      "                   { name = \"w2\"; std = 1.0; } );\n};\n",
+                 CFG ":6: stand.disturbances.[1].node: missing (a string is required)");
+    expect_error(HEAD "  disturbances = ( { node = \"m1\"; } );\n};\n",
+                 CFG ":5: stand.disturbances.[0].name: missing (a string is required)");
+    expect_error(HEAD "  disturbances = ( { name = \"w1\"; node = \"m1\";\n    std = -1.0; } );\n};\n",
+                 CFG ":6: stand.disturbances.[0].std: -1 must be >= 0 N (omitted or 0: unknown, estimated)");
+    expect_error(HEAD "  disturbances = ( { name = \"w1\"; node = \"m1\"; std = \"big\"; } );\n};\n",
+                 CFG ":5: stand.disturbances.[0].std: must be a number");
+    expect_error(HEAD "  disturbances = ( { name = \"w1\"; node = \"m1\"; true_std = 0.0; } );\n};\n",
+                 CFG ":5: stand.disturbances.[0].true_std: 0 must be > 0 when std is unknown (N, the standard "
+                     "deviation vibid-sim simulates)");
+    expect_error(HEAD "  disturbances = ( { name = \"w1\"; node = \"m1\"; std = 1.0; true_std = -2.0; } );\n};\n",
+                 CFG ":5: stand.disturbances.[0].true_std: -2 must be >= 0 (N, the standard deviation vibid-sim "
+                     "simulates)");
+    expect_error(HEAD "  disturbances = ( { name = \"w1\"; node = \"m1\";\n    stdev = 1.0; } );\n};\n",
+                 CFG ":6: stand.disturbances.[0].stdev: unknown setting (name, node, std, true_std)");
+    expect_error(HEAD "  disturbances = ( { name = \"k\"; node = \"m1\"; std = 1.0; } );\n};\n",
+                 CFG ":5: stand.disturbances.[0].name: vibid_model_add_disturbance: disturbance name 'k' is already "
+                     "used by an element");
+    expect_error(HEAD "  disturbances = ( \"w1\" );\n};\n",
+                 CFG ":5: stand.disturbances.[0]: must be a group { name = \"w1\"; node = \"m1\"; std = 1.0; }");
+    expect_error(HEAD "  disturbances = { name = \"w1\"; node = \"m1\"; };\n};\n",
+                 CFG ":5: stand.disturbances: must be a list ( { name = ...; node = ...; std = ...; }, ... )");
+    expect_error("stand = {\n  sample_rate = 100.0;\n"
+                 "  matrices = { n_dof = 1; M = [1.0]; C = [1.0]; };\n"
+                 "  disturbances = ( { name = \"w1\"; node = \"m1\"; std = 1.0; } );\n};\n",
+                 CFG ":4: stand.disturbances: a full-matrix stand (matrices) has no disturbances");
+    remove(CFG);
+}
+
+static void test_noise_errors(void **state) {
+    (void)state;
+#define NODE(extra) "stand = {\n  sample_rate = 100.0;\n  nodes = ( { name = \"m1\"; mass = 1.0;\n" \
+                    "    measure = { displacement = \"x1\"; };\n" extra " } );\n" \
+                    "  elements = ( { name = \"k\"; kind = \"spring\"; between = [\"m1\", \"base\"]; value = 1.0; } );\n"
+    expect_error(NODE("    noise = { velocity = 1e-3; };") "};\n",
+                 CFG ":5: stand.nodes.[0].noise.velocity: the velocity is not measured (no measure.velocity): noise "
+                     "applies to a measured quantity");
+    expect_error(NODE("    noise = { jerk = 1e-3; };") "};\n",
+                 CFG ":5: stand.nodes.[0].noise.jerk: unknown quantity (displacement, velocity, acceleration)");
+    expect_error(NODE("    noise = { displacement = -1e-3; };") "};\n",
+                 CFG ":5: stand.nodes.[0].noise.displacement: -0.001 must be >= 0 (standard deviation in channel units)");
+    expect_error(NODE("    noise = { displacement = \"1e-3\"; };") "};\n",
+                 CFG ":5: stand.nodes.[0].noise.displacement: must be a number");
+    expect_error(NODE("    noise = 1e-3;") "};\n",
+                 CFG ":5: stand.nodes.[0].noise: must be a group { displacement = std; ... } (std in channel units)");
+    expect_error(NODE("") "  base = { measure = { displacement = \"s\"; };\n    noise = { acceleration = 0.1; }; };\n};\n",
+                 CFG ":8: stand.base.noise.acceleration: the acceleration is not measured (no measure.acceleration): "
+                     "noise applies to a measured quantity");
+#undef NODE
+    remove(CFG);
+}
+
+int main(void) {
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_disturbances_and_noise),
+        cmocka_unit_test(test_disturbance_errors),
+        cmocka_unit_test(test_noise_errors),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}
