@@ -433,8 +433,6 @@ StandEkf::StandEkf(const vibid_model &m, const StandEkfSettings &s) : model_(&m)
     zhat_.setZero(nz_);
     nu_.setZero(nz_);
     Rv_.setZero(nz_);
-    meas_std_.assign(static_cast<std::size_t>(nz_), 0.0);
-    dist_std_.assign(static_cast<std::size_t>(nw_), 0.0);
     Rw_.setZero(nw_);
     window_.assign(set_.window * static_cast<std::size_t>(nch_), 0.0);
     prev_.assign(static_cast<std::size_t>(nch_), 0.0);
@@ -645,7 +643,6 @@ void StandEkf::start_from_window() {
         const double floor = 1e-12 * (ss / static_cast<double>(len)) + 1e-300;
         var = std::max(var, floor);
         Rv_(static_cast<Index>(k)) = var;
-        meas_std_[k] = std::sqrt(var);
     }
     sigma_y_ = sy > 0.0 ? sy : 1.0;
     for (Index i = 0; i < n_; ++i) {
@@ -700,7 +697,6 @@ void StandEkf::start_from_window() {
         }
         Rw_(l) = std::pow(10.0, 0.5 * (lo + hi));
     }
-    for (Index l = 0; l < nw_; ++l) dist_std_[static_cast<std::size_t>(l)] = std::sqrt(Rw_(l));
     restart_parameters();
     stats_.started = true;
     for (std::size_t t = 0; t < len; ++t) (void)push(window_.data() + t * nch);
@@ -710,33 +706,36 @@ void StandEkf::start_from_window() {
 // run over the start window from the start values, for the current R_w.
 double StandEkf::window_misfit() {
     restart_parameters();
-    const bool was = stats_.started;
-    stats_.started = true;
     double total = 0.0;
     const std::size_t nch = static_cast<std::size_t>(nch_);
     for (std::size_t t = 0; t < n_window_; ++t) {
-        const double *cur = window_.data() + t * nch;
-        vibid_status st;
-        if (!have_prev_) {
-            st = update(cur);
-        } else {
-            st = step(prev_.data(), cur);
-        }
-        if (st != VIBID_OK) {
-            total = HUGE_VAL;
-            break;
-        }
+        if (advance(window_.data() + t * nch) != VIBID_OK) return HUGE_VAL;
         // log det S + nu' S^-1 nu from the factor left in Sz_ and the NIS
         double logdet = 0.0;
         for (Index i = 0; i < nz_; ++i) logdet += 2.0 * std::log(Sz_(i, i));
         total += logdet + last_nis_;
-        prev2_ = prev_;
-        have_prev2_ = have_prev_;
-        std::copy(cur, cur + nch, prev_.begin());
-        have_prev_ = true;
     }
-    stats_.started = was;
     return total;
+}
+
+// One sample through the filter: a fresh state (after a start or a gap) is updated with
+// it, otherwise the prediction from the previous sample comes first. On success the
+// sample becomes the previous one. The model is assembled once, for both halves.
+vibid_status StandEkf::advance(const double *cur) {
+    assemble();
+    vibid_status st;
+    if (!have_prev_) {
+        init_state();
+        st = update(cur);
+    } else {
+        st = step(prev_.data(), cur);
+    }
+    if (st != VIBID_OK) return st;
+    std::copy(prev_.begin(), prev_.end(), prev2_.begin());
+    have_prev2_ = have_prev_;
+    std::copy(cur, cur + nch_, prev_.begin());
+    have_prev_ = true;
+    return VIBID_OK;
 }
 
 vibid_status StandEkf::push(const double *ch) {
@@ -754,13 +753,7 @@ vibid_status StandEkf::push(const double *ch) {
         if (++n_window_ == set_.window) start_from_window();
         return VIBID_OK;
     }
-    vibid_status st;
-    if (!have_prev_) {
-        init_state();
-        st = update(ch);
-    } else {
-        st = step(prev_.data(), ch);
-    }
+    const vibid_status st = advance(ch);
     if (st == VIBID_E_DIVERGED) {
         ++stats_.restarts;
         restart_parameters();
@@ -776,10 +769,6 @@ vibid_status StandEkf::push(const double *ch) {
         for (Index i = 0; i < p_; ++i) P_(nx_ + i, nx_ + i) = set_.prior_rel * set_.prior_rel;
         release_at_ = 0;
     }
-    std::copy(prev_.begin(), prev_.end(), prev2_.begin());
-    have_prev2_ = have_prev_;
-    std::copy(ch, ch + nch, prev_.begin());
-    have_prev_ = true;
     return VIBID_OK;
 }
 
@@ -787,7 +776,6 @@ vibid_status StandEkf::push(const double *ch) {
 vibid_status StandEkf::step(const double *prev, const double *cur) {
     const Index n = n_, nx = nx_;
     const double h = set_.h;
-    assemble();
     const double s_k = base_disp(prev);
     // xi0 = [x_k (+ kick); e_k; slopes]
     VecX &x0 = xi_[0];
@@ -876,7 +864,6 @@ vibid_status StandEkf::step(const double *prev, const double *cur) {
 // prediction; divergence is reported as VIBID_E_DIVERGED.
 vibid_status StandEkf::update(const double *cur) {
     const Index n = n_, nx = nx_;
-    assemble();
     double s = 0.0, sd = 0.0;
     base_now(cur, have_prev_ ? prev_.data() : nullptr, s, sd);
     const double *y = a_.data(), *v = a_.data() + n;

@@ -84,11 +84,6 @@ public:
     vibid_status estimate(double *theta, double *se, double *cov);
 
     const StandEkfStats &stats() const { return stats_; }
-    // Noise levels in use (after the start window): measurement std per measured channel
-    // in the order of the measured node quantities, and disturbance std.
-    const std::vector<double> &measurement_std() const { return meas_std_; }
-    const std::vector<double> &disturbance_std() const { return dist_std_; }
-    std::size_t n_measurements() const { return meas_.size(); }
 
 private:
     struct Meas {
@@ -111,6 +106,7 @@ private:
     void linearise_cubics(const double *y, double s);
     void build_transition();
     double window_misfit();
+    vibid_status advance(const double *cur);
     vibid_status step(const double *prev, const double *cur);
     vibid_status update(const double *cur);
     void restart_parameters();
@@ -162,7 +158,6 @@ private:
     Mat F_, FP_, Hm_, PHt_, Sz_, K_, IKH_, Rz_;
     double last_nis_ = 0.0;  // nu' S^-1 nu of the last update
     Vec zhat_, nu_, Rv_;
-    std::vector<double> meas_std_, dist_std_;
     Vec Rw_;
 
     // Start window and continuity.
