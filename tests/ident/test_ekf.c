@@ -11,13 +11,15 @@
  *           the size an alarm looks for), 5 s after it within 2 % of the new one.
  *  ex3      the paper's example 3 as a physical stand: m = 1 kg known, spring k and damper
  *           d unknown, an unmeasured random force (held white samples, std 1 N), only the
- *           position measured, h = 0.05 s. The paper's discrete parameters are
- *           c = -h k / m = -1.25 and d_p = 1 - h d / m = 0.9 (its Euler form of this
- *           stand). Data: the exact discretisation x_{k+1} = Phi x_k + Gamma w_k
- *           (vibid_zoh), 100 realisations per case, cold start k0 = 20 (c0 = -1.0) and
- *           d0 = 4 (d_p0 = 0.8) as in examples/paper_example3. Targets (the issue's,
+ *           position measured, h = 0.05 s. The paper's model is discrete (Euler form,
+ *           c = -1.25, d_p = 0.9); the stand is the one with the same sampled poles
+ *           (k = 25.63 N/m, d = 0.764 N s/m; see ex3_paper_to_stand), and estimates are
+ *           compared in the paper's c, d_p through the same map. Data: the exact
+ *           discretisation x_{k+1} = Phi x_k + Gamma w_k (vibid_zoh), 100 realisations per
+ *           case, cold start at the paper's c0 = -1.0, d_p0 = 0.8. Targets (the issue's,
  *           mean absolute relative errors of c and d_p): noise-free N = 200: 8 % and 2.5 %;
- *           20 dB N = 5000: 3 % and 1.5 %. The paper's KF+RLS: 11 % and 2.8 % at N = 200.
+ *           20 dB N = 5000: 3 % and 1.5 %. The paper's KF+RLS: 11 % and 2.8 % at N = 200;
+ *           the library's on its own data (examples/paper_example3): 6.60 % and 2.09 %.
  *  refusals a stand whose channels do not determine some unknowns is refused before any
  *           sample, naming them (two springs in parallel; an unknown mass beside an unknown
  *           gain and nothing else known). */
@@ -171,18 +173,45 @@ static double ex3_normal(void)
     return u * sqrt(-2.0 * log(s) / s);
 }
 
+/* The paper's example 3 is a discrete model, x_{k+1} = x_k + h r_k, r_{k+1} = c x_k + d_p r_k
+ * + h w_k, with characteristic polynomial l^2 - (1 + d_p) l + (d_p - h c). The stand with
+ * the same sampled poles (m = 1 kg): poles r e^(+-i phi) = exp((-d/2 +- i w_d) h), so
+ * d = -2 ln(r) / h and k = (ln(r)^2 + phi^2) / h^2. (The explicit Euler reading
+ * k = -c / h, d = (1 - d_p) / h would be a different, much more damped stand: Euler adds
+ * damping.) Estimates are compared in the paper's coordinates through the same map. */
+static void ex3_paper_to_stand(double h, double c, double dp, double *k, double *d)
+{
+    const double a1 = 1.0 + dp, a0 = dp - h * c, r = sqrt(a0), phi = acos(a1 / (2.0 * r));
+    *d = -2.0 * log(r) / h;
+    *k = (log(r) * log(r) + phi * phi) / (h * h);
+}
+
+static void ex3_stand_to_paper(double h, double k, double d, double *c, double *dp)
+{
+    const double sigma = -0.5 * d, wd2 = k - 0.25 * d * d;
+    /* an overdamped estimate has real poles: cosh instead of cos */
+    const double a1 = 2.0 * exp(sigma * h) * (wd2 >= 0.0 ? cos(sqrt(wd2) * h) : cosh(sqrt(-wd2) * h));
+    const double a0 = exp(2.0 * sigma * h);
+    *dp = a1 - 1.0;
+    *c = (*dp - a0) / h;
+}
+
 /* runs realisations of length N at snr_db (< 0: noise-free); mean |relative error| of the
- * paper's c = -h k / m and d_p = 1 - h d / m, and of k and d themselves. */
+ * paper's c and d_p (through the pole map above), and of k and d themselves. */
 static ex3_stats ex3_study(size_t N, double snr_db, int runs)
 {
     /* R_w = 1 known (the paper's setting); R_v estimated from the data (not declared), as
-     * a user of vibidd would run it. */
-    const double h = 0.05, k_true = 25.0, d_true = 2.0;
+     * a user of vibidd would run it. Truth c = -1.25, d_p = 0.9; start c = -1.0, d_p = 0.8
+     * (the paper's cold start, 80 % and 90 % of the truth). */
+    const double h = 0.05, c_true = -1.25, dp_true = 0.9;
+    double k_true, d_true, k0, d0;
+    ex3_paper_to_stand(h, c_true, dp_true, &k_true, &d_true);
+    ex3_paper_to_stand(h, -1.0, 0.8, &k0, &d0);
     vibid_model *m = vibid_model_create();
     size_t node;
     assert_int_equal(vibid_model_add_node(m, "m", 1.0, 0, &node), VIBID_OK);
-    assert_int_equal(vibid_model_add_element(m, "k", VIBID_ELEMENT_SPRING, node, VIBID_GROUND, 20.0, 1), VIBID_OK);
-    assert_int_equal(vibid_model_add_element(m, "d", VIBID_ELEMENT_DAMPER, node, VIBID_GROUND, 4.0, 1), VIBID_OK);
+    assert_int_equal(vibid_model_add_element(m, "k", VIBID_ELEMENT_SPRING, node, VIBID_GROUND, k0, 1), VIBID_OK);
+    assert_int_equal(vibid_model_add_element(m, "d", VIBID_ELEMENT_DAMPER, node, VIBID_GROUND, d0, 1), VIBID_OK);
     assert_int_equal(vibid_model_add_disturbance(m, "w", node, 1.0, NULL), VIBID_OK);
     assert_int_equal(vibid_model_set_measured(m, node, VIBID_MEASURE_DISPLACEMENT), VIBID_OK);
     assert_int_equal(vibid_model_finalize(m), VIBID_OK);
@@ -225,7 +254,8 @@ static ex3_stats ex3_study(size_t N, double snr_db, int runs)
             continue;
         }
         ok++;
-        const double c = -h * th[0], c_true = -h * k_true, dp = 1.0 - h * th[1], dp_true = 1.0 - h * d_true;
+        double c, dp;
+        ex3_stand_to_paper(h, th[0], th[1], &c, &dp);
         st.mare_c += fabs(c / c_true - 1.0);
         st.mare_d += fabs(dp / dp_true - 1.0);
         st.mare_k += fabs(th[0] / k_true - 1.0);
@@ -253,10 +283,10 @@ static void test_ex3(void **state)
            100 * b.mare_c, 100 * b.mare_d, 100 * b.mare_k, 100 * b.mare_dd, b.fails);
     assert_int_equal(a.fails, 0);
     assert_int_equal(b.fails, 0);
-    /* N = 200: the issue's target (8 % and 2.5 %) is NOT met: 8.39 % and 2.84 % with this
-     * seed (the paper's KF+RLS: 11 % and 2.8 %). Asserted at the measured figures plus
-     * 0.5 / 0.3 points, so that a regression shows; fixed seed, deterministic. */
-    assert_true(a.mare_c <= 0.089 && a.mare_d <= 0.031);
+    /* The issue's targets. Measured with this seed: 6.04 % / 1.98 % and 1.37 % / 0.29 %;
+     * a mean over 100 realisations with a fixed seed is deterministic, so the margins
+     * (2 points, 0.5 point) are the room the issue allows, not noise allowance. */
+    assert_true(a.mare_c <= 0.08 && a.mare_d <= 0.025);
     assert_true(b.mare_c <= 0.03 && b.mare_d <= 0.015);
 }
 
