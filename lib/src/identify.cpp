@@ -379,7 +379,9 @@ std::unique_ptr<vibid_ident> create_state_space(const vibid_model &model, const 
                          cfg.forgetting, 1.0 / (1.0 - cfg.forgetting), cfg.sample_time / (1.0 - cfg.forgetting));
     else
         why += "forgetting: none (every sample counts alike)\n";
+    // Sized here so that an estimate (at the daemon's track-row rate) allocates nothing.
     id->cov.assign(id->p * id->p, 0.0);
+    id->param_flags.assign(id->p, 0u);
     return id;
 }
 

@@ -10,7 +10,8 @@
 // (set_is_malloc_allowed(false)): an Eigen heap allocation aborts the test. The first
 // test proves that both detectors fire.
 //
-// Covered: central differences (displacement, acceleration, cubic spring, unknown
+// Covered: the state-space estimator (EKF) from its start window on (run_ekf);
+// central differences (displacement, acceleration, cubic spring, unknown
 // input gain; with and without the pre-filter) and ZOH (1.16); the LS, IV and RLS
 // estimators; the NaN gap path of every push. The estimates are not checked here
 // (tests/model/test_model.c does that), only that the calls succeed and allocate nothing.
@@ -197,6 +198,83 @@ void test_ident_no_alloc(void **state) {
     vibid_model_destroy(zoh);
 }
 
+// Stands for the state-space estimator (VIBID_ESTIMATOR_EKF): m1 displacement only, the
+// base displacement measured, m2 without sensor (variant 0: smooth base, a disturbance of
+// unknown intensity on m2, so that the start runs the likelihood search) or with only an
+// accelerometer (variant 1: held base with a damper to it (velocity kicks), a cubic
+// spring, an input of unknown gain on m1, declared sensor noise).
+vibid_model *make_ekf_model(int variant) {
+    vibid_model *m = vibid_model_create();
+    assert_non_null(m);
+    std::size_t n1 = 0, n2 = 0;
+    assert_int_equal(vibid_model_add_node(m, "m1", 1.5, 0, &n1), VIBID_OK);
+    assert_int_equal(vibid_model_add_node(m, "m2", 3.0, 0, &n2), VIBID_OK);
+    assert_int_equal(vibid_model_add_element(m, "c1", VIBID_ELEMENT_SPRING, n1, n2, 6e4, 1), VIBID_OK);
+    assert_int_equal(vibid_model_add_element(m, "d1", VIBID_ELEMENT_DAMPER, n1, n2, 15.0, 1), VIBID_OK);
+    assert_int_equal(vibid_model_add_element(m, "c2", VIBID_ELEMENT_SPRING, n2, VIBID_BASE, 1.2e5, 1), VIBID_OK);
+    assert_int_equal(vibid_model_add_element(m, "d2", VIBID_ELEMENT_DAMPER, n2, VIBID_BASE, 30.0, 1), VIBID_OK);
+    assert_int_equal(vibid_model_set_measured(m, n1, VIBID_MEASURE_DISPLACEMENT), VIBID_OK);
+    assert_int_equal(vibid_model_set_measured(m, VIBID_BASE, VIBID_MEASURE_DISPLACEMENT), VIBID_OK);
+    if (variant == 0) {
+        assert_int_equal(vibid_model_add_disturbance(m, "w", n2, 0.0, nullptr), VIBID_OK);
+    } else {
+        assert_int_equal(vibid_model_set_hold(m, VIBID_BASE, VIBID_HOLD_ZOH), VIBID_OK);
+        assert_int_equal(vibid_model_add_element(m, "eps", VIBID_ELEMENT_CUBIC_SPRING, n2, VIBID_BASE, 1e9, 1),
+                         VIBID_OK);
+        assert_int_equal(vibid_model_add_input(m, "u", n1, 2.0, 1, nullptr), VIBID_OK);
+        assert_int_equal(vibid_model_set_measured(m, n2, VIBID_MEASURE_ACCELERATION), VIBID_OK);
+        assert_int_equal(vibid_model_set_noise(m, n1, VIBID_MEASURE_DISPLACEMENT, 1e-6), VIBID_OK);
+    }
+    assert_int_equal(vibid_model_finalize(m), VIBID_OK);
+    return m;
+}
+
+// From the first sample: the start window fills and starts the filter (noise levels, the
+// likelihood search, the pass over the window) inside the armed region, then filter
+// steps, a gap, and estimates with covariance. Synthetic data do not fit the stand, so a
+// divergence (restart from the start values, also allocation-free) is an accepted status.
+void run_ekf(const vibid_model *m, double forgetting) {
+    vibid_ident_config cfg;
+    vibid_ident_config_init(&cfg, 1e-3);
+    cfg.estimator = VIBID_ESTIMATOR_EKF;
+    cfg.forgetting = forgetting;
+    vibid_ident *id = vibid_ident_create(m, &cfg);
+    if (!id) fail_msg("vibid_ident_create: %s", vibid_last_error());
+    std::size_t nc = 0, p = 0;
+    assert_int_equal(vibid_ident_dims(id, &nc, &p), VIBID_OK);
+    std::vector<double> ch(nc), theta(p), se(p), cov(p * p);
+    std::size_t bad_status = 0, estimates = 0;
+    arm();
+    for (std::size_t k = 0; k < 1600; ++k) {
+        for (std::size_t c = 0; c < nc; ++c) ch[c] = value(k, c);
+        if (k == 1300) ch[0] = NAN;
+        const vibid_status s = vibid_ident_push(id, ch.data());
+        if (s != (k == 1300 ? VIBID_E_NONFINITE : VIBID_OK) && s != VIBID_E_DIVERGED) ++bad_status;
+        if (k % 400 == 399) {
+            vibid_ident_info info{};
+            if (vibid_ident_estimate(id, theta.data(), se.data(), &info) == VIBID_OK) {
+                ++estimates;
+                if (vibid_ident_covariance(id, cov.data()) != VIBID_OK) ++bad_status;
+            }
+        }
+    }
+    const std::size_t n = disarm();
+    assert_int_equal(bad_status, 0);
+    assert_int_equal(n, 0);
+    assert_int_equal(estimates, 4);
+    vibid_ident_destroy(id);
+}
+
+void test_ekf_no_alloc(void **state) {
+    (void)state;
+    for (int variant : {0, 1}) {
+        vibid_model *m = make_ekf_model(variant);
+        run_ekf(m, 1.0);
+        run_ekf(m, 0.999);
+        vibid_model_destroy(m);
+    }
+}
+
 }  // namespace
 
 int main(void) {
@@ -205,6 +283,7 @@ int main(void) {
         cmocka_unit_test(test_forces_no_alloc),
         cmocka_unit_test(test_regressor_no_alloc),
         cmocka_unit_test(test_ident_no_alloc),
+        cmocka_unit_test(test_ekf_no_alloc),
     };
     return cmocka_run_group_tests(tests, nullptr, nullptr);
 }
