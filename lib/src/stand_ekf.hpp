@@ -79,11 +79,13 @@ public:
     void set_start(const double *theta0);
 
     // Current estimate (p), standard errors (p) and covariance (p x p, may be nullptr).
-    // Starts the filter on a partly filled window when it holds at least 10 samples.
-    // VIBID_E_INSUFFICIENT_DATA before that.
+    // Before the start window is full: a provisional estimate from the samples so far
+    // (at least 10; VIBID_E_INSUFFICIENT_DATA before), without starting the filter.
     vibid_status estimate(double *theta, double *se, double *cov);
 
-    const StandEkfStats &stats() const { return stats_; }
+    // The filter's figures; before the start window is full, those of the last
+    // provisional run (estimate()).
+    const StandEkfStats &stats() const { return stats_.started ? stats_ : prov_stats_; }
 
 private:
     struct Meas {
@@ -127,6 +129,7 @@ private:
     unsigned long long settle_steps_ = 0, release_at_ = 0;  // parameters held while unmeasured states settle
     double temper_tau_ = 50.0;  // samples; see temper()
     static constexpr double kTemperStart = 1e4;
+    static constexpr double kModelErrorVelocity = 1e-3;  // scaled (typical velocity) per sample; see step()
     unsigned long long nis_check_from_ = 0;  // n_steps at the last start or release: the NIS check counts from here
     bool held_base_kick_ = false;  // held base with dampers: velocity kicks
     bool base_smooth_ = true;
@@ -165,6 +168,10 @@ private:
     Vec Rw_;
 
     // Start window and continuity.
+    Vec prov_theta_;      // p: the last provisional estimate (before the window is full)
+    Mat prov_cov_;        // p x p, physical units
+    StandEkfStats prov_stats_;
+    std::size_t prov_at_ = 0;  // window fill at the last provisional run
     std::vector<double> window_;
     std::size_t n_window_ = 0;
     std::vector<double> prev_, prev2_;

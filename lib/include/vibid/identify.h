@@ -104,12 +104,19 @@ typedef enum vibid_estimator {
  *    to the parameters at the nominal values has full rank on a frequency grid over the
  *    modes. Otherwise VIBID_E_NOT_IDENTIFIABLE names the parameters it cannot determine.
  *    Cubic coefficients are not part of that test (they show only with amplitude).
- *  - start: the first 100 samples are collected; measurement noise of each measured
+ *  - start: the first 1000 samples are collected; measurement noise of each measured
  *    channel (vibid_model_set_noise, else from its 2nd..6th differences), the typical
  *    state size, and unknown disturbance intensities (largest innovation likelihood over
  *    those samples) are taken from them; then the filter runs over them from the nominal
  *    values (or vibid_ident_set_prior's theta0), each with a relative standard deviation
- *    of 50 %.
+ *    of 50 %. For two periods of the slowest nominal mode after a start the measurement
+ *    noise is inflated (x 1e4, decaying to x 1), so that start values far off do not
+ *    throw the first updates into unstable parameter sets; with a node without sensor
+ *    the parameters are held for that long while its states settle. Each velocity gets
+ *    a model-error allowance of 0.1 % of its typical size per sample (process noise).
+ *    vibid_ident_estimate before the 1000th sample gives a provisional estimate from
+ *    the samples so far (at least 10; rerun when they have grown by a quarter) without
+ *    starting the filter, so the tracks do not depend on when estimates are asked for.
  *  - per sample O((2n + p)^3 + (2n + 2r)^3), allocation-free. forgetting < 1 divides the
  *    parameter block of the covariance by it each sample (tracking).
  *  - error bars: the filter's covariance of the parameters. They hold when the model and
