@@ -402,9 +402,8 @@ StandEkf::StandEkf(const vibid_model &m, const StandEkfSettings &s) : model_(&m)
         const std::size_t k = static_cast<std::size_t>(i);
         fetch(i, Mi_[k], Di_[k], Ci_[k], Bi_[k], dbi_[k], cbi_[k]);
     }
-    theta0_.resize(p_);
-    vibid_model_nominal(&m, theta0_.data());
-    theta_start_ = theta0_;
+    theta_start_.resize(p_);
+    vibid_model_nominal(&m, theta_start_.data());
     prov_theta_.setZero(p_);
     prov_cov_.setZero(p_, p_);
 
@@ -455,7 +454,6 @@ StandEkf::StandEkf(const vibid_model &m, const StandEkfSettings &s) : model_(&m)
 void StandEkf::reset() {
     n_window_ = 0;
     have_prev_ = have_prev2_ = false;
-    state_fresh_ = true;
     stats_ = StandEkfStats{};
     prov_stats_ = StandEkfStats{};
     prov_at_ = 0;

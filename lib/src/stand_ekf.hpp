@@ -147,7 +147,7 @@ private:
     Mat D0_, C0_, B0_;
     std::vector<Vec> Mi_, cbi_, dbi_;
     std::vector<Mat> Di_, Ci_, Bi_;
-    Vec theta0_, theta_start_;
+    Vec theta_start_;
 
     // Assembled at the current parameters (and linearisation point for cubics).
     Vec Mv_, Minv_, cb_, db_;   // linear part
@@ -175,7 +175,7 @@ private:
     std::vector<double> window_;
     std::size_t n_window_ = 0;
     std::vector<double> prev_, prev2_;
-    bool have_prev_ = false, have_prev2_ = false, state_fresh_ = true;
+    bool have_prev_ = false, have_prev2_ = false;
     double sigma_y_ = 1.0, omega_ref_ = 1.0;
     StandEkfStats stats_;
 };

@@ -4,22 +4,11 @@
 # Captures come from tests/daemon/tools/vd_gen_capture (RK4 simulation of the stand
 # file's true values: c1 = 2.5e5 N/m, d = 300 N s/m, c2 = 1.5e6 N/m). Every run is
 # bounded with `timeout`; only 127.0.0.1 is used.
-set -u
-CASE=$1
-BUILD=$2
-SRC=$3
-VIBIDD=$BUILD/daemon/vibidd
+. "$(dirname "$0")/e2e_common.sh" e2e "$@"
 GEN=$BUILD/tests/daemon/vd_gen_capture
 STAND=$SRC/examples/stands/paper_example1.cfg
 DBC=$SRC/tests/daemon/data/example1.dbc
-SIM=$BUILD/sim/vibid-sim
 SIMCFG=$SRC/tests/daemon/data/sim_steady.cfg
-W=$(mktemp -d /tmp/vd_e2e_${CASE}_XXXXXX)
-trap 'rm -rf "$W"' EXIT
-cd "$W" || exit 1
-
-fail() { echo "FAIL [$CASE]: $*" >&2; exit 1; }
-note() { echo "[$CASE] $*"; }
 
 # config_csv FILE EXTRA: a replay configuration of a CSV capture
 config_csv() {

@@ -2,18 +2,7 @@
 # End-to-end tests of vibidd's automatic estimator (no `estimator` section, or only
 # `forgetting`), on captures written by vibid-sim.
 # usage: e2e_auto.sh CASE BUILD_DIR SOURCE_DIR
-set -u
-CASE=$1
-BUILD=$2
-SRC=$3
-VIBIDD=$BUILD/daemon/vibidd
-SIM=$BUILD/sim/vibid-sim
-W=$(mktemp -d /tmp/vd_e2e_auto_${CASE}_XXXXXX)
-trap 'rm -rf "$W"' EXIT
-cd "$W" || exit 1
-
-fail() { echo "FAIL [$CASE]: $*" >&2; exit 1; }
-note() { echo "[$CASE] $*"; }
+. "$(dirname "$0")/e2e_common.sh" e2e_auto "$@"
 
 # The base-excited 2-DOF stand of the issue: base displacement held between samples
 # (a DAC-driven shaker), a damper to the base, x1, x2 and s measured; the lower spring c2
@@ -49,8 +38,6 @@ outputs = { tracks = { path = "tracks.csv"; }; influx = { path = "tracks.influx"
 EOF
 }
 
-# column NAME FILE: the column number of NAME in the tracks header (after the # lines)
-column() { grep -v '^#' "$2" | head -1 | tr ',' '\n' | grep -nx "$1" | cut -d: -f1; }
 
 case $CASE in
 check)

@@ -4,21 +4,7 @@
 # `disturbances`), on captures written by vibid-sim. The stands are those of
 # tests/ident/test_ekf.c.
 # usage: e2e_ekf.sh CASE BUILD_DIR SOURCE_DIR
-set -u
-CASE=$1
-BUILD=$2
-SRC=$3
-VIBIDD=$BUILD/daemon/vibidd
-SIM=$BUILD/sim/vibid-sim
-W=$(mktemp -d /tmp/vd_e2e_ekf_${CASE}_XXXXXX)
-trap 'rm -rf "$W"' EXIT
-cd "$W" || exit 1
-
-fail() { echo "FAIL [$CASE]: $*" >&2; exit 1; }
-note() { echo "[$CASE] $*"; }
-
-# column NAME FILE: the column number of NAME in the tracks header (after the # lines)
-column() { grep -v '^#' "$2" | head -1 | tr ',' '\n' | grep -nx "$1" | cut -d: -f1; }
+. "$(dirname "$0")/e2e_common.sh" e2e_ekf "$@"
 
 # base_stand: the `base_partial_stand` of tests/ident/test_ekf.c (2 DOF on a smooth moving
 # base, band-limited random base motion; m1 measured (x1), m2 without sensor, the base

@@ -24,19 +24,22 @@ typedef struct capture {
     const double *truth;
 } capture;
 
-static uint64_t rng_state = 0x9E3779B97F4A7C15ull;
-static double normal(void)
+/* Standard normal variate (polar Box-Muller) from the xorshift stream *state. */
+static double normal_from(uint64_t *state)
 {
     double u, v, s;
     do {
-        rng_state ^= rng_state << 13; rng_state ^= rng_state >> 7; rng_state ^= rng_state << 17;
-        u = 2.0 * ((double)(rng_state >> 11) / 9007199254740992.0) - 1.0;
-        rng_state ^= rng_state << 13; rng_state ^= rng_state >> 7; rng_state ^= rng_state << 17;
-        v = 2.0 * ((double)(rng_state >> 11) / 9007199254740992.0) - 1.0;
+        *state ^= *state << 13; *state ^= *state >> 7; *state ^= *state << 17;
+        u = 2.0 * ((double)(*state >> 11) / 9007199254740992.0) - 1.0;
+        *state ^= *state << 13; *state ^= *state >> 7; *state ^= *state << 17;
+        v = 2.0 * ((double)(*state >> 11) / 9007199254740992.0) - 1.0;
         s = u * u + v * v;
     } while (s >= 1.0 || s == 0.0);
     return u * sqrt(-2.0 * log(s) / s);
 }
+
+static uint64_t rng_state = 0x9E3779B97F4A7C15ull;
+static double normal(void) { return normal_from(&rng_state); }
 
 /* Simulates n samples of the stand in `text` (written to <tmp>/name) with vibid-sim's engine. */
 static void simulate(capture *c, const char *name, const char *text, size_t n)
