@@ -174,11 +174,66 @@ static void test_noise_errors(void **state) {
     remove(CFG);
 }
 
+/* A misspelt key anywhere must not pass as "not given" (mass_unknown = true read as a
+ * known mass; a misspelt hold as smooth): each group names its valid keys. */
+static void test_unknown_keys(void **state) {
+    (void)state;
+#define STAND(node, extra) "stand = {\n  sample_rate = 100.0;\n  nodes = ( { name = \"m1\"; mass = 1.0;\n" \
+                    "    measure = { displacement = \"x1\"; };" node " } );\n" \
+                    "  elements = ( { name = \"k\"; kind = \"spring\"; between = [\"m1\", \"base\"]; value = 1.0; } );\n" extra
+    expect_error(STAND("\n    mass_unknown = true;", "};\n"),
+                 CFG ":5: stand.nodes.[0].mass_unknown: unknown setting (name, mass, unknown, true_value, measure, "
+                 "noise)");
+    expect_error(STAND("", "  samplerate = 100.0;\n};\n"), CFG ":6: stand.samplerate: unknown setting (name, ");
+    expect_error(STAND("", "  base = { measure = { displacement = \"s\"; };\n    held = \"zoh\"; };\n};\n"),
+                 CFG ":7: stand.base.held: unknown setting (measure, noise, hold)");
+    expect_error(STAND("", "  elements2 = ( );\n};\n"), CFG ":6: stand.elements2: unknown setting");
+    expect_error("stand = {\n  sample_rate = 100.0;\n  nodes = ( { name = \"m1\"; mass = 1.0; } );\n"
+                 "  elements = ( { name = \"k\"; kind = \"spring\"; between = [\"m1\", \"ground\"];\n"
+                 "    valeu = 1.0; } );\n};\n",
+                 CFG ":5: stand.elements.[0].valeu: unknown setting (name, kind, between, value, unknown, "
+                 "true_value)");
+    expect_error(STAND("", "  inputs = ( { name = \"f\"; node = \"m1\"; channel = \"F\";\n    hld = \"zoh\"; } );\n};\n"),
+                 CFG ":7: stand.inputs.[0].hld: unknown setting (name, node, gain, unknown, true_value, channel, "
+                 "hold)");
+    expect_error("stand = {\n  sample_rate = 100.0;\n  matrices = { n_dof = 1; M = [1.0]; C = [1.0];\n"
+                 "    unknowns = [\"C\"]; };\n};\n",
+                 CFG ":4: stand.matrices.unknowns: unknown setting (n_dof, n_inputs, M, D, C, B, unknown, channels)");
+#undef STAND
+    remove(CFG);
+}
+
+/* An unknown input gain has a true value for the simulator like any other unknown
+ * (before, it was left at 0: vibid-sim would have simulated a disconnected input). */
+static void test_unknown_gain_true_value(void **state) {
+    (void)state;
+    write_file("stand = {\n  sample_rate = 100.0;\n  nodes = ( { name = \"m1\"; mass = 2.0; unknown = true;\n"
+               "    true_value = 2.5; measure = { displacement = \"x1\"; acceleration = \"a1\"; }; } );\n"
+               "  elements = ( { name = \"k\"; kind = \"spring\"; between = [\"m1\", \"ground\"]; value = 1.0; } );\n"
+               "  inputs = ( { name = \"f\"; node = \"m1\"; channel = \"F\"; gain = 3.0; unknown = true; },\n"
+               "             { name = \"g\"; node = \"m1\"; channel = \"G\"; gain = 1.0; unknown = true;\n"
+               "               true_value = 4.0; } );\n};\n");
+    vibid_stand_error err;
+    vibid_stand *st = vibid_stand_load(CFG, &err);
+    if (!st) fail_msg("%s", err.text);
+    vibid_model_dims dims;
+    vibid_model_get_dims(vibid_stand_model(st), &dims);
+    assert_int_equal(dims.n_params, 3);
+    const double *tv = vibid_stand_true_values(st);
+    assert_float_equal(tv[0], 2.5, 0.0);  /* the mass: its true_value */
+    assert_float_equal(tv[1], 3.0, 0.0);  /* gain f: no true_value, the nominal gain */
+    assert_float_equal(tv[2], 4.0, 0.0);  /* gain g: its true_value */
+    vibid_stand_destroy(st);
+    remove(CFG);
+}
+
 int main(void) {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_disturbances_and_noise),
         cmocka_unit_test(test_disturbance_errors),
         cmocka_unit_test(test_noise_errors),
+        cmocka_unit_test(test_unknown_keys),
+        cmocka_unit_test(test_unknown_gain_true_value),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -277,6 +277,8 @@ static int note_true_value(const ctx *c, const config_setting_t *e, const char *
     double tv;
     int r = get_number(c, e, path, "true_value", &tv);
     if (r < 0) return -1;
+    if (pd->n_unknown >= sizeof pd->true_values / sizeof pd->true_values[0])
+        return fail(c, e, path, "more than %zu unknowns", sizeof pd->true_values / sizeof pd->true_values[0]);
     pd->has_true[pd->n_unknown] = r;
     pd->true_values[pd->n_unknown++] = r ? tv : nominal;
     return 0;
@@ -353,6 +355,8 @@ static int read_disturbances(const ctx *c, vibid_model *m, const config_setting_
 
 static int read_matrices(const ctx *c, vibid_model *m, const config_setting_t *g, const char *path, pending *pd) {
     double nd = 0, nr = 0;
+    static const char *const known[] = {"n_dof", "n_inputs", "M", "D", "C", "B", "unknown", "channels", NULL};
+    if (reject_unknown_members(c, g, path, known, "n_dof, n_inputs, M, D, C, B, unknown, channels")) return -1;
     if (require_number(c, g, path, "n_dof", &nd) || (get_number(c, g, path, "n_inputs", &nr) < 0)) return -1;
     char f[160];
     child_path(f, sizeof f, path, "n_dof", 0);
@@ -477,6 +481,14 @@ vibid_stand *vibid_stand_from_setting(const void *setting_v, const char *file, v
     char f[200];
     vibid_status s;
     if (!m) goto fail_oom;
+    {
+        static const char *const known[] = {"name",     "sample_rate", "discretization", "matrices", "nodes",
+                                            "base",     "elements",    "inputs",         "disturbances", NULL};
+        if (reject_unknown_members(&c, g, path, known,
+                                   "name, sample_rate, discretization, nodes, base, elements, inputs, disturbances, "
+                                   "matrices"))
+            goto fail;
+    }
     if (get_string(&c, g, path, "name", &name) < 0) goto fail;
     if (require_number(&c, g, path, "sample_rate", &st->sample_rate)) goto fail;
     if (!(st->sample_rate > 0)) {
@@ -526,7 +538,10 @@ vibid_stand *vibid_stand_from_setting(const void *setting_v, const char *file, v
             const char *nm;
             double mass = 0;
             int unknown = 0;
-            if (require_string(&c, e, p, "name", &nm) || get_bool(&c, e, p, "unknown", &unknown) < 0) goto fail;
+            static const char *const node_keys[] = {"name", "mass", "unknown", "true_value", "measure", "noise", NULL};
+            if (reject_unknown_members(&c, e, p, node_keys, "name, mass, unknown, true_value, measure, noise") ||
+                require_string(&c, e, p, "name", &nm) || get_bool(&c, e, p, "unknown", &unknown) < 0)
+                goto fail;
             int has_mass = get_number(&c, e, p, "mass", &mass);
             if (has_mass < 0) goto fail;
             if (!has_mass && !unknown) {
@@ -550,7 +565,9 @@ vibid_stand *vibid_stand_from_setting(const void *setting_v, const char *file, v
         }
         const config_setting_t *base = config_setting_get_member(g, "base");
         if (base) {
+            static const char *const base_keys[] = {"measure", "noise", "hold", NULL};
             unsigned mask;
+            if (reject_unknown_members(&c, base, "stand.base", base_keys, "measure, noise, hold")) goto fail;
             if (read_measure(&c, base, "stand.base", &mask, pd->base_names)) goto fail;
             vibid_model_set_measured(m, VIBID_BASE, mask);
             if (read_noise(&c, m, base, "stand.base", VIBID_BASE, mask)) goto fail;
@@ -564,7 +581,10 @@ vibid_stand *vibid_stand_from_setting(const void *setting_v, const char *file, v
             const char *nm, *kind;
             double value = 0;
             int unknown = 0;
-            if (require_string(&c, e, p, "name", &nm) || require_string(&c, e, p, "kind", &kind) ||
+            static const char *const element_keys[] = {"name", "kind", "between", "value", "unknown", "true_value",
+                                                       NULL};
+            if (reject_unknown_members(&c, e, p, element_keys, "name, kind, between, value, unknown, true_value") ||
+                require_string(&c, e, p, "name", &nm) || require_string(&c, e, p, "kind", &kind) ||
                 get_bool(&c, e, p, "unknown", &unknown) < 0)
                 goto fail;
             vibid_element_kind k;
@@ -617,7 +637,10 @@ vibid_stand *vibid_stand_from_setting(const void *setting_v, const char *file, v
             const char *nm, *node, *chan;
             double gain = 1.0;
             int unknown = 0;
-            if (require_string(&c, e, p, "name", &nm) || require_string(&c, e, p, "node", &node) ||
+            static const char *const input_keys[] = {"name", "node", "gain", "unknown", "true_value", "channel",
+                                                     "hold", NULL};
+            if (reject_unknown_members(&c, e, p, input_keys, "name, node, gain, unknown, true_value, channel, hold") ||
+                require_string(&c, e, p, "name", &nm) || require_string(&c, e, p, "node", &node) ||
                 get_bool(&c, e, p, "unknown", &unknown) < 0 || get_number(&c, e, p, "gain", &gain) < 0)
                 goto fail;
             if (require_string(&c, e, p, "channel", &chan)) goto fail;
@@ -632,6 +655,7 @@ vibid_stand *vibid_stand_from_setting(const void *setting_v, const char *file, v
                 lib_fail(&c, e, p, s);
                 goto fail;
             }
+            if (unknown && note_true_value(&c, e, p, gain, pd)) goto fail;
             if (read_hold(&c, m, e, p, in_idx)) goto fail;
             pd->input_names[pd->n_inputs++] = chan;
         }
