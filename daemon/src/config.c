@@ -563,8 +563,10 @@ static int load_start_values(ctx *c, const config_setting_t *sv)
     vd_config *cfg = c->cfg;
     if (!sv)
         return 0;
-    if (cfg->method != VIBID_ESTIMATOR_RLS && cfg->method != VIBID_ESTIMATOR_EKF)
-        return fail_at(c, sv, "estimator.start_values", "only the rls and ekf methods have start values (method is %s)",
+    if (cfg->method != VIBID_ESTIMATOR_RLS && cfg->method != VIBID_ESTIMATOR_EKF &&
+        cfg->method != VIBID_ESTIMATOR_KF_RLS)
+        return fail_at(c, sv, "estimator.start_values",
+                       "only the rls, ekf and kf_rls methods have start values (method is %s)",
                        vd_estimator_name(cfg->method));
     if (!config_setting_is_list(sv))
         return fail_at(c, sv, "estimator.start_values", "must be a list ( { name = \"c1\"; value = ...; }, ... )");
@@ -601,8 +603,8 @@ static int load_estimator(ctx *c, config_t *cf)
     config_setting_t *g = config_lookup(cf, "estimator");
     if (check_known(c, g, "estimator", est_known))
         return -1;
-    /* The order is vibid_estimator's: ls 0, iv 1, rls 2, auto 3 (the default), ekf 4. */
-    static const char *const methods[] = {"ls", "iv", "rls", "auto", "ekf", NULL};
+    /* The order is vibid_estimator's: ls 0, iv 1, rls 2, auto 3 (the default), ekf 4, kf_rls 5. */
+    static const char *const methods[] = {"ls", "iv", "rls", "auto", "ekf", "kf_rls", NULL};
     int mi;
     if (get_enum(c, g, "estimator", "method", (int)VIBID_ESTIMATOR_AUTO, methods, &mi))
         return -1;
@@ -820,8 +822,8 @@ const char *vd_source_kind_name(vd_source_kind k) { return (unsigned)k < 3 ? src
 
 const char *vd_estimator_name(vibid_estimator e)
 {
-    static const char *const n[] = {"ls", "iv", "rls", "auto", "ekf"};
-    return (unsigned)e < 5 ? n[e] : "?";
+    static const char *const n[] = {"ls", "iv", "rls", "auto", "ekf", "kf_rls"};
+    return (unsigned)e < 6 ? n[e] : "?";
 }
 
 static const char *yes(bool b) { return b ? "true" : "false"; }

@@ -205,6 +205,7 @@ vibid_ident_config resolve_config(const vibid_model &m, const vibid_ident_config
         break;
     case VIBID_ESTIMATOR_IV: why += "estimator: instrumental variables with block statistics (configured)\n"; break;
     case VIBID_ESTIMATOR_EKF: break;  // create_state_space describes it
+    case VIBID_ESTIMATOR_KF_RLS: break;
     case VIBID_ESTIMATOR_LS:
         why += "estimator: batch least squares (configured); biased by noise on the measured channels, standard "
                "errors assume white equation errors (flagged as not valid)\n";
@@ -348,7 +349,8 @@ std::unique_ptr<vibid_ident> create_state_space(const vibid_model &model, const 
     auto id = std::make_unique<vibid_ident>();
     id->model = model;
     id->cfg = cfg;
-    id->cfg.estimator = VIBID_ESTIMATOR_EKF;
+    const bool kf_rls = cfg.estimator == VIBID_ESTIMATOR_KF_RLS;
+    id->cfg.estimator = kf_rls ? VIBID_ESTIMATOR_KF_RLS : VIBID_ESTIMATOR_EKF;
     id->n = model.nodes.size();
     id->p = model.param_term.size();
     id->n_channels = model.channels.size();
@@ -356,9 +358,13 @@ std::unique_ptr<vibid_ident> create_state_space(const vibid_model &model, const 
     vibid::StandEkfSettings st;
     st.h = cfg.sample_time;
     st.forgetting = cfg.forgetting;
+    st.kf_rls = kf_rls;
     id->ekf = std::make_unique<vibid::StandEkf>(id->model, st);
     std::string &why = id->description;
-    if (why_auto.empty())
+    if (kf_rls)
+        why += "estimator: Kalman filter on the stand's states + recursive LS on its physical parameters (the "
+               "paper's 3.16, configured); standard errors not valid (the regressors are filtered states)\n";
+    else if (why_auto.empty())
         why += "estimator: extended Kalman filter on the stand's states and physical parameters (configured)\n";
     else
         why += "estimator: extended Kalman filter on the stand's states and physical parameters (automatic: " +
@@ -375,8 +381,9 @@ std::unique_ptr<vibid_ident> create_state_space(const vibid_model &model, const 
                                            "innovation likelihood)\n",
                                            w.name.c_str(), st.window);
     if (cfg.forgetting < 1.0)
-        why += strprintf("forgetting: %.6g on the parameters' covariance (memory about %.4g samples = %.4g s)\n",
-                         cfg.forgetting, 1.0 / (1.0 - cfg.forgetting), cfg.sample_time / (1.0 - cfg.forgetting));
+        why += strprintf("forgetting: %.6g on the parameters' %s (memory about %.4g samples = %.4g s)\n",
+                         cfg.forgetting, kf_rls ? "regression" : "covariance", 1.0 / (1.0 - cfg.forgetting),
+                         cfg.sample_time / (1.0 - cfg.forgetting));
     else
         why += "forgetting: none (every sample counts alike)\n";
     // Sized here so that an estimate (at the daemon's track-row rate) allocates nothing.
@@ -387,7 +394,8 @@ std::unique_ptr<vibid_ident> create_state_space(const vibid_model &model, const 
 
 // Estimate of the state-space estimator: the filter's parameters and the parameter
 // block of its covariance. The error bars are the filter's own; they hold when its
-// innovations are consistent (averaged NIS near 1), so an NIS above 2 flags them.
+// innovations are consistent (averaged NIS near 1), so an NIS above 2 flags them. The
+// KF+RLS's are the regression's textbook ones on coloured equation errors: always flagged.
 vibid_status estimate_state_space(vibid_ident &id, double *theta, double *se, vibid_ident_info *info) {
     const vibid_status s = id.ekf->estimate(theta, se, id.cov.data());
     if (s != VIBID_OK) return s;
@@ -396,7 +404,8 @@ vibid_status estimate_state_space(vibid_ident &id, double *theta, double *se, vi
     qual.z_consistency = std::nan("");
     qual.rcond = std::nan("");
     qual.bias_relative = 0.0;
-    if (!(st.nis_avg <= 2.0) || st.n_steps < 2 * id.p) qual.flags |= VIBID_QUALITY_SE_INVALID;
+    if (!(st.nis_avg <= 2.0) || st.n_steps < 2 * id.p || id.cfg.estimator == VIBID_ESTIMATOR_KF_RLS)
+        qual.flags |= VIBID_QUALITY_SE_INVALID;
     id.param_flags.assign(id.p, qual.flags);
     id.quality = qual;
     id.have_cov = true;
@@ -420,7 +429,7 @@ VIBID_API vibid_ident *vibid_ident_create(const vibid_model *model, const vibid_
         if (!cfg) throw_error(VIBID_E_NULL_ARGUMENT, "cfg is NULL");
         if (cfg->estimator != VIBID_ESTIMATOR_LS && cfg->estimator != VIBID_ESTIMATOR_IV &&
             cfg->estimator != VIBID_ESTIMATOR_RLS && cfg->estimator != VIBID_ESTIMATOR_AUTO &&
-            cfg->estimator != VIBID_ESTIMATOR_EKF)
+            cfg->estimator != VIBID_ESTIMATOR_EKF && cfg->estimator != VIBID_ESTIMATOR_KF_RLS)
             throw_error(VIBID_E_OUT_OF_RANGE, "estimator %d unknown", static_cast<int>(cfg->estimator));
         if (!(cfg->sample_time > 0.0) || !std::isfinite(cfg->sample_time))
             throw_error(VIBID_E_OUT_OF_RANGE, "sample_time = %g s must be > 0 and finite", cfg->sample_time);
@@ -436,7 +445,7 @@ VIBID_API vibid_ident *vibid_ident_create(const vibid_model *model, const vibid_
         // A stand that leaves coordinates unmeasured (some signal of the equations can
         // not be formed from the channels) or declares an unmeasured random force gets
         // the state-space estimator under AUTO; the regression estimators cannot run on it.
-        bool state_space = cfg->estimator == VIBID_ESTIMATOR_EKF;
+        bool state_space = cfg->estimator == VIBID_ESTIMATOR_EKF || cfg->estimator == VIBID_ESTIMATOR_KF_RLS;
         std::string why_state_space;
         if (cfg->estimator == VIBID_ESTIMATOR_AUTO) {
             if (!model->disturbances.empty()) {
@@ -486,6 +495,7 @@ VIBID_API vibid_ident *vibid_ident_create(const vibid_model *model, const vibid_
         id->rows_w.assign(id->p_reg * id->m, 0.0);
         switch (rcfg.estimator) {
         case VIBID_ESTIMATOR_EKF: break;  // create_state_space
+        case VIBID_ESTIMATOR_KF_RLS: break;
         case VIBID_ESTIMATOR_LS:
             id->lsq = vibid_lsq_create(id->p_reg, id->q);
             if (!id->lsq) throw_error(VIBID_E_NO_MEMORY, "vibid_lsq_create: %s", vibid_last_error());
@@ -693,6 +703,7 @@ VIBID_API vibid_status vibid_ident_push(vibid_ident *ident, const double *channe
     const std::size_t p = ident->p_reg, m = ident->m;
     switch (ident->cfg.estimator) {
     case VIBID_ESTIMATOR_EKF: break;  // handled above
+    case VIBID_ESTIMATOR_KF_RLS: break;
     case VIBID_ESTIMATOR_LS:
         transpose_into(ident->x.data(), p, m, ident->rows_x.data());
         s = vibid_lsq_add_rows(ident->lsq, m, ident->rows_x.data(), ident->y.data(), nullptr);

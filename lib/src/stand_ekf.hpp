@@ -16,6 +16,24 @@
 // about the state at t_k (exponential Rosenbrock-Euler: the map is then exact to
 // second order in h for the cubic force, exact for the linear part).
 //
+// KF+RLS (settings kf_rls, the paper's (3.16) on the physical model): the same exact
+// discretisation drives a Kalman filter on the states [y; y'] alone, with the parameters
+// held at the newest estimate; a recursive LS (rls.h) estimates the parameters from the
+// filtered states by the equation of motion integrated over each sample interval,
+//   M dv + D dy - d_b ds + C int(y) - c_b int(s) - B int(u) + int(cubic) = int(w),
+// linear in every mass, spring, damper, cubic coefficient and gain (dv, dy: increments of
+// the filtered velocities and displacements, exact; int(y) by the cubic Hermite rule
+// through both ends' displacements and velocities, error (w h)^4 / 720 relative;
+// inputs as in the filter's model; int(w), the unmeasured force, is the equation error).
+// Only the equations of nodes with a sensor are rows: an unmeasured node's filtered
+// velocity is the filter's own prediction, so its equation would only confirm the
+// current parameters; an unknown that acts on no measured node is therefore refused
+// (the EKF estimates it). Rows are weighted by their equation-error level at the start
+// values. Cheaper than
+// the EKF (no parameter Jacobian, a 2n instead of 2n + p filter), but the regressors
+// are filtered states: errors-in-variables, coloured equation errors, so its standard
+// errors are the RLS's textbook ones and flagged as not valid (identify.cpp).
+//
 // Numbers: the covariance is kept in scaled coordinates (states by their typical
 // amplitude, parameters by their start values), so that metres and N/m^3 share a
 // matrix without a condition number of 1e20.
@@ -25,8 +43,11 @@
 
 #include <vibid/common.h>
 
+#include <vibid/rls.h>
+
 #include <Eigen/Core>
 
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -39,6 +60,7 @@ struct StandEkfSettings {
     double prior_rel = 0.5;    // relative standard deviation of the start values
     double nis_limit = 10.0;   // restart when the averaged NIS per measurement exceeds it
     double nis_memory = 0.99;  // averaging factor of the NIS
+    bool kf_rls = false;       // false: EKF on [y; y'; theta]; true: KF on [y; y'] + RLS on theta
 };
 
 // Before any sample: the unknowns must have nominal (start) values, the base (when
@@ -113,6 +135,8 @@ private:
     vibid_status step(const double *prev, const double *cur);
     vibid_status update(const double *cur);
     void restart_parameters();
+    void regression_step(const double *prev, const double *cur);
+    void param_cov(Mat &cov) const;
     double base_disp(const double *ch) const;
     void base_now(const double *ch, const double *prev, double &s, double &sd) const;
     double cubic_rho(std::size_t e, const double *y, double s) const;
@@ -122,7 +146,8 @@ private:
     // Sizes: n nodes, p unknowns, r force inputs, nb = 1 with a base, nw disturbances,
     // nc = 1 with cubic springs (the constant of their linearisation); ne inputs in xi;
     // nx = 2 n states.
-    Eigen::Index n_ = 0, p_ = 0, r_ = 0, nb_ = 0, nw_ = 0, nc_ = 0, ne_ = 0, nx_ = 0, N_ = 0, na_ = 0, nz_ = 0,
+    // nf = na (EKF) or nx (KF+RLS): the dimension the filter's covariance works on.
+    Eigen::Index nf_ = 0, n_ = 0, p_ = 0, r_ = 0, nb_ = 0, nw_ = 0, nc_ = 0, ne_ = 0, nx_ = 0, N_ = 0, na_ = 0, nz_ = 0,
                  nch_ = 0;
     Eigen::Index col_s_ = -1, col_sd_ = -1;  // base displacement / velocity column in xi (-1: none)
     unsigned boosts_in_row_ = 0;
@@ -167,7 +192,26 @@ private:
     Vec zhat_, nu_, Rv_;
     Vec Rw_;
 
+    // KF+RLS: the regression on the physical parameters in scaled coordinates
+    // (theta_i / theta_start_i), p parameters, n equations (one per node) per sample.
+    struct RlsFree {
+        void operator()(vibid_rls *r) const { vibid_rls_destroy(r); }
+    };
+    std::unique_ptr<vibid_rls, RlsFree> rls_;
+    std::vector<Eigen::Index> rows_;  // nodes with a sensor: their equations are the regression's rows
+    Mat phi_;             // p x rows regressor, one column per equation
+    Mat rls_P0_;          // p x p prior covariance (prior_rel^2 I)
+    std::size_t n_eq_ = 0;  // samples in eq_
+    Vec target_, eq_;     // rows: target; equation error at the start values (scale pass)
+    Vec dv_, dy_, iy_, iu_;  // n, n, n, r: increments and integrals over the interval
+    Vec row_scale_;       // rows: equation-error level per row (rows are divided by it)
+    Vec rls_theta_;       // p, scaled
+    Vec x_prev_;          // nx: filtered state at t_k (before a held base's kick)
+    double kick_ds_ = 0.0;  // base jump at t_k of the interval in step() (held base)
+    bool scale_pass_ = false;  // collecting eq_ instead of estimating
+
     // Start window and continuity.
+    Mat cov_;             // p x p scratch for estimate()
     Vec prov_theta_;      // p: the last provisional estimate (before the window is full)
     Mat prov_cov_;        // p x p, physical units
     StandEkfStats prov_stats_;

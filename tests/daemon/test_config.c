@@ -230,7 +230,7 @@ static void test_start_values(void **state)
     vd_config_free(&cfg);
     free(p1);
     expect_error("start_ls.cfg", STAND SOURCE "estimator = { method = \"ls\"; start_values = ( ); };\n",
-                 ":12: estimator.start_values:", "only the rls and ekf methods");
+                 ":12: estimator.start_values:", "only the rls, ekf and kf_rls methods");
     expect_error("start_name.cfg", STAND SOURCE "estimator = { method = \"rls\"; start_values = ( { name = \"k9\"; value = 1.0; } ); };\n",
                  ":12: estimator.start_values.[0].name:", "'k9' is not an unknown parameter");
     expect_error("start_value.cfg", STAND SOURCE "estimator = { method = \"rls\"; start_values = ( { name = \"d\"; } ); };\n",

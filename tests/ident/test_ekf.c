@@ -56,6 +56,18 @@ static const char *base_partial_stand =
     "               { name = \"c2\"; kind = \"spring\"; between = [\"m2\", \"base\"]; unknown = true; value = 1.0e5; true_value = 1.2e5; },\n"
     "               { name = \"d2\"; kind = \"damper\"; between = [\"m2\", \"base\"]; unknown = true; value = 37.5; true_value = 30.0; } ); };\n"
     "simulation = { seed = 7; excitation = ( { target = \"base\"; kind = \"noise\"; amplitude = 1.0e-4; f_high = 150.0; } )";
+/* The same stand with only the upper spring and damper unknown: both act on m1, which
+ * carries the sensor (the KF+RLS's case). */
+static const char *base_upper_stand =
+    "stand = { name = \"base2-upper\"; sample_rate = 1000.0;\n"
+    "  nodes = ( { name = \"m1\"; mass = 1.5; measure = { displacement = \"x1\"; }; },\n"
+    "            { name = \"m2\"; mass = 3.0; } );\n"
+    "  base = { measure = { displacement = \"s\"; }; };\n"
+    "  elements = ( { name = \"c1\"; kind = \"spring\"; between = [\"m1\", \"m2\"]; unknown = true; value = 7.2e4; true_value = 6.0e4; },\n"
+    "               { name = \"d1\"; kind = \"damper\"; between = [\"m1\", \"m2\"]; unknown = true; value = 12.0; true_value = 15.0; },\n"
+    "               { name = \"c2\"; kind = \"spring\"; between = [\"m2\", \"base\"]; value = 1.2e5; },\n"
+    "               { name = \"d2\"; kind = \"damper\"; between = [\"m2\", \"base\"]; value = 30.0; } ); };\n"
+    "simulation = { seed = 7; excitation = ( { target = \"base\"; kind = \"noise\"; amplitude = 1.0e-4; f_high = 150.0; } ); };\n";
 /* ... followed by this (no parameter change) or a change list, and the closing brace. */
 static const char *no_change = "; };\n";
 static const char *c2_drop = "; changes = ( { parameter = \"c2\"; at = 30.0; factor = 0.9; } ); };\n";
@@ -67,31 +79,35 @@ static void print_describe(vibid_ident *id)
     printf("%s", buf);
 }
 
-/* Identification of c->noisy with the defaults; theta/se out. */
-static void identify_all(const capture *c, double forgetting, double *theta, double *se, int print)
+/* Identification of c->noisy with the defaults (est = VIBID_ESTIMATOR_AUTO, which must
+ * choose the EKF) or the KF+RLS (VIBID_ESTIMATOR_KF_RLS, whose standard errors are always
+ * flagged); theta/se out. */
+static void identify_all(const capture *c, vibid_estimator est, double forgetting, double *theta, double *se, int print)
 {
     const vibid_model *m = vibid_stand_model(c->stand);
     vibid_ident_config cfg;
     vibid_ident_config_init(&cfg, 1.0 / 1000.0);
     cfg.forgetting = forgetting;
+    cfg.estimator = est;
     vibid_ident *id = vibid_ident_create(m, &cfg);
     if (!id) fail_msg("vibid_ident_create: %s", vibid_last_error());
     vibid_ident_config used;
     assert_int_equal(vibid_ident_get_config(id, &used), VIBID_OK);
-    assert_int_equal(used.estimator, VIBID_ESTIMATOR_EKF);
+    assert_int_equal(used.estimator, est == VIBID_ESTIMATOR_KF_RLS ? VIBID_ESTIMATOR_KF_RLS : VIBID_ESTIMATOR_EKF);
     if (print) print_describe(id);
     if (vibid_ident_push_block(id, c->n, c->noisy) != VIBID_OK) fail_msg("push: %s", vibid_last_error());
     assert_int_equal(vibid_ident_estimate(id, theta, se, NULL), VIBID_OK);
     vibid_ident_quality q;
     assert_int_equal(vibid_ident_get_quality(id, &q, NULL), VIBID_OK);
     if (print) printf("  quality flags %u\n", q.flags);
-    assert_int_equal(q.flags & VIBID_QUALITY_SE_INVALID, 0);
+    assert_int_equal(q.flags & VIBID_QUALITY_SE_INVALID, est == VIBID_ESTIMATOR_KF_RLS ? VIBID_QUALITY_SE_INVALID : 0);
     vibid_ident_destroy(id);
 }
 
-/* Every estimate within its relative bound (stiffness-like / damping) and within 3 of
- * its own standard errors. */
-static void check_within(const capture *c, const double *theta, const double *se, double tol_stiff, double tol_damp)
+/* Every estimate within its relative bound (stiffness-like / damping) and, when
+ * check_se, within 3 of its own standard errors. */
+static void check_within(const capture *c, const double *theta, const double *se, double tol_stiff, double tol_damp,
+                         int check_se)
 {
     const vibid_model *m = vibid_stand_model(c->stand);
     for (size_t i = 0; i < c->p; i++) {
@@ -102,21 +118,22 @@ static void check_within(const capture *c, const double *theta, const double *se
         printf("  %-3s %12.6g  truth %-8g  err %+8.4f %%  se %7.4f %%  z %+5.2f  (bound %g %%)\n", pi.name, theta[i],
                c->truth[i], 100 * rel, 100 * se[i] / c->truth[i], z, 100 * tol);
         assert_true(fabs(rel) <= tol);
-        assert_true(fabs(z) <= 3.0);
+        if (check_se) assert_true(fabs(z) <= 3.0);
     }
 }
 
 /* 60 s at 1 kHz of the stand in `text`, 1 % sensor noise, identified with the defaults;
  * every unknown within its bound and within 3 standard errors. */
-static void identify_and_check(const char *name, const char *text, double tol_stiff, double tol_damp)
+static void identify_and_check(const char *name, const char *text, vibid_estimator est, double tol_stiff,
+                               double tol_damp)
 {
     capture c;
     simulate(&c, name, text, 60000);
     add_noise(&c, 0.01);
     double theta[16], se[16];
     assert_true(c.p <= 16);
-    identify_all(&c, 1.0, theta, se, 1);
-    check_within(&c, theta, se, tol_stiff, tol_damp);
+    identify_all(&c, est, 1.0, theta, se, 1);
+    check_within(&c, theta, se, tol_stiff, tol_damp, est != VIBID_ESTIMATOR_KF_RLS);
     capture_free(&c);
 }
 
@@ -125,7 +142,7 @@ static void test_base_partial(void **state)
     (void)state;
     char text[4096];
     snprintf(text, sizeof text, "%s%s", base_partial_stand, no_change);
-    identify_and_check("ekf_base2.cfg", text, 0.01, 0.05);
+    identify_and_check("ekf_base2.cfg", text, VIBID_ESTIMATOR_AUTO, 0.01, 0.05);
 }
 
 /* Tracking: c2 drops by 10 % at 30 s. Estimates every 0.5 s; before the drop (after a
@@ -192,7 +209,7 @@ static const char *chain3_parallel =
 static void test_chain3_end(void **state)
 {
     (void)state;
-    identify_and_check("ekf_chain3.cfg", chain3_stand, 0.02, 0.02);
+    identify_and_check("ekf_chain3.cfg", chain3_stand, VIBID_ESTIMATOR_AUTO, 0.02, 0.02);
     const char *path = write_tmp("ekf_chain3_parallel.cfg", chain3_parallel);
     vibid_stand_error serr;
     vibid_stand *st = vibid_stand_load(path, &serr);
@@ -240,7 +257,7 @@ static void ex3_stand_to_paper(double h, double k, double d, double *c, double *
 
 /* runs realisations of length N at snr_db (< 0: noise-free); mean |relative error| of the
  * paper's c and d_p (through the pole map above), and of k and d themselves. */
-static ex3_stats ex3_study(size_t N, double snr_db, int runs)
+static ex3_stats ex3_study(vibid_estimator est, size_t N, double snr_db, int runs)
 {
     /* R_w = 1 known (the paper's setting); R_v estimated from the data (not declared), as
      * a user of vibidd would run it. Truth c = -1.25, d_p = 0.9; start c = -1.0, d_p = 0.8
@@ -284,6 +301,7 @@ static ex3_stats ex3_study(size_t N, double snr_db, int runs)
         for (size_t k = 0; k < N && noise_sd > 0.0; k++) z[k] += noise_sd * ex3_normal();
         vibid_ident_config cfg;
         vibid_ident_config_init(&cfg, h);
+        cfg.estimator = est;
         vibid_ident *id = vibid_ident_create(m, &cfg);
         assert_non_null(id);
         double th[2], se[2];
@@ -312,24 +330,68 @@ static ex3_stats ex3_study(size_t N, double snr_db, int runs)
     return st;
 }
 
+/* Example 3 by estimator est against the issue's targets: noise-free N = 200 and 20 dB
+ * N = 5000, 100 realisations each. A mean over 100 realisations with a fixed seed is
+ * deterministic, so the margins to the targets are the room the issue allows, not noise
+ * allowance. Measured with this seed: EKF (AUTO) 6.42 % / 2.00 % and 1.43 % / 0.31 %;
+ * KF+RLS 6.18 % / 1.67 % and 1.57 % / 0.41 %. */
+static void ex3_check(vibid_estimator est, const char *label)
+{
+    ex3_stats a = ex3_study(est, 200, -1.0, 100);
+    printf("  %s example 3, noise-free, N = 200, 100 runs: mean |error| c %.2f %%, d %.2f %% (physical k %.2f %%, d "
+           "%.2f %%), failures %d\n",
+           label, 100 * a.mare_c, 100 * a.mare_d, 100 * a.mare_k, 100 * a.mare_dd, a.fails);
+    ex3_stats b = ex3_study(est, 5000, 20.0, 100);
+    printf("  %s example 3, 20 dB, N = 5000, 100 runs: mean |error| c %.2f %%, d %.2f %% (physical k %.2f %%, d %.2f "
+           "%%), failures %d\n",
+           label, 100 * b.mare_c, 100 * b.mare_d, 100 * b.mare_k, 100 * b.mare_dd, b.fails);
+    assert_int_equal(a.fails, 0);
+    assert_int_equal(b.fails, 0);
+    assert_true(a.mare_c <= 0.08 && a.mare_d <= 0.025);
+    assert_true(b.mare_c <= 0.03 && b.mare_d <= 0.015);
+}
+
 static void test_ex3(void **state)
 {
     (void)state;
-    ex3_stats a = ex3_study(200, -1.0, 100);
-    printf("  example 3, noise-free, N = 200, 100 runs: mean |error| c %.2f %%, d %.2f %% (physical k %.2f %%, d "
-           "%.2f %%), failures %d\n",
-           100 * a.mare_c, 100 * a.mare_d, 100 * a.mare_k, 100 * a.mare_dd, a.fails);
-    ex3_stats b = ex3_study(5000, 20.0, 100);
-    printf("  example 3, 20 dB, N = 5000, 100 runs: mean |error| c %.2f %%, d %.2f %% (physical k %.2f %%, d %.2f "
-           "%%), failures %d\n",
-           100 * b.mare_c, 100 * b.mare_d, 100 * b.mare_k, 100 * b.mare_dd, b.fails);
-    assert_int_equal(a.fails, 0);
-    assert_int_equal(b.fails, 0);
-    /* The issue's targets. Measured with this seed: 6.42 % / 2.00 % and 1.43 % / 0.31 %;
-     * a mean over 100 realisations with a fixed seed is deterministic, so the margins
-     * (2 points, 0.5 point) are the room the issue allows, not noise allowance. */
-    assert_true(a.mare_c <= 0.08 && a.mare_d <= 0.025);
-    assert_true(b.mare_c <= 0.03 && b.mare_d <= 0.015);
+    ex3_check(VIBID_ESTIMATOR_AUTO, "EKF");
+}
+
+/* The paper's KF+RLS (3.16) on the physical model (VIBID_ESTIMATOR_KF_RLS):
+ * - example 3 against the issue's targets (as test_ex3 for the EKF);
+ * - the base-excited stand with only the upper spring and damper unknown (both act on
+ *   the measured m1), 1 % noise: the 2-DOF bounds of the issue (1 %, 5 %). Its standard
+ *   errors are always flagged (identify_all checks the flag), so no z test;
+ * - stands where an unknown acts only on unmeasured nodes are refused by name. */
+static void test_kf_rls(void **state)
+{
+    (void)state;
+    ex3_check(VIBID_ESTIMATOR_KF_RLS, "KF+RLS");
+
+    identify_and_check("kfrls_base_upper.cfg", base_upper_stand, VIBID_ESTIMATOR_KF_RLS, 0.01, 0.05);
+
+    /* refused, naming what acts only on unmeasured nodes */
+    static const struct {
+        const char *name, *text, *names;
+    } refused[] = {
+        {"kfrls_base2.cfg", NULL, "KF+RLS cannot estimate 'c2', 'd2'"},
+        {"kfrls_chain3.cfg", CHAIN3_HEAD CHAIN3_TAIL, "KF+RLS cannot estimate 'k1', 'd1', 'k2', 'd2'"},
+    };
+    char text[4096];
+    snprintf(text, sizeof text, "%s%s", base_partial_stand, no_change);
+    for (size_t i = 0; i < sizeof refused / sizeof refused[0]; i++) {
+        capture c;
+        simulate(&c, refused[i].name, refused[i].text ? refused[i].text : text, 100);
+        vibid_ident_config cfg;
+        vibid_ident_config_init(&cfg, 1.0 / 1000.0);
+        cfg.estimator = VIBID_ESTIMATOR_KF_RLS;
+        vibid_ident *id = vibid_ident_create(vibid_stand_model(c.stand), &cfg);
+        assert_null(id);
+        printf("  refused: %s\n", vibid_last_error());
+        assert_non_null(strstr(vibid_last_error(), refused[i].names));
+        assert_non_null(strstr(vibid_last_error(), "use method ekf"));
+        capture_free(&c);
+    }
 }
 
 /* Refused before any sample, naming the parameters: two springs in parallel (only their
@@ -373,6 +435,7 @@ int main(void)
         cmocka_unit_test(test_chain3_end),
         cmocka_unit_test(test_ex3),
         cmocka_unit_test(test_refusals),
+        cmocka_unit_test(test_kf_rls),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -202,7 +202,8 @@ void test_ident_no_alloc(void **state) {
 // base displacement measured, m2 without sensor (variant 0: smooth base, a disturbance of
 // unknown intensity on m2, so that the start runs the likelihood search) or with only an
 // accelerometer (variant 1: held base with a damper to it (velocity kicks), a cubic
-// spring, an input of unknown gain on m1, declared sensor noise).
+// spring, an input of unknown gain on m1, declared sensor noise); variant 2: variant 0 with
+// an accelerometer on m2 (for the KF+RLS, which needs every unknown on a measured node).
 vibid_model *make_ekf_model(int variant) {
     vibid_model *m = vibid_model_create();
     assert_non_null(m);
@@ -215,8 +216,10 @@ vibid_model *make_ekf_model(int variant) {
     assert_int_equal(vibid_model_add_element(m, "d2", VIBID_ELEMENT_DAMPER, n2, VIBID_BASE, 30.0, 1), VIBID_OK);
     assert_int_equal(vibid_model_set_measured(m, n1, VIBID_MEASURE_DISPLACEMENT), VIBID_OK);
     assert_int_equal(vibid_model_set_measured(m, VIBID_BASE, VIBID_MEASURE_DISPLACEMENT), VIBID_OK);
-    if (variant == 0) {
+    if (variant != 1) {
         assert_int_equal(vibid_model_add_disturbance(m, "w", n2, 0.0, nullptr), VIBID_OK);
+        if (variant == 2)
+            assert_int_equal(vibid_model_set_measured(m, n2, VIBID_MEASURE_ACCELERATION), VIBID_OK);
     } else {
         assert_int_equal(vibid_model_set_hold(m, VIBID_BASE, VIBID_HOLD_ZOH), VIBID_OK);
         assert_int_equal(vibid_model_add_element(m, "eps", VIBID_ELEMENT_CUBIC_SPRING, n2, VIBID_BASE, 1e9, 1),
@@ -233,10 +236,10 @@ vibid_model *make_ekf_model(int variant) {
 // likelihood search, the pass over the window) inside the armed region, then filter
 // steps, a gap, and estimates with covariance. Synthetic data do not fit the stand, so a
 // divergence (restart from the start values, also allocation-free) is an accepted status.
-void run_ekf(const vibid_model *m, double forgetting) {
+void run_ekf(const vibid_model *m, vibid_estimator est, double forgetting) {
     vibid_ident_config cfg;
     vibid_ident_config_init(&cfg, 1e-3);
-    cfg.estimator = VIBID_ESTIMATOR_EKF;
+    cfg.estimator = est;
     cfg.forgetting = forgetting;
     vibid_ident *id = vibid_ident_create(m, &cfg);
     if (!id) fail_msg("vibid_ident_create: %s", vibid_last_error());
@@ -269,8 +272,20 @@ void test_ekf_no_alloc(void **state) {
     (void)state;
     for (int variant : {0, 1}) {
         vibid_model *m = make_ekf_model(variant);
-        run_ekf(m, 1.0);
-        run_ekf(m, 0.999);
+        run_ekf(m, VIBID_ESTIMATOR_EKF, 1.0);
+        run_ekf(m, VIBID_ESTIMATOR_EKF, 0.999);
+        vibid_model_destroy(m);
+    }
+}
+
+// The KF+RLS (VIBID_ESTIMATOR_KF_RLS): the same path with the regression on the
+// parameters (its scale pass at the start, its steps, its covariance in estimates).
+void test_kf_rls_no_alloc(void **state) {
+    (void)state;
+    for (int variant : {1, 2}) {
+        vibid_model *m = make_ekf_model(variant);
+        run_ekf(m, VIBID_ESTIMATOR_KF_RLS, 1.0);
+        run_ekf(m, VIBID_ESTIMATOR_KF_RLS, 0.999);
         vibid_model_destroy(m);
     }
 }
@@ -284,6 +299,7 @@ int main(void) {
         cmocka_unit_test(test_regressor_no_alloc),
         cmocka_unit_test(test_ident_no_alloc),
         cmocka_unit_test(test_ekf_no_alloc),
+        cmocka_unit_test(test_kf_rls_no_alloc),
     };
     return cmocka_run_group_tests(tests, nullptr, nullptr);
 }

@@ -52,8 +52,10 @@ typedef enum vibid_estimator {
     VIBID_ESTIMATOR_IV = 1,
     VIBID_ESTIMATOR_RLS = 2,
     VIBID_ESTIMATOR_AUTO = 3,  /* the default: chosen from the model (see below) */
-    VIBID_ESTIMATOR_EKF = 4    /* extended Kalman filter on the stand's states and physical
+    VIBID_ESTIMATOR_EKF = 4,   /* extended Kalman filter on the stand's states and physical
                                   parameters, for stands that are not fully measured (below) */
+    VIBID_ESTIMATOR_KF_RLS = 5 /* the paper's Kalman filter + recursive LS (3.16) on the stand's
+                                  physical parameters (below); never chosen by AUTO */
 } vibid_estimator;
 
 /* The automatic estimator (VIBID_ESTIMATOR_AUTO, the default of vibid_ident_config_init)
@@ -86,6 +88,18 @@ typedef enum vibid_estimator {
  * the older and the newer half of the blocks (vibid_ident_get_quality). LS and RLS report
  * the textbook covariance, which assumes white equation errors: their quality says
  * VIBID_QUALITY_SE_INVALID. */
+/* The paper's KF+RLS on the physical model (VIBID_ESTIMATOR_KF_RLS, never chosen by AUTO):
+ * the start, the exact discretisation, the divergence handling and the estimates'
+ * interface are the EKF's below, but the Kalman filter runs on the states [y; y'] alone,
+ * with the parameters at the newest estimate, and a recursive LS (rls.h, forgetting as
+ * configured) estimates the parameters from the equation of motion integrated over each
+ * sample interval, M dv + D dy - d_b ds + C int(y) - c_b int(s) - B int(u) + int(cubic) =
+ * int(w): target the filtered x_{k+1|k+1}, regressors from x_{k|k} and the one-step
+ * prediction (paper 3.16). Only the equations of nodes with a sensor are rows:
+ * vibid_ident_create refuses (VIBID_E_NOT_IDENTIFIABLE, naming them) unknowns that act
+ * only on unmeasured nodes. The velocity model-error allowance is 0.3 % (three times the
+ * EKF's). Standard errors: the regression's, on filtered and coloured regressors, always
+ * VIBID_QUALITY_SE_INVALID. Weaker than the EKF where states are unmeasured (README). */
 /* The state-space estimator (VIBID_ESTIMATOR_EKF; AUTO chooses it when some signal the
  * regression needs cannot be formed from the measured channels, or when the stand
  * declares a disturbance):
