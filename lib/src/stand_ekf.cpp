@@ -365,6 +365,7 @@ StandEkf::StandEkf(const vibid_model &m, const StandEkfSettings &s) : model_(&m)
                 if (t.name == e.name) param = t.param;
             cubics_.push_back(Cubic{e.a, e.b, param, e.value});
         }
+    cubic_lin_.assign(cubics_.size(), {0.0, 0.0});
     for (const auto &w : m.disturbances) {
         dist_declared_.push_back(w.std_dev);
         dist_node_.push_back(w.node);
@@ -536,16 +537,26 @@ double StandEkf::cubic_rho(std::size_t e, const double *y, double s) const {
     return y[c.a] - yb;
 }
 
-// Cubic springs about the state at t_k: f = eps rho^3 ~ 3 eps rho0^2 rho - 2 eps rho0^3,
-// i.e. a spring 3 eps rho0^2 (into Ct_, cbt_) and a constant force (gconst_).
-void StandEkf::linearise_cubics(const double *y, double s) {
+// Cubic springs over [t_k, t_{k+1}], about the interval's midpoint: with rho(t) ~ rho_m +
+// rho' (t - t_m), eps rho^3 = eps (rho_m^3 + 3 rho_m^2 d + 3 rho_m d^2 + d^3), d = rho - rho_m;
+// the linear part is a spring 3 eps rho_m^2 (into Ct_, cbt_), the rest a constant force
+// (gconst_, right-hand side): 2 eps rho_m^3 from the linearisation less the interval mean of
+// 3 eps rho_m d^2, eps rho_m rho'^2 h^2 / 4 (d^3 averages to zero). About t_k instead, the
+// neglected quadratic term averaged four times as much and biased the cubic coefficient
+// (+0.42 % against a standard error of 0.085 % on a 2-DOF stand at 2 kHz, ident.ekf).
+// y, v: the state at t_k; s, sd: base displacement and velocity there.
+void StandEkf::linearise_cubics(const double *y, const double *v, double s, double sd) {
     Ct_ = C_;
     cbt_ = cb_;
     gconst_.setZero();
+    const double h = set_.h;
     for (std::size_t e = 0; e < cubics_.size(); ++e) {
         const Cubic &c = cubics_[e];
         const double eps = c.param >= 0 ? a_(nx_ + c.param) : c.value;
-        const double rho = cubic_rho(e, y, s), k = 3.0 * eps * rho * rho, g = 2.0 * eps * rho * rho * rho;
+        const double rate = v[c.a] - (c.b == VIBID_GROUND ? 0.0 : c.b == VIBID_BASE ? sd : v[c.b]);
+        const double rho = cubic_rho(e, y, s) + 0.5 * h * rate;
+        cubic_lin_[e] = {3.0 * rho * rho, 2.0 * rho * rho * rho - 0.25 * rho * rate * rate * h * h};
+        const double k = eps * cubic_lin_[e].first, g = eps * cubic_lin_[e].second;
         const Index ia = static_cast<Index>(c.a);
         Ct_(ia, ia) += k;
         gconst_(ia) += g;
@@ -611,8 +622,7 @@ void StandEkf::build_transition() {
         const Cubic &c = cubics_[e];
         if (c.param < 0) continue;
         MatX &dA = dArows_[static_cast<std::size_t>(c.param)];
-        const double rho = cubic_rho(e, xi_[0].data(), es >= 0 ? xi_[0](es) : 0.0);
-        const double k = 3.0 * rho * rho, g = 2.0 * rho * rho * rho;
+        const double k = cubic_lin_[e].first, g = cubic_lin_[e].second;  // linearise_cubics()
         const Index ia = static_cast<Index>(c.a);
         dA(ia, ia) -= Minv_(ia) * k;
         dA(ia, e1) += Minv_(ia) * g;
@@ -876,7 +886,7 @@ vibid_status StandEkf::step(const double *prev, const double *cur) {
     kick_ds_ = ds_kick;
     if (held_base_kick_)
         for (Index i = 0; i < n; ++i) x0(n + i) += Minv_(i) * db_(i) * ds_kick;
-    linearise_cubics(x0.data(), s_k);
+    linearise_cubics(x0.data(), x0.data() + n, s_k, col_sd_ >= 0 ? x0(col_sd_) : 0.0);
     build_transition();
     T2_ = A_ * (h / 4.0);
     expm_small(T2_, E4_, T1_, Pow_);

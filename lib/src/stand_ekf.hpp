@@ -13,8 +13,9 @@
 // Frechet derivative of the exponential, integral_0^h exp(A~(h-s)) dA~ exp(A~ s) ds,
 // evaluated on the current xi by Boole's rule on quarter steps (relative error about
 // (|A~| h)^6 / 2e6, below 1e-9 at 10 samples per period). Cubic springs are linearised
-// about the state at t_k (exponential Rosenbrock-Euler: the map is then exact to
-// second order in h for the cubic force, exact for the linear part).
+// about the interval's midpoint (predicted from t_k along the velocities), with the
+// interval mean of the quadratic remainder as a constant force (linearise_cubics()):
+// exact for the linear part, the cubic force's mean error of order (w h)^4.
 //
 // KF+RLS (settings kf_rls, the paper's (3.16) on the physical model): the same exact
 // discretisation drives a Kalman filter on the states [y; y'] alone, with the parameters
@@ -49,6 +50,7 @@
 
 #include <memory>
 #include <string>
+#include <utility>
 #include <vector>
 
 namespace vibid {
@@ -127,7 +129,7 @@ private:
     void start_from_window();
     void init_state();
     void assemble();
-    void linearise_cubics(const double *y, double s);
+    void linearise_cubics(const double *y, const double *v, double s, double sd);
     void build_transition();
     double window_misfit();
     double temper() const;
@@ -163,6 +165,7 @@ private:
     std::vector<long> input_ch_;
     std::vector<Meas> meas_;
     std::vector<Cubic> cubics_;
+    std::vector<std::pair<double, double>> cubic_lin_;  // per cubic: spring and force per unit eps (linearise_cubics)
     std::vector<double> dist_declared_;   // std, 0 = estimate
     std::vector<std::size_t> dist_node_;  // node the disturbance acts on
     double base_declared_std_ = -1.0, base_noise_var_ = 0.0;  // base channel noise

@@ -107,7 +107,7 @@ typedef enum vibid_estimator {
  *    interval, discretised exactly (matrix exponential of the system augmented with the
  *    inputs and their slopes): smooth inputs linear between samples, held inputs constant
  *    (a held base kicks the velocities through its dampers), disturbances held white
- *    samples (model.h). Cubic springs are linearised about the state at each sample.
+ *    samples (model.h). Cubic springs are linearised about the midpoint of each sample interval.
  *    Filter state [y; y'; theta]; the Jacobian's parameter columns are the Frechet
  *    derivative of the exponential (Boole's rule on quarter steps, relative error about
  *    (w h)^6 / 2e6).
