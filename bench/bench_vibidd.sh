@@ -53,10 +53,7 @@ sed 's/file = "cap.log"; dbc = [^;]*; counter = "SampleCounter";/file = "cap.csv
      s/signal = "x1"/column = "x1"/; s/signal = "x2"/column = "x2"/;
      s/signal = "s"/column = "s"/' cd.cfg > csv.cfg
 
-ns() { date +%s%N; }
-# cpu_of PID -> "user_ticks sys_ticks"
-cpu_of() { awk '{ print $14, $15 }' "/proc/$1/stat"; }
-status_get() { sed -n "s/^$1=//p" "$2"; }
+. "$SRC/bench/bench_common.sh"
 
 echo "vibidd benchmark: paper example 1, $N samples ($DUR s at 2 kHz), $(nproc) CPUs, $(uname -r), load $(cut -d' ' -f1-3 /proc/loadavg)"
 echo "1. replay throughput (best of 3, wall clock incl. start-up)"
@@ -98,14 +95,10 @@ for rate in 1000 10000; do
     "$VIBIDD" -c "$([ $spin = 0 ] && echo cd.cfg || echo cd_spin.cfg)" --pace --speed "$speed" --log-level error &
     pid=$!
     sleep 1
-    read -r u0 s0 < <(cpu_of $pid)
-    t0=$(ns)
-    sleep "$secs"
-    read -r u1 s1 < <(cpu_of $pid)
-    t1=$(ns)
+    read -r du ds dns < <(cpu_window $pid "$secs")
     kill -TERM $pid
     wait $pid
-    awk -v du=$((u1 - u0)) -v ds=$((s1 - s0)) -v hz="$(getconf CLK_TCK)" -v ns=$((t1 - t0)) -v rate=$rate -v spin=$spin \
+    awk -v du="$du" -v ds="$ds" -v hz="$(getconf CLK_TCK)" -v ns="$dns" -v rate=$rate -v spin=$spin \
         -v p50="$(status_get latency_us_p50 status)" -v p99="$(status_get latency_us_p99 status)" \
         'BEGIN { w = ns * 1e-9; printf "   %5d samples/s, handoff_spin %4d: CPU %5.1f %% of one core (user %.1f, sys %.1f); latency p50 %s us, p99 %s us\n",
                  rate, spin, 100 * (du + ds) / hz / w, 100 * du / hz / w, 100 * ds / hz / w, p50, p99 }'

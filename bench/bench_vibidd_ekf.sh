@@ -21,6 +21,7 @@
 set -u
 BUILD=$(cd "${1:?usage: bench_vibidd_ekf.sh BUILD_DIR [SECONDS]}" && pwd)
 DUR=${2:-20}
+SRC=$(cd "$(dirname "$0")/.." && pwd)
 VIBIDD=$BUILD/daemon/vibidd
 SIM=$BUILD/sim/vibid-sim
 W=$(mktemp -d /tmp/vd_bench_ekf_XXXXXX)
@@ -71,9 +72,7 @@ X12='{ name = "x1"; quantity = "displacement"; node = 0; unit = "m"; column = "x
 vdcfg ekf.cfg "$W/end.cfg" ekf "$X3"
 vdcfg full_auto.cfg "$W/full.cfg" auto "$X12 $X3"
 
-ns() { date +%s%N; }
-cpu_of() { awk '{ print $14, $15 }' "/proc/$1/stat"; }
-status_get() { sed -n "s/^$1=//p" "$2"; }
+. "$SRC/bench/bench_common.sh"
 
 echo "vibidd state-space benchmark: 3-DOF chain, only x3 (and the force) measured, $N samples ($DUR s at 10 kHz), $(nproc) CPUs, load $(cut -d' ' -f1-3 /proc/loadavg)"
 echo "1. replay throughput, pinned to one core (best of 3, wall clock incl. start-up)"
@@ -102,14 +101,10 @@ rm -f tracks.csv status
 taskset -c 0 "$VIBIDD" -c ekf.cfg --pace --log-level error &
 pid=$!
 sleep 3
-read -r u0 s0 < <(cpu_of $pid)
-t0=$(ns)
-sleep "$secs"
-read -r u1 s1 < <(cpu_of $pid)
-t1=$(ns)
+read -r du ds dns < <(cpu_window $pid "$secs")
 kill -TERM $pid
 wait $pid
-awk -v du=$((u1 - u0)) -v ds=$((s1 - s0)) -v hz="$(getconf CLK_TCK)" -v ns=$((t1 - t0)) \
+awk -v du="$du" -v ds="$ds" -v hz="$(getconf CLK_TCK)" -v ns="$dns" \
     -v p50="$(status_get latency_us_p50 status)" -v p99="$(status_get latency_us_p99 status)" \
     -v n="$(status_get samples status)" -v hw="$(status_get ring_high_water status)" \
     -v ov="$(status_get ring_overflows status)" -v cap="$(status_get ring_capacity status)" \
