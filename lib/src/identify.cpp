@@ -401,10 +401,11 @@ vibid_status estimate_state_space(vibid_ident &id, double *theta, double *se, vi
     if (s != VIBID_OK) return s;
     const vibid::StandEkfStats &st = id.ekf->stats();
     vibid_ident_quality qual{};
-    qual.z_consistency = std::nan("");
+    qual.z_consistency = st.drift_z;
     qual.rcond = std::nan("");
     qual.bias_relative = 0.0;
-    if (!(st.nis_avg <= 2.0) || st.n_steps < 2 * id.p || id.cfg.estimator == VIBID_ESTIMATOR_KF_RLS)
+    if (!(st.nis_avg <= 2.0) || st.n_steps < 2 * id.p || id.cfg.estimator == VIBID_ESTIMATOR_KF_RLS ||
+        st.drift_z > 4.0)
         qual.flags |= VIBID_QUALITY_SE_INVALID;
     id.param_flags.assign(id.p, qual.flags);
     id.quality = qual;

@@ -495,6 +495,10 @@ StandEkf::StandEkf(const vibid_model &m, const StandEkfSettings &s) : model_(&m)
     }
     x_prev_.setZero(nx_);
     cov_.setZero(p_, p_);
+    for (int j = 0; j < 2; ++j) {
+        drift_theta_[j].setZero(p_);
+        drift_var_[j].setZero(p_);
+    }
 }
 
 void StandEkf::reset() {
@@ -682,6 +686,7 @@ void StandEkf::restart_parameters() {
     stats_.nis_avg = 1.0;
     boosts_in_row_ = 0;
     have_prev_ = have_prev2_ = false;
+    drift_at_[0] = drift_at_[1] = 0;
 }
 
 // Noise levels and scales from the start window, then the filter runs over it.
@@ -856,8 +861,40 @@ vibid_status StandEkf::push(const double *ch) {
         release_at_ = 0;
         nis_check_from_ = stats_.n_steps;
         stats_.nis_avg = 1.0;
+        drift_at_[0] = drift_at_[1] = 0;
     }
+    drift_snapshot();
     return VIBID_OK;
+}
+
+// Drift check snapshots: the first once the tempering is through (ten of its time
+// constants: x 1e4 has decayed to 1), then each time the steps since the start have
+// doubled, the older one kept as the reference. Only for the EKF without forgetting:
+// with forgetting the variance does not shrink steadily and change is expected; the
+// KF+RLS's error bars are flagged anyway.
+void StandEkf::drift_snapshot() {
+    if (set_.kf_rls || set_.forgetting < 1.0 || release_at_) return;
+    const unsigned long long s = stats_.n_steps - nis_check_from_;
+    const unsigned long long first = static_cast<unsigned long long>(std::ceil(10.0 * temper_tau_));
+    if (drift_at_[1] ? s < 2 * drift_at_[1] : s < first) return;
+    drift_theta_[0] = drift_theta_[1];
+    drift_var_[0] = drift_var_[1];
+    drift_at_[0] = drift_at_[1];
+    for (Index i = 0; i < p_; ++i) {
+        drift_theta_[1](i) = a_(nx_ + i) / scale_(nx_ + i);
+        drift_var_[1](i) = P_(nx_ + i, nx_ + i);
+    }
+    drift_at_[1] = s;
+}
+
+double StandEkf::drift_z() const {
+    if (!drift_at_[0]) return std::nan("");
+    double z = 0.0;
+    for (Index i = 0; i < p_; ++i) {
+        const double v = P_(nx_ + i, nx_ + i), dv = std::max(drift_var_[0](i) - v, 1e-9 * drift_var_[0](i));
+        z = std::max(z, std::fabs(a_(nx_ + i) / scale_(nx_ + i) - drift_theta_[0](i)) / std::sqrt(dv));
+    }
+    return z;
 }
 
 // Prediction over [t_k, t_{k+1}] (samples prev = k and cur = k+1), then the update.
@@ -1128,6 +1165,7 @@ vibid_status StandEkf::update(const double *cur) {
         stats_.nis_avg = 1.0;
         ++boosts_in_row_;
         ++stats_.boosts;
+        drift_at_[0] = drift_at_[1] = 0;  // the covariance grew: the snapshots no longer bound the drift
     }
     return VIBID_OK;
 }
@@ -1163,6 +1201,7 @@ vibid_status StandEkf::estimate(double *theta, double *se, double *cov) {
         return VIBID_OK;
     }
     const Index nx = nx_;
+    stats_.drift_z = drift_z();
     param_cov(cov_);
     const MatX &pc = cov_;
     for (Index i = 0; i < p_; ++i) {

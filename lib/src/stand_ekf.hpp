@@ -48,6 +48,8 @@
 
 #include <Eigen/Core>
 
+#include <cmath>
+
 #include <memory>
 #include <string>
 #include <utility>
@@ -82,6 +84,12 @@ struct StandEkfStats {
     unsigned long long boosts = 0;    // parameter covariance widened after a jump in the innovations
     unsigned long long gaps = 0;      // non-finite samples (state restarted, parameters kept)
     double nis_avg = 1.0;             // averaged NIS per measurement (1 when consistent)
+    // Drift check (EKF without forgetting; NaN when not available): the largest
+    // |theta_i(t) - theta_i(t0)| / sqrt(var_i(t0) - var_i(t)) over the parameters, t0 a
+    // snapshot between t/4 and t/2 after the start. For a consistent filter the increment's
+    // variance is exactly var(t0) - var(t); an estimate still crawling out of its start
+    // transient under standard errors that shrank first shows as |z| >> 1.
+    double drift_z = std::nan("");
     bool started = false;             // the start window is through
 };
 
@@ -137,6 +145,8 @@ private:
     vibid_status step(const double *prev, const double *cur);
     vibid_status update(const double *cur);
     void restart_parameters();
+    void drift_snapshot();
+    double drift_z() const;
     void regression_step(const double *prev, const double *cur);
     void param_cov(Mat &cov) const;
     double base_disp(const double *ch) const;
@@ -215,6 +225,10 @@ private:
 
     // Start window and continuity.
     Mat cov_;             // p x p scratch for estimate()
+    // Drift check snapshots (EKF): parameters (scaled) and their variances at steps
+    // drift_at_[0] < drift_at_[1] since the last start or release (0 = none).
+    Vec drift_theta_[2], drift_var_[2];
+    unsigned long long drift_at_[2] = {0, 0};
     Vec prov_theta_;      // p: the last provisional estimate (before the window is full)
     Mat prov_cov_;        // p x p, physical units
     StandEkfStats prov_stats_;
