@@ -141,7 +141,8 @@ typedef enum vibid_estimator {
  *    snapshot taken between a quarter and half of the run ago (forgetting 1 only; from ten
  *    tempering time constants after the start) and flags VIBID_QUALITY_SE_INVALID when
  *    some |change| / sqrt(var(t0) - var(t)) exceeds 4 (quality.z_consistency is that
- *    largest ratio, NaN before the second snapshot). It catches an estimate still leaving
+ *    largest ratio, NaN before the second snapshot, and until then the error bars count as
+ *    not verified: flagged too). It catches an estimate still leaving
  *    its start transient under error bars that shrank first (a lightly damped 5-DOF
  *    chain at 10 kHz from 10 % off: dampers 9 standard errors off, drift z 9.3; from the
  *    truth 0.06).
