@@ -38,6 +38,8 @@ typedef struct parser {
     size_t n_msgs, cap_msgs;
     msg_build *current; /* message whose SG_ lines follow; NULL when none */
     bool skip_current;  /* current BO_ is the pseudo message: drop its signals */
+    bool have_pseudo;   /* a pseudo message was declared, with this raw id */
+    uint32_t pseudo_id;
     size_t skipped;
     /* deferred statements (they may name messages defined later) */
     struct deferred {
@@ -263,6 +265,8 @@ static vibid_drv_status parse_bo(parser *ps)
     if (raw_id == DBC_INDEPENDENT_ID || strcmp(name, "VECTOR__INDEPENDENT_SIG_MSG") == 0) {
         ps->current = NULL;
         ps->skip_current = true;
+        ps->have_pseudo = true;
+        ps->pseudo_id = (uint32_t)raw_id;
         ps->skipped++;
         skip_line(ps);
         return VIBID_DRV_OK;
@@ -541,11 +545,20 @@ static vibid_drv_status apply_deferred(parser *ps)
         ps->line = d->line;
         msg_build *mb = find_build(ps, d->raw_id);
         vibid_dbc_signal *s = mb ? find_sig_build(mb, d->signal) : NULL;
-        if (!s) {
-            /* Refers to nothing we decode (stale entry, or the skipped pseudo message):
-             * harmless, so skipped like other statements we do not need. */
+        if (!s && (d->raw_id == DBC_INDEPENDENT_ID || (ps->have_pseudo && d->raw_id == ps->pseudo_id))) {
+            /* the pseudo message's signals are not decoded: nothing to apply */
             ps->skipped++;
             continue;
+        }
+        if (!s) {
+            /* A value type or multiplex range for a signal that does not exist is a typo
+             * that would silently decode the intended signal wrongly (a float read as an
+             * integer): refused, as the file is inconsistent. */
+            const char *what = d->valtype >= 0 ? "SIG_VALTYPE_" : "SG_MUL_VAL_";
+            if (!mb)
+                return perr(ps, "%s %lu %s: no message with this id", what, (unsigned long)d->raw_id, d->signal);
+            return perr(ps, "%s %lu %s: message %s has no signal '%s'", what, (unsigned long)d->raw_id, d->signal,
+                        mb->pub.name, d->signal);
         }
         if (d->valtype >= 0) {
             if (d->valtype == 1 && s->length != 32)

@@ -130,6 +130,15 @@ static void test_syntax_errors_name_line(void **state)
         {" SG_ S : 0|8@1+ (1,0) [0|0] \"\" X\n", "t.dbc:1: SG_ outside a message"},
         {"BO_ 1 M: 8 X\n SG_ S : 0|8@1+ (1,0) [0|0] \"\" X\nSIG_VALTYPE_ 1 S : 1;\n",
          "t.dbc:3: SIG_VALTYPE_ S: float needs a 32-bit signal"},
+        /* a value type or multiplex range naming a signal or message that does not exist:
+         * the intended float would be decoded as an integer (issue 12) */
+        {"BO_ 1 M: 8 X\n SG_ S : 0|32@1+ (1,0) [0|0] \"\" X\n\nSIG_VALTYPE_ 1 T : 1;\n",
+         "t.dbc:4: SIG_VALTYPE_ 1 T: message M has no signal 'T'"},
+        {"BO_ 1 M: 8 X\n SG_ S : 0|32@1+ (1,0) [0|0] \"\" X\nSIG_VALTYPE_ 2 S : 1;\n",
+         "t.dbc:3: SIG_VALTYPE_ 2 S: no message with this id"},
+        {"BO_ 10 M: 8 X\n SG_ S M : 0|8@1+ (1,0) [0|0] \"\" X\n SG_ B m2 : 8|8@1+ (1,0) [0|0] \"\" X\n"
+         "SG_MUL_VAL_ 10 C S 2-3;\n",
+         "t.dbc:4: SG_MUL_VAL_ 10 C: message M has no signal 'C'"},
         {"BO_ 1 A: 8 X\nBO_ 1 B: 8 X\n", "t.dbc:2: BO_ B: duplicate message id 0x1 (also A at line 1)"},
         {"BO_ 1 M: 8 X\n SG_ S m1 : 0|8@1+ (1,0) [0|0] \"\" X\n", "t.dbc:2: SG_ S: multiplexed signal in message M that has no multiplexor"},
         {"CM_ \"never closed\n\n", "t.dbc:1: unterminated string"},
