@@ -15,6 +15,7 @@
 #include <stdarg.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 
 #include <vibid_drivers/source_replay.h>
 
@@ -816,6 +817,71 @@ void vd_config_free(vd_config *cfg)
     cfg->dbc = NULL;
     vibid_regmap_destroy(cfg->regmap);
     cfg->regmap = NULL;
+}
+
+/* Identity of a path for vd_config_check_paths: device and inode when it exists, else
+ * the canonical directory plus the name. 0 on success. */
+typedef struct {
+    bool exists;
+    dev_t dev;
+    ino_t ino;
+    char canon[PATH_MAX + VD_PATH_MAX];
+} path_id;
+
+static int path_identity(const char *path, path_id *id)
+{
+    struct stat st;
+    memset(id, 0, sizeof *id);
+    if (stat(path, &st) == 0) {
+        id->exists = true;
+        id->dev = st.st_dev;
+        id->ino = st.st_ino;
+        return 0;
+    }
+    char dir[PATH_MAX], real[PATH_MAX];
+    const char *slash = strrchr(path, '/');
+    if (slash)
+        snprintf(dir, sizeof dir, "%.*s", slash == path ? 1 : (int)(slash - path), path);
+    else
+        snprintf(dir, sizeof dir, ".");
+    if (!realpath(dir, real)) return -1; /* a missing directory: the writers report it */
+    snprintf(id->canon, sizeof id->canon, "%s/%s", real, slash ? slash + 1 : path);
+    return 0;
+}
+
+static bool same_file(const path_id *a, const path_id *b)
+{
+    if (a->exists != b->exists) return false;
+    return a->exists ? a->dev == b->dev && a->ino == b->ino : strcmp(a->canon, b->canon) == 0;
+}
+
+int vd_config_check_paths(const vd_config *cfg, const char *replay, char *msg, size_t n)
+{
+    struct named {
+        const char *what, *path;
+        bool output;
+    } f[] = {
+        {"outputs.tracks.path", cfg->tracks_path, true},   {"outputs.influx.path", cfg->influx_path, true},
+        {"outputs.record.path", cfg->record_path, true},   {"outputs.status.path", cfg->status_path, true},
+        {"the configuration file", cfg->path, false},       {"stand", cfg->stand_file, false},
+        {"source.dbc", cfg->dbc_file, false},               {"source.channel_map", cfg->chanmap_file, false},
+        {"source.register_map", cfg->regmap_file, false},
+        {replay ? "the replayed capture (--replay)" : "source.file", replay ? replay : cfg->replay_file, false},
+    };
+    const size_t nf = sizeof f / sizeof f[0];
+    path_id id[sizeof f / sizeof f[0]];
+    bool ok[sizeof f / sizeof f[0]];
+    for (size_t i = 0; i < nf; i++) ok[i] = f[i].path && f[i].path[0] && path_identity(f[i].path, &id[i]) == 0;
+    for (size_t i = 0; i < nf; i++) {
+        if (!ok[i] || !f[i].output) continue;
+        for (size_t j = 0; j < nf; j++) {
+            if (j == i || !ok[j] || (f[j].output && j < i) || !same_file(&id[i], &id[j])) continue;
+            snprintf(msg, n, "%s (%s) and %s (%s) are the same file: %s", f[i].what, f[i].path, f[j].what, f[j].path,
+                     f[j].output ? "one output would overwrite the other" : "writing it would destroy an input");
+            return -1;
+        }
+    }
+    return 0;
 }
 
 const char *vd_source_kind_name(vd_source_kind k) { return (unsigned)k < 3 ? src_kinds[k] : "?"; }

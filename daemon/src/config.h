@@ -135,6 +135,13 @@ typedef struct vd_config {
  * config owns the stand, DBC and register map: release with vd_config_free. */
 int vd_config_load(const char *path, vd_config *cfg, vd_config_error *err);
 void vd_config_free(vd_config *cfg);
+/* Outputs must not destroy each other or the inputs: any two of the output paths (tracks,
+ * influx file, record, status) that are the same file, or an output that is an input (the
+ * configuration, stand, DBC, channel map, register map, or the replayed capture: replay,
+ * or NULL for the configured one) is an error naming both. Same file: the same device and
+ * inode for existing files, the same canonical directory and name otherwise (so
+ * "./a.csv", "a.csv" and a symlink to it all match). Returns 0, or -1 with msg filled. */
+int vd_config_check_paths(const vd_config *cfg, const char *replay, char *msg, size_t n);
 /* Prints the effective configuration (valid libconfig syntax, defaults filled in). */
 void vd_config_print(const vd_config *cfg, FILE *out);
 const char *vd_source_kind_name(vd_source_kind k);

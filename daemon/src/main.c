@@ -132,6 +132,14 @@ int main(int argc, char **argv)
         vd_config_free(&cfg);
         return 2;
     }
+    {
+        char perr[4 * VD_PATH_MAX];
+        if (vd_config_check_paths(&cfg, opt.replay, perr, sizeof perr)) {
+            vd_error("%s", perr);
+            vd_config_free(&cfg);
+            return 2;
+        }
+    }
     vd_log_set_level((vd_log_level)cfg.log_level);
     if (level) {
         int l = vd_log_level_parse(level);

@@ -340,6 +340,36 @@ diagnostics)
     c2_after=$(awk -F, 'END { print $7 }' tracks.csv)
     note "c2 alarm at sample $first (t = $(awk -v i="$first" 'BEGIN { print i / 2000 }') s, change at 40 s); final c2 = $c2_after (truth 1.35e6)"
     ;;
+same_file)
+    # Outputs that are the same file, or an output that is an input, are configuration
+    # errors (exit 2, before anything is opened), in the run and in --check; the file
+    # that would have been destroyed is left as it was (issue 12, item 6).
+    printf 't,x1,x2,s\n0,0,0,0\n' > cap.csv
+    cp cap.csv cap.orig
+    echo "previous tracks" > tracks.csv
+    n=0
+    for case in "--status tracks.csv|outputs.tracks.path (./tracks.csv) and outputs.status.path (tracks.csv) are the same file: one output would overwrite the other" \
+                "--status ./tracks.csv|outputs.tracks.path (./tracks.csv) and outputs.status.path (./tracks.csv) are the same file" \
+                "--record cap.csv|outputs.record.path (cap.csv) and source.file (./cap.csv) are the same file: writing it would destroy an input" \
+                "--record link.csv|outputs.record.path (link.csv) and source.file (./cap.csv)" \
+                "--tracks v.cfg|outputs.tracks.path (v.cfg) and the configuration file (v.cfg)" \
+                "--record capture2.csv --replay capture2.csv|outputs.record.path (capture2.csv) and the replayed capture (--replay) (capture2.csv)"; do
+        args=${case%%|*} want=${case#*|}
+        n=$((n + 1))
+        config_csv v.cfg ""
+        ln -sf cap.csv link.csv
+        cp cap.csv capture2.csv
+        for mode in run check; do
+            # shellcheck disable=SC2086
+            timeout 10 "$VIBIDD" -c v.cfg $args $([ $mode = check ] && echo --check) > out 2> log; rc=$?
+            [ $rc -eq 2 ] || fail "case $n ($args, $mode): exit $rc, expected 2: $(cat log)"
+            grep -qF "$want" log || fail "case $n ($args, $mode): message: $(cat log)"
+        done
+        cmp -s cap.csv cap.orig || fail "case $n: the capture was modified"
+        [ "$(cat tracks.csv)" = "previous tracks" ] || fail "case $n: the tracks file was modified"
+    done
+    note "$(cat log)"
+    ;;
 rate_mismatch)
     # "Data that do not fit the stand are refused": captures made at 1 kHz (a copy of the
     # stand with sample_rate 1000) replayed with the stand's 2 kHz. Before the check (and
