@@ -488,8 +488,9 @@ static void write_status(vd_daemon *d, const char *state, double now)
       (unsigned long long)d->est.rows, (unsigned long long)d->est.est_errors,
       (unsigned long long)d->est.implausible_rows, (unsigned long long)d->est.push_errors);
     S("latency_us_p50=%.1f\nlatency_us_p99=%.1f\n", vd_daemon_latency_us(d, 0.5), vd_daemon_latency_us(d, 0.99));
-    S("write_errors=%llu\ninflux_udp_sent=%llu\ninflux_udp_errors=%llu\n", (unsigned long long)d->w.write_errors,
-      (unsigned long long)d->w.udp_sent, (unsigned long long)d->w.udp_errors);
+    S("write_errors=%llu\ntorn_lines=%llu\ninflux_udp_sent=%llu\ninflux_udp_errors=%llu\n",
+      (unsigned long long)d->w.write_errors, (unsigned long long)d->w.torn_lines, (unsigned long long)d->w.udp_sent,
+      (unsigned long long)d->w.udp_errors);
     S("alarms_raised=%llu\nalarms_active=", (unsigned long long)d->alarms_raised);
     const vibid_model *m = vibid_stand_model(cfg->stand);
     bool first = true;

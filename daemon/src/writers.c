@@ -259,11 +259,57 @@ static void emit(vd_writers *w, FILE *f, const char *what, const char *path, con
         write_failed(w, what, path);
 }
 
-static FILE *open_append(const char *path, const char *header, int hlen, char *err, size_t cap)
+/* An output that does not end in a newline was cut mid-line (kill -9, power loss, a full
+ * disk): appending would glue the next row onto the torn one, a corrupt row mid-file.
+ * The torn tail (everything after the last newline) is cut off before appending, logged
+ * and counted. Returns 0, or -1 with err filled. */
+static int repair_torn_tail(vd_writers *w, FILE *f, const char *path, char *err, size_t cap)
 {
-    FILE *f = fopen(path, "ae");
+    const int fd = fileno(f);
+    struct stat st;
+    if (fstat(fd, &st) != 0 || !S_ISREG(st.st_mode) || st.st_size == 0)
+        return 0;
+    char buf[4096];
+    off_t end = st.st_size, keep = 0;
+    bool torn = false, found = false;
+    while (end > 0 && !found) {
+        const off_t start = end > (off_t)sizeof buf ? end - (off_t)sizeof buf : 0;
+        const ssize_t n = pread(fd, buf, (size_t)(end - start), start);
+        if (n != (ssize_t)(end - start)) {
+            snprintf(err, cap, "cannot read the end of %s: %s", path, n < 0 ? strerror(errno) : "short read");
+            return -1;
+        }
+        for (ssize_t i = n - 1; i >= 0; i--) {
+            if (buf[i] == '\n') {
+                keep = start + i + 1;
+                found = true;
+                break;
+            }
+            torn = true;
+        }
+        end = start;
+    }
+    if (!torn)
+        return 0;
+    if (ftruncate(fd, keep) != 0) {
+        snprintf(err, cap, "cannot cut the torn last line of %s: %s", path, strerror(errno));
+        return -1;
+    }
+    w->torn_lines++;
+    vd_warning("%s: cut off a torn last line of %lld bytes (an earlier run ended in the middle of writing it)",
+               path, (long long)(st.st_size - keep));
+    return 0;
+}
+
+static FILE *open_append(vd_writers *w, const char *path, const char *header, int hlen, char *err, size_t cap)
+{
+    FILE *f = fopen(path, "a+e"); /* + : the torn-tail check reads the end */
     if (!f) {
         snprintf(err, cap, "cannot open %s for appending: %s", path, strerror(errno));
+        return NULL;
+    }
+    if (repair_torn_tail(w, f, path, err, cap)) {
+        fclose(f);
         return NULL;
     }
     struct stat st;
@@ -296,17 +342,17 @@ static int open_files(vd_writers *w, char *err, size_t cap)
         int n = vd_format_tracks_header(w->linebuf + off, sizeof w->linebuf - off, cfg);
         if (n >= 0)
             n += (int)off;
-        if (!(w->tracks = open_append(cfg->tracks_path, w->linebuf, n, err, cap)))
+        if (!(w->tracks = open_append(w, cfg->tracks_path, w->linebuf, n, err, cap)))
             return -1;
     }
-    if (cfg->influx_path[0] && !(w->influx = open_append(cfg->influx_path, NULL, 0, err, cap)))
+    if (cfg->influx_path[0] && !(w->influx = open_append(w, cfg->influx_path, NULL, 0, err, cap)))
         return -1;
     if (cfg->record_path[0]) {
         int n = cfg->record_format == VD_REC_CANDUMP ? 0 /* a candump log has no header */
                                                      : vd_format_recording_header(w->linebuf, sizeof w->linebuf,
                                                                                   w->stand_name, cfg->sample_rate,
                                                                                   w->chanmap);
-        if (!(w->record = open_append(cfg->record_path, w->linebuf, n, err, cap)))
+        if (!(w->record = open_append(w, cfg->record_path, w->linebuf, n, err, cap)))
             return -1;
     }
     return 0;

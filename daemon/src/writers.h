@@ -51,6 +51,7 @@ typedef struct vd_writers {
     int udp_fd;
     struct sockaddr_in udp_addr;
     uint64_t write_errors, udp_errors, udp_sent;
+    uint64_t torn_lines;   /* torn last lines cut off outputs at open (a run killed mid-write) */
     double last_error_report;     /* monotonic s */
     char linebuf[16384];
 } vd_writers;

@@ -340,6 +340,44 @@ diagnostics)
     c2_after=$(awk -F, 'END { print $7 }' tracks.csv)
     note "c2 alarm at sample $first (t = $(awk -v i="$first" 'BEGIN { print i / 2000 }') s, change at 40 s); final c2 = $c2_after (truth 1.35e6)"
     ;;
+torn_lines)
+    # A run killed mid-write (kill -9, a full disk) leaves a torn last line; the next run
+    # cuts it off (logged, counted in the status) before appending, so no corrupt row sits
+    # mid-file. The torn tails are crafted (where a kill lands is chance): a tracks row, an
+    # InfluxDB point and a recorded sample cut mid-line, then a file without any newline.
+    $GEN "$STAND" --duration 4 --noise 0.001 --seed 1 --csv cap.csv 2>/dev/null || fail "generator"
+    config_csv v.cfg 'outputs = { tracks = { path = "tracks.csv"; }; influx = { path = "tracks.influx"; };
+  record = { path = "raw.csv"; }; status = { path = "status"; interval = 0.2; }; };'
+    sed -i '/^outputs = { tracks = { path = "tracks.csv"; }; status/d' v.cfg
+    timeout 60 "$VIBIDD" -c v.cfg 2> log || fail "first run: $(cat log)"
+    good_rows=$(data_rows tracks.csv)
+    [ "$good_rows" -eq 40 ] || fail "first run: $good_rows rows, expected 40"
+    cp tracks.csv tracks.good; cp tracks.influx influx.good; cp raw.csv raw.good
+    printf '3.999,7999,2500' >> tracks.csv           # a row cut mid-number
+    printf 'vibid,stand=x c1=2.5e5' >> tracks.influx  # a point cut mid-line
+    printf '1.2345,0.000' >> raw.csv                  # a sample cut mid-row
+    timeout 60 "$VIBIDD" -c v.cfg 2> log2 || fail "second run: $(cat log2)"
+    for f in tracks.csv tracks.influx raw.csv; do
+        grep -q "$f: cut off a torn last line of [0-9]* bytes" log2 || fail "no warning for $f: $(cat log2)"
+        [ "$(tail -c 1 "$f" | od -An -c | tr -d ' ')" = '\n' ] || fail "$f does not end in a newline"
+    done
+    [ "$(status_val torn_lines status)" = 3 ] || fail "status torn_lines $(status_val torn_lines status), expected 3"
+    # the first run's content is intact, followed directly by the second run's
+    head -c "$(stat -c %s tracks.good)" tracks.csv | cmp -s - tracks.good || fail "tracks: the first run's rows changed"
+    head -c "$(stat -c %s raw.good)" raw.csv | cmp -s - raw.good || fail "raw.csv: the first run's samples changed"
+    # (real rows print t with six decimals: 3.999500,7999,...)
+    grep -q '^3.999,7999,2500' tracks.csv && fail "the torn tracks row is still in the file"
+    # every data row of the tracks has the header's number of fields
+    awk -F, '!/^#/ { if (nf == 0) nf = NF; else if (NF != nf) bad++ } END { exit bad > 0 }' tracks.csv ||
+        fail "a tracks row has a different number of fields"
+    [ "$(data_rows tracks.csv)" -eq $((2 * good_rows)) ] || fail "tracks rows $(data_rows tracks.csv), expected $((2 * good_rows))"
+    # a file that is torn before its first newline is cut to empty (and gets its header)
+    printf 'garbage without newline' > tracks.csv
+    timeout 60 "$VIBIDD" -c v.cfg 2> log3 || fail "third run: $(cat log3)"
+    [ "$(data_rows tracks.csv)" -eq "$good_rows" ] || fail "tracks cut to empty: $(data_rows tracks.csv) rows"
+    head -1 tracks.csv | grep -q '^#' || fail "tracks cut to empty: no preamble: $(head -1 tracks.csv)"
+    note "$(grep 'torn' log2 | head -1)"
+    ;;
 same_file)
     # Outputs that are the same file, or an output that is an input, are configuration
     # errors (exit 2, before anything is opened), in the run and in --check; the file
