@@ -666,7 +666,7 @@ static int load_outputs(ctx *c, config_t *cf)
         long p = colon ? strtol(colon + 1, &end, 10) : 0;
         if (!colon || colon == cfg->influx_udp || !end || *end || p < 1 || p > 65535)
             return fail_at(c, config_setting_get_member(i, "udp"), "outputs.influx.udp",
-                           "'%s': expected IPV4:PORT, e.g. \"127.0.0.1:8089\"", cfg->influx_udp);
+                           "'%s': expected HOST:PORT, e.g. \"127.0.0.1:8089\" or \"localhost:8089\"", cfg->influx_udp);
     }
     for (const char *p = cfg->influx_measurement; *p; p++)
         if (*p == ',' || *p == ' ' || *p == '"' || *p == '\\')

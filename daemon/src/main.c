@@ -6,6 +6,7 @@
  */
 #include "config.h"
 #include "daemon.h"
+#include "writers.h"
 #include "log.h"
 
 #include <locale.h>
@@ -163,6 +164,13 @@ int main(int argc, char **argv)
          * outcome is a comment at the end of the printout */
         static char rate_note[3 * VD_PATH_MAX];
         if (vd_daemon_check_capture(&cfg, &opt, rate_note, sizeof rate_note, e2, sizeof e2)) {
+            vd_error("%s", e2);
+            vd_est_free(&est);
+            vd_config_free(&cfg);
+            return 2;
+        }
+        /* the outputs' start-up checks (directories, files, the UDP host) */
+        if (vd_writers_check(&cfg, e2, sizeof e2)) {
             vd_error("%s", e2);
             vd_est_free(&est);
             vd_config_free(&cfg);

@@ -6,6 +6,8 @@
 
 #include <arpa/inet.h>
 #include <errno.h>
+#include <fcntl.h>
+#include <netdb.h>
 #include <math.h>
 #include <stdarg.h>
 #include <stdlib.h>
@@ -358,9 +360,94 @@ static int open_files(vd_writers *w, char *err, size_t cap)
     return 0;
 }
 
+/* outputs.influx.udp "HOST:PORT" (the configuration checked the port) -> IPv4 address. */
+static int resolve_udp(const char *hostport, struct sockaddr_in *out, char *err, size_t cap)
+{
+    char host[128];
+    const char *colon = strrchr(hostport, ':');
+    snprintf(host, sizeof host, "%.*s", (int)(colon - hostport), hostport);
+    struct addrinfo hints, *res = NULL;
+    memset(&hints, 0, sizeof hints);
+    hints.ai_family = AF_INET;
+    hints.ai_socktype = SOCK_DGRAM;
+    const int rc = getaddrinfo(host, NULL, &hints, &res);
+    if (rc != 0 || !res) {
+        snprintf(err, cap, "outputs.influx.udp: '%s' does not resolve to an IPv4 address: %s", host,
+                 rc == EAI_SYSTEM ? strerror(errno) : gai_strerror(rc));
+        return -1;
+    }
+    memcpy(out, res->ai_addr, sizeof *out);
+    out->sin_port = htons((uint16_t)atoi(colon + 1));
+    freeaddrinfo(res);
+    return 0;
+}
+
+/* An output path: its directory exists and is writable; the file, if there, is a
+ * writable regular file. */
+static int check_output_path(const char *what, const char *path, char *err, size_t cap)
+{
+    if (!path[0])
+        return 0;
+    char dir[VD_PATH_MAX];
+    const char *slash = strrchr(path, '/');
+    if (slash)
+        snprintf(dir, sizeof dir, "%.*s", slash == path ? 1 : (int)(slash - path), path);
+    else
+        snprintf(dir, sizeof dir, ".");
+    struct stat st;
+    if (stat(dir, &st) != 0) {
+        snprintf(err, cap, "%s %s: the directory %s: %s", what, path, dir, strerror(errno));
+        return -1;
+    }
+    if (!S_ISDIR(st.st_mode)) {
+        snprintf(err, cap, "%s %s: %s is not a directory", what, path, dir);
+        return -1;
+    }
+    /* Writability by trying, not by access(): root passes access() on a read-only file
+     * system. A probe file is created and removed in the directory; an existing file is
+     * opened for appending (nothing written). */
+    char probe[VD_PATH_MAX + 64];
+    snprintf(probe, sizeof probe, "%s/.vibidd-check-%ld", dir, (long)getpid());
+    int fd = open(probe, O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0600);
+    if (fd < 0) {
+        snprintf(err, cap, "%s %s: cannot create files in %s: %s", what, path, dir, strerror(errno));
+        return -1;
+    }
+    close(fd);
+    unlink(probe);
+    if (stat(path, &st) == 0) {
+        if (!S_ISREG(st.st_mode)) {
+            snprintf(err, cap, "%s %s: not a regular file", what, path);
+            return -1;
+        }
+        fd = open(path, O_WRONLY | O_APPEND | O_CLOEXEC);
+        if (fd < 0) {
+            snprintf(err, cap, "%s %s: not writable: %s", what, path, strerror(errno));
+            return -1;
+        }
+        close(fd);
+    }
+    return 0;
+}
+
+int vd_writers_check(const vd_config *cfg, char *err, size_t cap)
+{
+    if (check_output_path("outputs.tracks.path", cfg->tracks_path, err, cap) ||
+        check_output_path("outputs.influx.path", cfg->influx_path, err, cap) ||
+        check_output_path("outputs.record.path", cfg->record_path, err, cap) ||
+        check_output_path("outputs.status.path", cfg->status_path, err, cap))
+        return -1;
+    struct sockaddr_in addr;
+    if (cfg->influx_udp[0] && resolve_udp(cfg->influx_udp, &addr, err, cap))
+        return -1;
+    return 0;
+}
+
 int vd_writers_open(vd_writers *w, const vd_config *cfg, const vibid_chanmap *chanmap, const char *tracks_preamble,
                     char *err, size_t cap)
 {
+    if (vd_writers_check(cfg, err, cap))
+        return -1;
     memset(w, 0, sizeof *w);
     w->cfg = cfg;
     w->tracks_preamble = tracks_preamble;
@@ -381,13 +468,7 @@ int vd_writers_open(vd_writers *w, const vd_config *cfg, const vibid_chanmap *ch
         return -1;
     }
     if (cfg->influx_udp[0]) {
-        char host[128];
-        const char *colon = strrchr(cfg->influx_udp, ':');
-        snprintf(host, sizeof host, "%.*s", (int)(colon - cfg->influx_udp), cfg->influx_udp);
-        w->udp_addr.sin_family = AF_INET;
-        w->udp_addr.sin_port = htons((uint16_t)atoi(colon + 1));
-        if (inet_pton(AF_INET, host, &w->udp_addr.sin_addr) != 1) {
-            snprintf(err, cap, "outputs.influx.udp: '%s' is not an IPv4 address", host);
+        if (resolve_udp(cfg->influx_udp, &w->udp_addr, err, cap)) {
             vd_writers_close(w);
             return -1;
         }

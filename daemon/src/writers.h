@@ -62,6 +62,13 @@ typedef struct vd_writers {
  * must live as long as w. 0, or -1 with err naming the file and errno. */
 int vd_writers_open(vd_writers *w, const vd_config *cfg, const vibid_chanmap *chanmap, const char *tracks_preamble,
                     char *err, size_t cap);
+/* The start-up checks of every output, without creating anything: each output's
+ * (tracks, InfluxDB file, record, status) directory exists and is writable, an existing
+ * output file is a writable regular file, and outputs.influx.udp names a host that
+ * resolves to an IPv4 address. vd_writers_open runs them first and `vibidd --check`
+ * runs them, so both refuse the same configurations. 0, or -1 with err naming the
+ * setting and the path. */
+int vd_writers_check(const vd_config *cfg, char *err, size_t cap);
 /* SIGHUP: closes and reopens the files (logrotate moved them away). 0 or -1 (logged). */
 int vd_writers_reopen(vd_writers *w);
 void vd_writers_row(vd_writers *w, const vd_row *row);

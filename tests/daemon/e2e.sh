@@ -378,6 +378,39 @@ torn_lines)
     head -1 tracks.csv | grep -q '^#' || fail "tracks cut to empty: no preamble: $(head -1 tracks.csv)"
     note "$(grep 'torn' log2 | head -1)"
     ;;
+check_outputs)
+    # --check runs the outputs' start-up checks, so it refuses what the run refuses (and
+    # passes what the run accepts): a host name for influx.udp, a missing output
+    # directory, a directory where a file should be, an unresolvable UDP host (issue 12,
+    # item 7). (A read-only directory is refused by a probe file, not access(); this
+    # test runs as root, where only a read-only file system would show it.)
+    $GEN "$STAND" --duration 1 --noise 0.001 --seed 1 --csv cap.csv 2>/dev/null || fail "generator"
+    mkdir adir
+    n=0
+    # each case: the outputs group's content | expected exit status | expected message
+    for case in 'tracks = { path = "tracks.csv"; }; influx = { udp = "localhost:8089"; };|0|' \
+                'tracks = { path = "tracks.csv"; }; influx = { udp = "no-such-host.invalid:8089"; };|2|outputs.influx.udp: '"'"'no-such-host.invalid'"'"' does not resolve to an IPv4 address' \
+                'tracks = { path = "nodir/tracks.csv"; };|2|outputs.tracks.path ./nodir/tracks.csv: the directory ./nodir: No such file or directory' \
+                'tracks = { path = "adir"; };|2|outputs.tracks.path ./adir: not a regular file' \
+                'tracks = { path = "tracks.csv"; }; record = { path = "cap.csv/raw.csv"; };|2|outputs.record.path ./cap.csv/raw.csv: ./cap.csv is not a directory' \
+                'tracks = { path = "tracks.csv"; }; status = { path = "nodir/status"; };|2|outputs.status.path ./nodir/status: the directory ./nodir'; do
+        outs=${case%%|*} rest=${case#*|}
+        want_rc=${rest%%|*} want=${rest#*|}
+        n=$((n + 1))
+        config_csv v.cfg ""
+        sed -i "s|^outputs = .*|outputs = { $outs };|" v.cfg
+        grep -qF "$outs" v.cfg || fail "case $n: configuration not edited"
+        for mode in check run; do
+            rm -f tracks.csv
+            # shellcheck disable=SC2046
+            timeout 20 "$VIBIDD" -c v.cfg $([ $mode = check ] && echo --check) > out 2> log; rc=$?
+            [ $rc -eq "$want_rc" ] || fail "case $n ($outs, $mode): exit $rc, expected $want_rc: $(grep -v info log)"
+            [ -z "$want" ] || grep -qF "$want" log || fail "case $n ($outs, $mode): message: $(grep -v info log)"
+        done
+    done
+    ls -a | grep -q '^.vibidd-check' && fail "a probe file was left behind"
+    note "$(grep error log)"
+    ;;
 same_file)
     # Outputs that are the same file, or an output that is an input, are configuration
     # errors (exit 2, before anything is opened), in the run and in --check; the file
