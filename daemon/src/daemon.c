@@ -5,6 +5,7 @@
 #include "log.h"
 
 #include <errno.h>
+#include <fcntl.h>
 #include <math.h>
 #include <poll.h>
 #include <sched.h>
@@ -442,6 +443,8 @@ double vd_daemon_latency_us(const vd_daemon *d, double q)
     return VD_LAT_BUCKETS;
 }
 
+static void write_status_file(vd_daemon *d, const char *buf, size_t len);
+
 static void write_status(vd_daemon *d, const char *state, double now)
 {
     const vd_config *cfg = d->cfg;
@@ -517,19 +520,37 @@ static void write_status(vd_daemon *d, const char *state, double now)
 #undef S
     if (off > sizeof buf)
         off = sizeof buf;
-    if (cfg->status_path[0]) {
-        char tmp[VD_PATH_MAX + 8];
-        snprintf(tmp, sizeof tmp, "%s.tmp", cfg->status_path);
-        FILE *f = fopen(tmp, "we");
-        bool ok = f && fwrite(buf, 1, off, f) == off;
-        if (f && fclose(f) != 0)
-            ok = false;
-        if (!ok || rename(tmp, cfg->status_path) != 0) {
-            static uint64_t fails;
-            if (fails++ % 60 == 0)
-                vd_error("writing the status file %s failed: %s", cfg->status_path, strerror(errno));
-        }
-    }
+    if (cfg->status_path[0])
+        write_status_file(d, buf, off);
+}
+
+/* The status file is replaced atomically (a .tmp renamed over it). When that fails (a full
+ * disk: the .tmp gets no blocks) the .tmp is removed and the file is overwritten in place:
+ * it fits the block it already has, so a full disk still shows in it (write_errors)
+ * instead of a stale "write_errors=0". Each failure counts (vd_writers_failed), which
+ * also makes the exit status 1. */
+static void write_status_file(vd_daemon *d, const char *buf, size_t len)
+{
+    const char *path = d->cfg->status_path;
+    char tmp[VD_PATH_MAX + 8];
+    snprintf(tmp, sizeof tmp, "%s.tmp", path);
+    FILE *f = fopen(tmp, "we");
+    bool ok = f && fwrite(buf, 1, len, f) == len;
+    if (f && fclose(f) != 0)
+        ok = false;
+    if (ok && rename(tmp, path) == 0)
+        return;
+    const int e = errno;
+    if (f)
+        unlink(tmp);
+    errno = e;
+    vd_writers_failed(&d->w, "the status file", path);
+    const int fd = open(path, O_WRONLY | O_CLOEXEC);
+    if (fd < 0)
+        return;
+    if (pwrite(fd, buf, len, 0) == (ssize_t)len)
+        (void)ftruncate(fd, (off_t)len);
+    close(fd);
 }
 
 static void log_status_line(vd_daemon *d)

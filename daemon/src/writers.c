@@ -242,15 +242,23 @@ static double mono_s(void)
     return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
 }
 
-static void write_failed(vd_writers *w, const char *what, const char *path)
+void vd_writers_failed(vd_writers *w, const char *what, const char *path)
 {
+    const int e = errno;
+    const char *const outs[4] = {w->cfg->tracks_path, w->cfg->influx_path, w->cfg->record_path, w->cfg->status_path};
+    int k = 0;
+    while (k < 3 && outs[k] != path)
+        k++;
     w->write_errors++;
-    double now = mono_s();
-    if (w->write_errors == 1 || now - w->last_error_report > 60.0) {
-        vd_error("writing %s %s failed: %s (%llu failed writes so far; output is being lost)", what, path,
-                 strerror(errno), (unsigned long long)w->write_errors);
-        w->last_error_report = now;
+    const uint64_t n = ++w->output_errors[k];
+    const double now = mono_s();
+    if (n == 1 || now - w->output_report[k] > 60.0) {
+        vd_error("writing %s %s failed: %s (%llu failed writes of this output so far, %llu of all; output is being "
+                 "lost)",
+                 what, path, strerror(e), (unsigned long long)n, (unsigned long long)w->write_errors);
+        w->output_report[k] = now;
     }
+    errno = e;
 }
 
 static void emit(vd_writers *w, FILE *f, const char *what, const char *path, const char *buf, int n)
@@ -258,7 +266,7 @@ static void emit(vd_writers *w, FILE *f, const char *what, const char *path, con
     if (!f || n <= 0)
         return;
     if (fwrite(buf, 1, (size_t)n, f) != (size_t)n)
-        write_failed(w, what, path);
+        vd_writers_failed(w, what, path);
 }
 
 /* An output that does not end in a newline was cut mid-line (kill -9, power loss, a full
@@ -488,7 +496,7 @@ static void close_files(vd_writers *w)
     const char *paths[] = {w->cfg->tracks_path, w->cfg->influx_path, w->cfg->record_path};
     for (int i = 0; i < 3; i++) {
         if (*fs[i] && fclose(*fs[i]) != 0)
-            write_failed(w, "closing", paths[i]);
+            vd_writers_failed(w, "closing", paths[i]);
         *fs[i] = NULL;
     }
 }
@@ -545,7 +553,7 @@ void vd_writers_sample(vd_writers *w, const vibid_record *rec)
     if (n < 0) {
         /* cannot happen for samples decoded with the same DBC; counted and logged */
         errno = ERANGE;
-        write_failed(w, "raw recording (a sample does not fit its DBC signals)", w->cfg->record_path);
+        vd_writers_failed(w, "raw recording (a sample does not fit its DBC signals)", w->cfg->record_path);
         return;
     }
     emit(w, w->record, "raw recording", w->cfg->record_path, w->linebuf, n);
@@ -570,9 +578,9 @@ void vd_writers_flush(vd_writers *w, int sync)
         if (!fs[i])
             continue;
         if (fflush(fs[i]) != 0)
-            write_failed(w, "flushing", paths[i]);
+            vd_writers_failed(w, "flushing", paths[i]);
         else if (sync && fdatasync(fileno(fs[i])) != 0 && errno != EINVAL)
-            write_failed(w, "fdatasync of", paths[i]);
+            vd_writers_failed(w, "fdatasync of", paths[i]);
     }
 }
 

@@ -52,7 +52,10 @@ typedef struct vd_writers {
     struct sockaddr_in udp_addr;
     uint64_t write_errors, udp_errors, udp_sent;
     uint64_t torn_lines;   /* torn last lines cut off outputs at open (a run killed mid-write) */
-    double last_error_report;     /* monotonic s */
+    /* per output (tracks, influx file, record, status): failed writes and the last time
+     * they were logged (monotonic s); vd_writers_failed */
+    uint64_t output_errors[4];
+    double output_report[4];
     char linebuf[16384];
 } vd_writers;
 
@@ -69,6 +72,11 @@ int vd_writers_open(vd_writers *w, const vd_config *cfg, const vibid_chanmap *ch
  * runs them, so both refuse the same configurations. 0, or -1 with err naming the
  * setting and the path. */
 int vd_writers_check(const vd_config *cfg, char *err, size_t cap);
+/* A failed write of output path (one of the configuration's output paths; what says
+ * which step): counted in write_errors and per output; each output's first failure is
+ * logged at once (so a second output failing later is not hidden behind the first), then
+ * at most once a minute with its count. Uses errno. */
+void vd_writers_failed(vd_writers *w, const char *what, const char *path);
 /* SIGHUP: closes and reopens the files (logrotate moved them away). 0 or -1 (logged). */
 int vd_writers_reopen(vd_writers *w);
 void vd_writers_row(vd_writers *w, const vd_row *row);

@@ -411,6 +411,30 @@ check_outputs)
     ls -a | grep -q '^.vibidd-check' && fail "a probe file was left behind"
     note "$(grep error log)"
     ;;
+full_disk)
+    # A full disk (a 128 KiB tmpfs mounted by the test: this needs root, as the VM tests
+    # do) under the tracks, the raw recording and the status file (issue 12, item 5):
+    # every output's loss is logged (the recording fills the disk first; the tracks'
+    # failure must be logged too, not hidden behind it), the status file shows the write
+    # errors (overwritten in place when its .tmp cannot be written), no .tmp is left
+    # behind, and the exit status is 1.
+    mkdir full
+    mount -t tmpfs -o size=128k tmpfs full || fail "cannot mount a tmpfs (this test needs root)"
+    trap 'umount "$W/full" 2>/dev/null; rm -rf "$W"' EXIT
+    $GEN "$STAND" --duration 20 --noise 0.001 --seed 1 --csv cap.csv 2>/dev/null || fail "generator"
+    config_csv v.cfg ""
+    sed -i 's|^outputs = .*|outputs = { tracks = { path = "full/tracks.csv"; }; record = { path = "full/raw.csv"; }; status = { path = "full/status"; interval = 0.05; }; };|' v.cfg
+    timeout 60 "$VIBIDD" -c v.cfg 2> log; rc=$?
+    [ $rc -eq 1 ] || fail "exit status $rc, expected 1 (write errors): $(grep -v info log | tail -3)"
+    grep -q "writing raw recording ./full/raw.csv failed: No space left on device" log || fail "recording loss not logged: $(grep error log | head -3)"
+    grep -q "writing tracks ./full/tracks.csv failed: No space left on device" log || fail "tracks loss not logged: $(grep error log | head -3)"
+    ls full | grep -q '\.tmp$' && fail "a .tmp was left behind: $(ls -la full)"
+    we=$(status_val write_errors full/status)
+    [ -n "$we" ] && [ "$we" -gt 0 ] || fail "status write_errors '$we' (status: $(head -3 full/status))"
+    [ "$(status_val state full/status)" = stopped ] || fail "status state $(status_val state full/status)"
+    note "status: write_errors=$we; $(grep -c 'failed: No space' log) error lines logged"
+    umount full
+    ;;
 same_file)
     # Outputs that are the same file, or an output that is an input, are configuration
     # errors (exit 2, before anything is opened), in the run and in --check; the file
