@@ -481,9 +481,10 @@ static void write_status(vd_daemon *d, const char *state, double now)
       (unsigned long long)ss.frames, (unsigned long long)ss.dropped, (unsigned long long)ss.error_frames,
       (unsigned long long)ss.bad_lines);
     S("source_polls=%llu\nsource_failed_polls=%llu\nsource_timeouts=%llu\nsource_link_losses=%llu\n"
-      "source_reconnects=%llu\nsource_overruns=%llu\n",
+      "source_reconnects=%llu\nsource_connect_failures=%llu\nsource_overruns=%llu\nsource_implausible=%llu\n",
       (unsigned long long)ss.polls, (unsigned long long)ss.failed_polls, (unsigned long long)ss.timeouts,
-      (unsigned long long)ss.link_losses, (unsigned long long)ss.reconnects, (unsigned long long)ss.overruns);
+      (unsigned long long)ss.link_losses, (unsigned long long)ss.reconnects, (unsigned long long)ss.connect_failures,
+      (unsigned long long)ss.overruns, (unsigned long long)ss.implausible);
     S("jitter_mean_s=%.9g\njitter_std_s=%.3g\n", ss.jitter.mean_s, ss.jitter.std_s);
     for (unsigned c = 1; c <= (unsigned)VIBID_FAULT_CORRUPT; c++) /* faults by kind */
         S("faults_%s=%llu\n", fault_name((vibid_fault_code)c), (unsigned long long)d->faults_by_code[c]);

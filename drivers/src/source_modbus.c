@@ -45,6 +45,10 @@ typedef struct mb {
     vibid_reg_entry fent[VIBID_DRV_MAX_CHANNELS]; /* address = word offset in a record */
     bool have_session, force_restart;
     uint16_t session;
+    int64_t last_good_poll;      /* mono ns of the last counter poll that was believed */
+    unsigned implausible_in_row; /* consecutive counter polls not believed */
+    bool resync;                 /* restart after counters not believed: skip the ring's backlog */
+    uint32_t doubt_S;            /* the counter at the first poll not believed */
     uint32_t s_next32;
     uint64_t s_next64;
     int64_t t_anchor, poll_ns, next_poll;
@@ -196,8 +200,11 @@ static vibid_drv_status try_connect(mb *m, vibid_drv_error *err)
     } else {
         m->connected = true;
         if (c->mode == VIBID_MODBUS_FIFO) {
-            st = fifo_check_header(m, &e2);
-            if (st != VIBID_DRV_OK && !m->connected) /* the header read lost the link */
+            /* Whatever the header says is the device's state, not the configuration's: a
+             * device rebooting with zeroed registers (magic 0, capacity 0), a FIFO not
+             * set up yet, a layout that does not fit the register map. A fault and a
+             * retry with back-off, never an exit (only the configuration stops vibidd). */
+            if (fifo_check_header(m, &e2) != VIBID_DRV_OK)
                 st = VIBID_DRV_E_LINK;
         }
     }
@@ -295,6 +302,61 @@ static void fifo_poll(mb *m)
         poll_failed(m, "FIFO counter");
         return;
     }
+    /* What time allows: since the last believed poll the server can have produced at
+     * most `possible` samples (10 % clock tolerance, 2 of slack). A session change is a
+     * restart only when the new counter fits in that time. Anything else is not believed
+     * (nothing read, nothing emitted: the ring keeps the samples for the next believed
+     * poll): a new id on a counter that continues ours (a flapping id once multiplied
+     * samples 18x; a server that writes its new id before resetting its counter looks
+     * like this for one poll), a counter that jumps further than time allows or goes back
+     * without a new session (a random counter once made 99e9 "missing" samples in 6 s).
+     * Not believed three polls in a row: a new id on a continuing counter is adopted (the
+     * same stream, nothing re-read); otherwise the stream is restarted at the newest
+     * sample, its gap estimated from the elapsed time: bounded either way. */
+    if (m->have_session && !m->force_restart) {
+        const int64_t now_m = mono_ns();
+        const double el = (double)(now_m - m->last_good_poll);
+        const uint64_t possible = (uint64_t)(1.1 * el / (double)hp) + 2;
+        const uint32_t ahead = S - m->s_next32; /* mod 2^32 */
+        const bool continues = ahead <= possible + m->K;
+        const bool fresh = session != m->session && (uint64_t)S <= possible;
+        char doubt[160] = "";
+        if (session != m->session && !fresh)
+            snprintf(doubt, sizeof doubt, "session %u -> %u with counter %u (our next %u, %llu samples possible since "
+                     "the last poll)",
+                     m->session, session, S, m->s_next32, (unsigned long long)possible);
+        else if (session == m->session && !continues)
+            snprintf(doubt, sizeof doubt, "counter %u %s our next %u by more than the %llu samples time allows", S,
+                     ahead > 0x80000000u ? "behind" : "ahead of", m->s_next32, (unsigned long long)possible);
+        if (doubt[0]) {
+            m->st.implausible++;
+            if (m->implausible_in_row == 0)
+                m->doubt_S = S;
+            /* A frozen counter (a new server whose counter is not reset yet, or one not
+             * producing) is waited for, never escalated: only a moving counter is. */
+            if (++m->implausible_in_row < 3 || S == m->doubt_S) {
+                if (m->implausible_in_row > 3)
+                    m->implausible_in_row = 3;
+                rec_queue_fault(&m->q, VIBID_FAULT_LINK, m->k_next, 0, "Modbus %s: FIFO %s: not believed", m->where,
+                                doubt);
+                return;
+            }
+            if (session != m->session && continues) {
+                rec_queue_fault(&m->q, VIBID_FAULT_LINK, m->k_next, 0,
+                                "Modbus %s: FIFO %s, three polls in a row: the same stream, id adopted", m->where,
+                                doubt);
+                m->session = session;
+            } else {
+                rec_queue_fault(&m->q, VIBID_FAULT_LINK, m->k_next, 0,
+                                "Modbus %s: FIFO %s, three polls in a row: the stream is restarted at its newest "
+                                "sample",
+                                m->where, doubt);
+                m->force_restart = true;
+                m->resync = true;
+            }
+        }
+    }
+    m->implausible_in_row = 0;
     if (!m->have_session || session != m->session || m->force_restart) {
         if (S == 0)
             return; /* a fresh server with nothing yet: wait for its first sample */
@@ -302,16 +364,30 @@ static void fifo_poll(mb *m)
          * next, while this poll is reading (seen at 10 kHz as a 3-sample gap at start). */
         const uint32_t margin = m->K / 8;
         uint32_t first = S + margin > m->K ? S + margin - m->K : 0;
+        const bool resync = m->resync;
+        m->resync = false;
+        if (resync) /* the ring's tags cannot be trusted either: start at the newest */
+            first = S;
         int64_t now = real_ns();
         if (m->have_session) {
-            int64_t t_first = now - (int64_t)(S - 1 - first) * hp;
+            /* signed: after a resync first = S, the newest sample is S - 1, the next at now + h */
+            int64_t t_first = now - ((int64_t)S - 1 - (int64_t)first) * hp;
             int64_t est = m->any_sample ? llround((double)(t_first - m->last_sample_t) / (double)hp) - 1 : 0;
             char why[128];
-            snprintf(why, sizeof why, "FIFO server restarted (session %u -> %u): about %lld samples lost (estimated)",
-                     m->session, session, (long long)(est > 0 ? est : 0));
+            if (resync)
+                snprintf(why, sizeof why, "FIFO stream resynchronised at counter %u: about %lld samples lost (estimated "
+                         "from the elapsed time)",
+                         S, (long long)(est > 0 ? est : 0));
+            else
+                snprintf(why, sizeof why, "FIFO server restarted (session %u -> %u): about %lld samples lost (estimated)",
+                         m->session, session, (long long)(est > 0 ? est : 0));
             rec_queue_fault(&m->q, VIBID_FAULT_LINK, m->k_next, 0, "Modbus %s: %s", m->where, why);
-            if (est > 0)
+            if (est > 0) {
                 gap(m, (uint64_t)est, "FIFO server restarted: gap length estimated from elapsed time");
+                /* the gap accounts for the time up to the new stream: a second restart
+                 * before any sample (repeated resyncs) must not count it again */
+                m->last_sample_t = t_first - hp;
+            }
         }
         m->have_session = true;
         m->force_restart = false;
@@ -320,6 +396,9 @@ static void fifo_poll(mb *m)
         m->s_next64 = first;
         m->t_anchor = now - (int64_t)(S - 1) * hp;
     }
+    /* believed and taken (a new session's S == 0 returned above: not yet taken, so the
+     * time since the last taken poll keeps growing) */
+    m->last_good_poll = mono_ns();
     uint32_t avail = S - m->s_next32;
     if (avail > 0x80000000u) {
         rec_queue_fault(&m->q, VIBID_FAULT_LINK, m->k_next, 0,
@@ -511,8 +590,8 @@ static vibid_drv_status mb_open(vibid_source *src, const void *config, vibid_drv
     if (!rec_queue_init(&m->q, 2 * POLL_SAMPLES + 64))
         return vibid_drv_fail(err, VIBID_DRV_E_NOMEM, "Modbus source: out of memory");
     m->backoff = c->backoff_initial_s;
-    /* First connection now: a device that is not there yet is retried in read(); a
-     * device that answers with the wrong layout is a configuration error. */
+    /* First connection now: a device that is not there yet, or answers with a FIFO header
+     * that does not fit, is retried in read() (faults queued). */
     vibid_drv_status st = try_connect(m, err);
     return st == VIBID_DRV_E_LINK ? VIBID_DRV_OK : st;
 }

@@ -17,6 +17,14 @@ schedule (and never later than --max-time). Prints "READY <port>" when first lis
 --stop-after N stops producing after sample N-1 (the FIFO then holds a fixed window: a
 client's first read is deterministic).
 
+Hostile behaviour (issue 12), times in seconds since the start of the first phase:
+--zero-header T   the FIFO header reads all zeros (magic 0, capacity 0: a device rebooting
+                  with cleared registers) until T, then the valid header appears.
+--flap-session    the session id register alternates between the real id and another at
+                  every update (every 2 ms) while the counter continues.
+--random-counter A,B  between A and B the counter registers hold random 32-bit values
+                  (the records themselves stay right).
+
 --serial DEVICE serves Modbus RTU (pymodbus serial server, pyserial) on DEVICE, e.g. one
 end of a pseudo-terminal pair, instead of TCP; --port is then ignored (pass 0), the
 schedule's first phase only is used and "READY 0" is printed once the port is open.
@@ -58,10 +66,15 @@ def values(s):
 
 
 class Fifo:
-    def __init__(self, block, period_ns, stop_after=0):
+    def __init__(self, block, period_ns, stop_after=0, zero_header=0.0, flap=False, random_counter=None):
         self.block = block
         self.period_ns = period_ns
         self.stop_after = stop_after  # > 0: produce samples 0 .. stop_after-1, then none
+        self.start = time.monotonic()
+        self.zero_header = zero_header
+        self.flap = flap
+        self.flip = False
+        self.random_counter = random_counter
         self.restart()
 
     def restart(self):
@@ -71,7 +84,9 @@ class Fifo:
         self.t0 = time.monotonic()
         hdr = [0x5646, 1, C, W, K, DOFF, self.period_ns >> 16, self.period_ns & 0xFFFF, 0, 0, 0, self.session, 0, 0, 0, 0]
         hdr += [TYPE_FLOAT32 | (ORDER_ABCD << 8), TYPE_INT16 | (ORDER_ABCD << 8), TYPE_FLOAT32 | (ORDER_CDAB << 8)]
-        self.block.setValues(BASE, hdr)
+        self.hdr = hdr
+        zeroed = time.monotonic() - self.start < self.zero_header
+        self.block.setValues(BASE, [0] * len(hdr) if zeroed else hdr)
         self.block.setValues(BASE + DOFF, [0xFFFF] * (K * W))  # no valid tags yet
 
     def advance(self):
@@ -87,8 +102,20 @@ class Fifo:
             self.block.setValues(10, f32_cdab(c))
             self.S = (self.S + 1) & 0xFFFFFFFF
             self.ws = (self.ws + 1) % K
+        el = time.monotonic() - self.start
+        if el < self.zero_header:  # (the header includes the counter words: written first)
+            self.block.setValues(BASE, [0] * len(self.hdr))
+        elif self.zero_header:
+            self.block.setValues(BASE, self.hdr)
         # count, write slot: one setValues, between two requests (single event loop)
         self.block.setValues(BASE + 8, [self.S >> 16, self.S & 0xFFFF, self.ws])
+        if el < self.zero_header:
+            self.block.setValues(BASE + 8, [0, 0, 0])
+        if self.flap:
+            self.flip = not self.flip
+            self.block.setValues(BASE + 11, [self.session ^ 0x5555 if self.flip else self.session])
+        if self.random_counter and self.random_counter[0] <= el < self.random_counter[1]:
+            self.block.setValues(BASE + 8, [random.randint(0, 65535), random.randint(0, 65535)])
 
 
 async def main():
@@ -100,11 +127,15 @@ async def main():
     ap.add_argument("--serial", default="")
     ap.add_argument("--baud", type=int, default=115200)
     ap.add_argument("--stop-after", type=int, default=0)
+    ap.add_argument("--zero-header", type=float, default=0.0)
+    ap.add_argument("--flap-session", action="store_true")
+    ap.add_argument("--random-counter", default="")
     args = ap.parse_args()
     phases = [float(x) for x in args.schedule.split(",")]
     block = ModbusSequentialDataBlock(0, [0] * (BASE + DOFF + K * W + 16))
     ctx = ModbusServerContext(slaves=ModbusSlaveContext(hr=block, zero_mode=True), single=True)
-    fifo = Fifo(block, args.period_ns, args.stop_after)
+    rc = tuple(float(x) for x in args.random_counter.split(",")) if args.random_counter else None
+    fifo = Fifo(block, args.period_ns, args.stop_after, args.zero_header, args.flap_session, rc)
     deadline = time.monotonic() + args.max_time
     for i, dur in enumerate(phases):
         if i % 2 == 1:  # pause: nobody listening

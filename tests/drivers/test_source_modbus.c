@@ -5,7 +5,11 @@
  *    the outage is LINK faults + one GAP whose (estimated) length matches the pause;
  *  - snapshot mode at 100 Hz: consistent samples on an absolute-deadline clock;
  *  - a server that accepts but never answers: timeouts counted, link declared lost,
- *    reconnects with backoff, every failed poll counted, no sample invented.
+ *    reconnects with backoff, every failed poll counted, no sample invented;
+ *  - hostile peers (issue 12): a FIFO header that does not fit or reads all zeros (a
+ *    rebooting device) is retried, never the end of the source; a flapping session id
+ *    gives every sample exactly once; a random counter is not believed, and the samples
+ *    lost meanwhile are a GAP as long as the elapsed time.
  * Needs the venv's Python (VIBID_PYTHON); its absence FAILS the test. */
 #include <arpa/inet.h>
 #include <math.h>
@@ -381,28 +385,180 @@ static void test_silent_server(void **state)
     vibid_regmap_destroy(rm);
 }
 
-/* Wrong FIFO base: the header check names what it found. */
+/* Reads for `secs`; counts samples (checking the known signal: every s exactly once, in
+ * order, gaps only as GAP records), gap samples and faults; fault texts containing `want`
+ * counted in *matched. Returns the last s (-1: none). */
+typedef struct {
+    uint64_t samples, gap_samples, faults, matched, backwards;
+    long first_s, last_s;
+} read_tally;
+
+static read_tally read_for(vibid_source *s, double secs, const char *want)
+{
+    static vibid_record r[256];
+    read_tally t = {0, 0, 0, 0, 0, -1, -1};
+    uint64_t next_k = 0;
+    vibid_drv_error err = {0};
+    int64_t end = mono() + (int64_t)(secs * 1e9);
+    while (mono() < end) {
+        size_t n;
+        vibid_drv_status st = vibid_source_read(s, r, 256, &n, 50, &err);
+        if (st != VIBID_DRV_OK && st != VIBID_DRV_E_AGAIN)
+            fail_msg("read returned %d: %s (a peer must never end the source)", (int)st, err.text);
+        for (size_t i = 0; i < n; i++) {
+            if (r[i].kind == VIBID_REC_FAULT) {
+                t.faults++;
+                if (want && strstr(r[i].text, want))
+                    t.matched++;
+                continue;
+            }
+            if (next_k == 0 && t.samples == 0 && t.gap_samples == 0)
+                next_k = r[i].index;
+            assert_int_equal(r[i].index, next_k);
+            if (r[i].kind == VIBID_REC_GAP) {
+                t.gap_samples += r[i].count;
+                next_k += r[i].count;
+                continue;
+            }
+            long sv = check_values(&r[i]);
+            if (t.last_s >= 0 && sv <= t.last_s)
+                t.backwards++; /* a duplicate or a re-read */
+            if (t.first_s < 0)
+                t.first_s = sv;
+            t.last_s = sv;
+            t.samples++;
+            next_k++;
+        }
+    }
+    return t;
+}
+
+static void drain_server(FILE *srv)
+{
+    while (fgets((char[128]){0}, 128, srv)) {
+    }
+    pclose(srv);
+}
+
+/* A FIFO header that does not fit (wrong base, a device sampling at another rate) is
+ * the device's state, not a reason to stop: the source opens, names what it found in a
+ * LINK fault per attempt, retries with back-off, and invents no sample (issue 12). */
 static void test_fifo_wrong_base(void **state)
 {
     (void)state;
     int port = free_port();
     vibid_regmap *rm = load_regmap();
-    FILE *srv = start_server(port, "0.6");
+    FILE *srv = start_server(port, "1.5");
     vibid_source_modbus_config cfg = base_cfg(rm, port);
     cfg.mode = VIBID_MODBUS_FIFO;
     cfg.fifo_base = 2000;
     vibid_drv_error err = {0};
-    assert_null(vibid_source_open(&vibid_source_modbus_ops, &cfg, &err));
-    if (!strstr(err.text, "no vibid FIFO at holding register 2000: magic 0x"))
-        fail_msg("got '%s'", err.text);
+    vibid_source *s = vibid_source_open(&vibid_source_modbus_ops, &cfg, &err);
+    if (!s)
+        fail_msg("open: %s", err.text);
+    read_tally t = read_for(s, 0.6, "no vibid FIFO at holding register 2000: magic 0x");
+    vibid_source_stats st;
+    vibid_source_stats_get(s, &st);
+    print_message("wrong base: %llu faults naming the header, %llu connect failures, %llu samples\n",
+                  (unsigned long long)t.matched, (unsigned long long)st.connect_failures,
+                  (unsigned long long)t.samples);
+    assert_true(t.matched >= 2 && st.connect_failures >= 2); /* retried, not given up */
+    assert_int_equal(t.samples, 0);
+    vibid_source_close(s);
     cfg.fifo_base = 0;
     cfg.sample_period_s = 0.002;
-    assert_null(vibid_source_open(&vibid_source_modbus_ops, &cfg, &err));
-    if (!strstr(err.text, "device samples every 1000000 ns, configured 0.002 s"))
-        fail_msg("got '%s'", err.text);
-    while (fgets((char[128]){0}, 128, srv)) {
-    }
-    pclose(srv);
+    s = vibid_source_open(&vibid_source_modbus_ops, &cfg, &err);
+    if (!s)
+        fail_msg("open: %s", err.text);
+    t = read_for(s, 0.4, "device samples every 1000000 ns, configured 0.002 s");
+    assert_true(t.matched >= 1);
+    assert_int_equal(t.samples, 0);
+    vibid_source_close(s);
+    drain_server(srv);
+    vibid_regmap_destroy(rm);
+}
+
+/* A device rebooting with cleared registers: the header reads magic 0, capacity 0 for the
+ * first 0.6 s. The source opens, counts and logs each attempt, retries with back-off, and
+ * reads the FIFO once the header is valid (before: exit 2 at start-up, 1 mid-run). */
+static void test_fifo_zero_header(void **state)
+{
+    (void)state;
+    int port = free_port();
+    vibid_regmap *rm = load_regmap();
+    FILE *srv = start_server_args(port, "2.0", "--zero-header 0.6");
+    vibid_source *s = open_fifo(rm, port);
+    read_tally t = read_for(s, 1.6, "magic 0x0000");
+    vibid_source_stats st;
+    vibid_source_stats_get(s, &st);
+    print_message("zero header: %llu faults naming magic 0, %llu connect failures, then %llu samples (s %ld..%ld)\n",
+                  (unsigned long long)t.matched, (unsigned long long)st.connect_failures,
+                  (unsigned long long)t.samples, t.first_s, t.last_s);
+    assert_true(t.matched >= 1 && st.connect_failures >= 1);
+    assert_true(t.samples >= 500); /* about 1 s of the 1 kHz stream after the header appears */
+    assert_int_equal(t.backwards, 0);
+    vibid_source_close(s);
+    drain_server(srv);
+    vibid_regmap_destroy(rm);
+}
+
+/* The session id alternates at every server update while the counter continues: the
+ * same stream. Every sample exactly once, in order (before: 18x duplicates). */
+static void test_fifo_flapping_session(void **state)
+{
+    (void)state;
+    int port = free_port();
+    vibid_regmap *rm = load_regmap();
+    FILE *srv = start_server_args(port, "2.0", "--flap-session");
+    vibid_source *s = open_fifo(rm, port);
+    read_tally t = read_for(s, 1.5, NULL);
+    vibid_source_stats st;
+    vibid_source_stats_get(s, &st);
+    print_message("flapping session: %llu samples (s %ld..%ld), %llu going back, %llu gap samples, %llu implausible "
+                  "polls\n",
+                  (unsigned long long)t.samples, t.first_s, t.last_s, (unsigned long long)t.backwards,
+                  (unsigned long long)t.gap_samples, (unsigned long long)st.implausible);
+    assert_int_equal(t.backwards, 0);
+    /* at most the samples the server produced while we read (1.5 s at 1 kHz, + start) */
+    assert_true(t.samples <= (uint64_t)(t.last_s - t.first_s + 1));
+    assert_true(t.samples >= 1000);
+    vibid_source_close(s);
+    drain_server(srv);
+    vibid_regmap_destroy(rm);
+}
+
+/* The counter registers hold random values from 0.5 s to 1.0 s: polls not believed, no
+ * sample invented, no duplicate, and the missing samples bounded by the elapsed time
+ * (before: 99e9 "missing" samples in 6 s). */
+static void test_fifo_random_counter(void **state)
+{
+    (void)state;
+    int port = free_port();
+    vibid_regmap *rm = load_regmap();
+    FILE *srv = start_server_args(port, "2.5", "--random-counter 0.5,1.0");
+    vibid_source *s = open_fifo(rm, port);
+    const int64_t t0 = mono();
+    read_tally t = read_for(s, 2.0, NULL);
+    const double el = (double)(mono() - t0) * 1e-9;
+    vibid_source_stats st;
+    vibid_source_stats_get(s, &st);
+    print_message("random counter: %llu samples (s %ld..%ld), %llu gap samples over %.2f s, %llu going back, %llu "
+                  "implausible polls\n",
+                  (unsigned long long)t.samples, t.first_s, t.last_s, (unsigned long long)t.gap_samples, el,
+                  (unsigned long long)t.backwards, (unsigned long long)st.implausible);
+    assert_true(st.implausible >= 3);
+    assert_int_equal(t.backwards, 0);
+    /* the samples skipped over the bad half second are GAP records, their length
+     * estimated from the elapsed time: samples + gaps cover the s range to within 10 %
+     * of the half second's 500 samples */
+    const long covered = (long)(t.samples + t.gap_samples), range = t.last_s - t.first_s + 1;
+    if (labs(covered - range) > 50)
+        fail_msg("samples + gap samples %ld, s range %ld", covered, range);
+    /* samples + gaps never exceed what 1 kHz produces in the elapsed time (+ the ring at start) */
+    assert_true(t.samples + t.gap_samples <= (uint64_t)(el * 1000.0 * 1.1) + 500);
+    assert_true(t.samples >= 1000); /* the stream goes on around the bad half second */
+    vibid_source_close(s);
+    drain_server(srv);
     vibid_regmap_destroy(rm);
 }
 
@@ -414,6 +570,9 @@ int main(void)
         cmocka_unit_test(test_snapshot),
         cmocka_unit_test(test_silent_server),
         cmocka_unit_test(test_fifo_wrong_base),
+        cmocka_unit_test(test_fifo_zero_header),
+        cmocka_unit_test(test_fifo_flapping_session),
+        cmocka_unit_test(test_fifo_random_counter),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

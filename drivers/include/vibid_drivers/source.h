@@ -65,7 +65,10 @@ typedef struct vibid_source_stats {
     uint64_t timeouts;         /* requests that got no answer in the response timeout */
     uint64_t link_losses;      /* times the link was declared lost */
     uint64_t reconnects;       /* successful (re)connections after the first */
-    uint64_t connect_failures; /* failed connection attempts */
+    uint64_t connect_failures; /* failed connection attempts (a FIFO header that does not
+                                  fit counts here too: the device is retried) */
+    uint64_t implausible;      /* FIFO counter or session changes that the elapsed time
+                                  cannot explain: ignored, not turned into samples or gaps */
     uint64_t overruns;         /* snapshot deadlines missed (samples given up as GAP) */
     uint64_t requests;         /* Modbus read requests sent */
     /* timing of emitted samples (intervals between consecutive SAMPLE times) */
