@@ -192,6 +192,17 @@ static vibid_drv_status try_connect(mb *m, vibid_drv_error *err)
     uint32_t sec = (uint32_t)c->response_timeout_s;
     uint32_t usec = (uint32_t)llround((c->response_timeout_s - sec) * 1e6);
     modbus_set_response_timeout(m->ctx, sec, usec);
+    /* Between the bytes of one answer libmodbus waits the byte timeout (default 0.5 s),
+     * per byte: a peer dripping its answer one byte per 0.45 s held one request for
+     * minutes. 50 ms (or 20 character times on a slow serial line) is far above any
+     * healthy gap inside an answer and bounds a request by the response timeout plus
+     * one such gap per byte that arrives. */
+    double byte_s = 0.05;
+    if (c->transport == VIBID_MODBUS_RTU && c->baud > 0 && 20.0 * 11.0 / c->baud > byte_s)
+        byte_s = 20.0 * 11.0 / c->baud;
+    if (byte_s > c->response_timeout_s)
+        byte_s = c->response_timeout_s;
+    modbus_set_byte_timeout(m->ctx, (uint32_t)byte_s, (uint32_t)llround((byte_s - floor(byte_s)) * 1e6));
     vibid_drv_status st = VIBID_DRV_OK;
     vibid_drv_error e2 = {0};
     if (modbus_connect(m->ctx) != 0) {
@@ -285,7 +296,11 @@ static bool decode_all(mb *m, const vibid_reg_entry *e, const uint16_t *const *r
     return true;
 }
 
-static void fifo_poll(mb *m)
+/* One poll: the counter, then the new records in requests of whole records, until the
+ * backlog is read or `deadline` (mono ns) passes (after one records request at least: a
+ * slow peer still delivers); the rest is read at the next poll, so a slow peer cannot hold
+ * one source read for many requests. */
+static void fifo_poll(mb *m, int64_t deadline)
 {
     m->st.polls++;
     uint16_t h[4];
@@ -418,7 +433,8 @@ static void fifo_poll(mb *m)
     }
     unsigned per_req = MAX_REQ / m->W;
     size_t taken = 0;
-    while (avail > 0 && taken < POLL_SAMPLES && rec_queue_space(&m->q) >= 2 * (size_t)per_req + 8) {
+    while (avail > 0 && taken < POLL_SAMPLES && rec_queue_space(&m->q) >= 2 * (size_t)per_req + 8 &&
+           (taken == 0 || mono_ns() < deadline)) { /* one request at least: a slow peer still delivers */
         unsigned back = S - m->s_next32; /* 1..K */
         unsigned slot = (ws + m->K - back) % m->K;
         unsigned cnt = avail < per_req ? avail : per_req;
@@ -602,6 +618,7 @@ static vibid_drv_status mb_read_src(vibid_source *src, vibid_record *recs, size_
     mb *m = src->impl;
     int64_t limit = wait_limit(timeout_ms);
     size_t k = 0;
+    bool acted = false; /* at least one connect attempt, poll or tick per call */
     for (;;) {
         k += rec_queue_hand_out(&m->q, recs + k, cap - k, &m->st, &m->last_count_t);
         if (k > 0) {
@@ -609,6 +626,14 @@ static vibid_drv_status mb_read_src(vibid_source *src, vibid_record *recs, size_
             return VIBID_DRV_OK;
         }
         int64_t now = mono_ns();
+        /* The caller's timeout bounds the call, not only its sleeps: a slow peer (every
+         * answer just under the response timeout) made one call issue dozens of requests,
+         * and SIGTERM waited for all of them. */
+        if (acted && now >= limit) {
+            *n = 0;
+            return VIBID_DRV_E_AGAIN;
+        }
+        acted = true;
         if (!m->connected) {
             if (now >= m->next_connect) {
                 vibid_drv_status st = try_connect(m, err);
@@ -637,7 +662,7 @@ static vibid_drv_status mb_read_src(vibid_source *src, vibid_record *recs, size_
             m->next_poll += m->poll_ns;
             if (m->next_poll < now)
                 m->next_poll = now + m->poll_ns;
-            fifo_poll(m);
+            fifo_poll(m, limit);
             continue;
         }
         /* snapshot: tick k_next is due at t0 + (k_next - k_at_t0) h */

@@ -435,6 +435,61 @@ full_disk)
     note "status: write_errors=$we; $(grep -c 'failed: No space' log) error lines logged"
     umount full
     ;;
+slow_peer)
+    # A Modbus peer that drips its answers one byte per 0.45 s (each byte within the 0.5 s
+    # response timeout): vibidd keeps running (a peer is never a reason to exit), counts
+    # the timeouts, and SIGTERM ends it within 2 s (before: ignored for more than 150 s,
+    # no fault counted, the watchdog stopped). Issue 12, item 2. The peer serves the
+    # drivers' test FIFO (3 channels at 100 Hz), mapped here onto a 2-DOF stand.
+    [ -x "${VIBID_PYTHON:-}" ] || fail "VIBID_PYTHON='${VIBID_PYTHON:-}' is not an executable venv interpreter"
+    port=$("$VIBID_PYTHON" -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
+    "$VIBID_PYTHON" "$SRC/tests/drivers/modbus_slow_server.py" --port "$port" --drip 0.45 --max-time 30 > srv.out 2>&1 &
+    srv=$!
+    for _ in $(seq 50); do grep -q READY srv.out && break; sleep 0.1; done
+    grep -q READY srv.out || fail "slow server did not start: $(cat srv.out)"
+    sed 's/sample_rate = 2000.0;/sample_rate = 100.0;/' "$STAND" > stand100.cfg
+    cat > v.cfg <<EOF
+stand = "stand100.cfg";
+source = {
+  kind = "modbus"; url = "tcp://127.0.0.1:$port"; mode = "fifo"; fifo_base = 1000; poll_period = 0.02;
+  response_timeout = 0.5; backoff_initial = 0.05; backoff_max = 0.4;
+  registers = (
+    { name = "a"; address = 0;  type = "FLOAT32"; byte_order = "ABCD"; },
+    { name = "b"; address = 2;  type = "INT16"; scale = 0.001; },
+    { name = "c"; address = 10; type = "FLOAT32"; byte_order = "CDAB"; }
+  );
+  channels = (
+    { name = "x1"; quantity = "displacement"; node = 0; unit = "m"; register = "a"; },
+    { name = "x2"; quantity = "displacement"; node = 1; unit = "m"; register = "b"; },
+    { name = "s";  quantity = "base_displacement"; node = 0; unit = "m"; register = "c"; }
+  );
+};
+outputs = { tracks = { path = "tracks.csv"; }; status = { path = "status"; interval = 0.2; }; };
+EOF
+    "$VIBIDD" -c v.cfg 2> log &
+    pid=$!
+    sleep 4
+    if ! kill -0 $pid 2>/dev/null; then
+        wait $pid
+        fail "vibidd ended by itself (exit $?): $(grep -v info log | tail -3)"
+    fi
+    t0=$(date +%s%N)
+    kill -TERM $pid
+    for _ in $(seq 100); do kill -0 $pid 2>/dev/null || break; sleep 0.05; done
+    t1=$(date +%s%N)
+    if kill -0 $pid 2>/dev/null; then
+        kill -9 $pid
+        fail "SIGTERM ignored for 5 s"
+    fi
+    wait $pid
+    kill $srv 2>/dev/null
+    wait $srv 2>/dev/null
+    ms=$(( (t1 - t0) / 1000000 ))
+    [ "$ms" -le 2000 ] || fail "SIGTERM took $ms ms"
+    to=$(status_val source_timeouts status)
+    { [ -n "$to" ] && [ "$to" -ge 3 ]; } || fail "source_timeouts '$to' (status: $(grep source_ status | tr '\n' ' '))"
+    note "SIGTERM honoured in $ms ms; source_timeouts=$to, source_link_losses=$(status_val source_link_losses status)"
+    ;;
 same_file)
     # Outputs that are the same file, or an output that is an input, are configuration
     # errors (exit 2, before anything is opened), in the run and in --check; the file

@@ -562,6 +562,80 @@ static void test_fifo_random_counter(void **state)
     vibid_regmap_destroy(rm);
 }
 
+/* A slow peer: every answer 0.45 s late (under the 0.5 s response timeout), or dripped
+ * one byte per 0.45 s. One source read with a 100 ms timeout must return within that
+ * timeout plus one poll's two requests (each bounded by the response timeout + the 50 ms
+ * byte timeout), so that the
+ * daemon's acquisition loop sees its stop flag (SIGTERM took 19 s with slow answers and
+ * more than 150 s with dripped ones); the dripped answers are counted as timeouts and
+ * end in a link loss and reconnects, never in a stall. */
+static void slow_run(const char *mode, double secs, double *max_call_s, vibid_source_stats *st)
+{
+    int port = free_port();
+    vibid_regmap *rm = load_regmap();
+    const char *py = getenv("VIBID_PYTHON");
+    if (!py || access(py, X_OK) != 0)
+        fail_msg("FAIL: VIBID_PYTHON='%s' is not an executable venv interpreter", py ? py : "");
+    char cmd[1024];
+    snprintf(cmd, sizeof cmd, "'%s' '%s' --port %d %s --max-time %g", py, VIBID_DRV_SLOW_SERVER_PY, port, mode,
+             secs + 3.0);
+    FILE *srv = popen(cmd, "r");
+    assert_non_null(srv);
+    char line[128];
+    if (!fgets(line, sizeof line, srv) || strncmp(line, "READY", 5) != 0)
+        fail_msg("slow server did not start (%s)", cmd);
+    vibid_source_modbus_config cfg = base_cfg(rm, port);
+    cfg.mode = VIBID_MODBUS_FIFO;
+    cfg.sample_period_s = 0.01; /* the slow server's 100 Hz: its ring holds 5 s */
+    cfg.poll_period_s = 0.02;
+    cfg.response_timeout_s = 0.5;
+    vibid_drv_error err = {0};
+    const int64_t t_open = mono();
+    vibid_source *s = vibid_source_open(&vibid_source_modbus_ops, &cfg, &err);
+    if (!s)
+        fail_msg("open: %s", err.text);
+    *max_call_s = (double)(mono() - t_open) * 1e-9;
+    static vibid_record r[256];
+    const int64_t end = mono() + (int64_t)(secs * 1e9);
+    while (mono() < end) {
+        size_t n;
+        const int64_t t0 = mono();
+        vibid_drv_status rs = vibid_source_read(s, r, 256, &n, 100, &err);
+        const double dt = (double)(mono() - t0) * 1e-9;
+        if (dt > *max_call_s)
+            *max_call_s = dt;
+        if (rs != VIBID_DRV_OK && rs != VIBID_DRV_E_AGAIN)
+            fail_msg("read: %s", err.text);
+    }
+    vibid_source_stats_get(s, st);
+    vibid_source_close(s);
+    drain_server(srv);
+    vibid_regmap_destroy(rm);
+}
+
+static void test_slow_peer(void **state)
+{
+    (void)state;
+    double max_call;
+    vibid_source_stats st;
+    slow_run("--delay 0.45", 3.0, &max_call, &st);
+    print_message("answers 0.45 s late: longest call %.3f s, %llu samples, %llu requests, %llu timeouts\n", max_call,
+                  (unsigned long long)st.samples, (unsigned long long)st.requests, (unsigned long long)st.timeouts);
+    /* 100 ms + the counter and one records request (2 x 0.45 s) + scheduling: 1.2 s;
+     * before: a poll read its whole backlog, several seconds */
+    assert_true(max_call < 1.2);
+    assert_true(st.samples > 0); /* slow but working: data still arrives */
+    slow_run("--drip 0.45", 4.0, &max_call, &st);
+    print_message("answers dripped 1 byte / 0.45 s: longest call %.3f s, %llu timeouts, %llu link losses, %llu "
+                  "reconnects\n",
+                  max_call, (unsigned long long)st.timeouts, (unsigned long long)st.link_losses,
+                  (unsigned long long)st.reconnects);
+    /* a request ends 50 ms after the first byte that is not followed in time: 0.5 s +
+     * 0.05 s + the 100 ms call timeout + scheduling < 0.9 s; before: minutes */
+    assert_true(max_call < 0.9);
+    assert_true(st.timeouts >= 3 && st.link_losses >= 1);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -573,6 +647,7 @@ int main(void)
         cmocka_unit_test(test_fifo_zero_header),
         cmocka_unit_test(test_fifo_flapping_session),
         cmocka_unit_test(test_fifo_random_counter),
+        cmocka_unit_test(test_slow_peer),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
