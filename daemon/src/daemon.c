@@ -265,20 +265,20 @@ static void *acq_main(void *arg)
                 if (vd_ring_push(d->ring, &f))
                     pending_overflow = 0;
             }
-            while (!vd_ring_push(d->ring, item)) {
-                if (!d->file_source) {
-                    if (!pending_overflow)
-                        first_lost = item->rec.index;
-                    pending_overflow++;
-                    break;
-                }
-                /* replay: wait for room, never drop */
+            /* replay: wait for room, never drop (and never count a refused push as an
+             * overflow: the status of a replay shows ring_overflows=0) */
+            while (d->file_source && vd_ring_full(d->ring)) {
                 atomic_fetch_add_explicit(&d->acq_wait_full, 1, memory_order_relaxed);
                 wake_consumer(d);
                 if (atomic_load(&d->stop_acq) && atomic_load(&d->est_done))
                     break;
                 struct timespec ts = {0, 50000};
                 nanosleep(&ts, NULL);
+            }
+            if (!vd_ring_push(d->ring, item) && !d->file_source) {
+                if (!pending_overflow)
+                    first_lost = item->rec.index;
+                pending_overflow++;
             }
         }
         if (n) {

@@ -35,6 +35,15 @@ void vd_ring_destroy(vd_ring *r)
 
 size_t vd_ring_capacity(const vd_ring *r) { return (size_t)r->mask + 1; }
 
+bool vd_ring_full(vd_ring *r)
+{
+    uint64_t head = atomic_load_explicit(&r->head, memory_order_relaxed);
+    if (head - r->tail_cache < r->mask + 1)
+        return false;
+    r->tail_cache = atomic_load_explicit(&r->tail, memory_order_acquire);
+    return head - r->tail_cache >= r->mask + 1;
+}
+
 bool vd_ring_push(vd_ring *r, const vd_item *item)
 {
     uint64_t head = atomic_load_explicit(&r->head, memory_order_relaxed);

@@ -58,6 +58,9 @@ size_t vd_ring_capacity(const vd_ring *r);
 
 /* Producer: copies *rec into the ring. false if full (counted in overflows). */
 bool vd_ring_push(vd_ring *r, const vd_item *item);
+/* Producer: true if a push now would be refused (nothing counted). A replay waits on it
+ * instead of pushing into a full ring, so its status shows no overflows (it drops none). */
+bool vd_ring_full(vd_ring *r);
 /* Consumer: copies the oldest record to *rec. false if empty. */
 bool vd_ring_pop(vd_ring *r, vd_item *item);
 /* Consumer: pointer to the oldest record without copying, NULL if empty; release it

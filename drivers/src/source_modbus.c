@@ -124,40 +124,39 @@ static vibid_drv_status fifo_check_header(mb *m, vibid_drv_error *err)
     uint16_t h[HDR_FIXED + VIBID_DRV_MAX_CHANNELS];
     unsigned want = HDR_FIXED + (unsigned)m->n;
     if (mb_read(m, VIBID_REG_HOLDING, m->B, want, h) != 0)
-        return vibid_drv_fail(err, VIBID_DRV_E_LINK, "Modbus %s: cannot read the FIFO header at %u: %s", m->where,
-                              m->B, m->last_error);
+        return vibid_drv_fail(err, VIBID_DRV_E_LINK, "cannot read the FIFO header at %u: %s", m->B, m->last_error);
     if (h[0] != VIBID_MODBUS_FIFO_MAGIC || h[1] != VIBID_MODBUS_FIFO_VERSION)
         return vibid_drv_fail(err, VIBID_DRV_E_RANGE,
-                              "Modbus %s: no vibid FIFO at holding register %u: magic 0x%04X version %u "
+                              "no vibid FIFO at holding register %u: magic 0x%04X version %u "
                               "(expected 0x%04X version %u; see modbus_fifo_layout.md)",
-                              m->where, m->B, h[0], h[1], VIBID_MODBUS_FIFO_MAGIC, VIBID_MODBUS_FIFO_VERSION);
+                              m->B, h[0], h[1], VIBID_MODBUS_FIFO_MAGIC, VIBID_MODBUS_FIFO_VERSION);
     unsigned C = h[2], W = h[3], K = h[4], D = h[5];
     uint32_t period = (uint32_t)h[6] << 16 | h[7];
     unsigned words = 1;
     for (size_t c = 0; c < m->n; c++)
         words += vibid_reg_type_words(m->ent[c].type);
     if (C != m->n)
-        return vibid_drv_fail(err, VIBID_DRV_E_RANGE, "Modbus %s: FIFO has %u channels, the channel map %zu",
-                              m->where, C, m->n);
+        return vibid_drv_fail(err, VIBID_DRV_E_RANGE, "FIFO has %u channels, the channel map %zu",
+                              C, m->n);
     if (W != words || W < 2 || W > MAX_REQ)
         return vibid_drv_fail(err, VIBID_DRV_E_RANGE,
-                              "Modbus %s: FIFO records have %u registers, the register map's channel types need %u",
-                              m->where, W, words);
+                              "FIFO records have %u registers, the register map's channel types need %u",
+                              W, words);
     if (K < 2 || K > 32767 || D < HDR_FIXED + C || (unsigned long)m->B + D + (unsigned long)K * W > 65536UL)
-        return vibid_drv_fail(err, VIBID_DRV_E_RANGE, "Modbus %s: FIFO capacity %u / data offset %u invalid",
-                              m->where, K, D);
+        return vibid_drv_fail(err, VIBID_DRV_E_RANGE, "FIFO capacity %u / data offset %u invalid",
+                              K, D);
     if (period == 0)
-        return vibid_drv_fail(err, VIBID_DRV_E_RANGE, "Modbus %s: FIFO period_ns is 0", m->where);
+        return vibid_drv_fail(err, VIBID_DRV_E_RANGE, "FIFO period_ns is 0");
     if (m->cfg.sample_period_s > 0 && fabs(m->cfg.sample_period_s * 1e9 - period) > 0.5)
-        return vibid_drv_fail(err, VIBID_DRV_E_RANGE, "Modbus %s: device samples every %u ns, configured %.9g s",
-                              m->where, period, m->cfg.sample_period_s);
+        return vibid_drv_fail(err, VIBID_DRV_E_RANGE, "device samples every %u ns, configured %.9g s",
+                              period, m->cfg.sample_period_s);
     for (size_t c = 0; c < m->n; c++) {
         unsigned type = h[HDR_FIXED + c] & 0xFF, order = h[HDR_FIXED + c] >> 8;
         if (type != (unsigned)m->ent[c].type || order != (unsigned)m->ent[c].order)
             return vibid_drv_fail(err, VIBID_DRV_E_RANGE,
-                                  "Modbus %s: FIFO channel %zu ('%s') has type code %u / byte order %u, register "
+                                  "FIFO channel %zu ('%s') has type code %u / byte order %u, register "
                                   "'%s' (line %u) says %u / %u",
-                                  m->where, c, m->cfg.chanmap.ch[c].name, type, order, m->ent[c].name,
+                                  c, m->cfg.chanmap.ch[c].name, type, order, m->ent[c].name,
                                   m->ent[c].line, (unsigned)m->ent[c].type, (unsigned)m->ent[c].order);
     }
     if (m->have_session && (W != m->W || K != m->K || D != m->D || period != m->period_ns))

@@ -158,6 +158,11 @@ VIBID_API vibid_status vibid_zoh(size_t n_states, size_t n_inputs, const double 
         MatrixXd Gm, Gam;
         vibid::zoh(cmap(A, n_states, n_states), n_inputs ? MatrixXd(cmap(Bv, n_states, n_inputs)) : MatrixXd(n_states, 0),
                    h, Gm, Gam);
+        // Finite A can still overflow e^{A h} (a growth rate of 1000/s over 1 s): that is
+        // no discretization, and the outputs are left untouched.
+        if (!Gm.allFinite() || !Gam.allFinite())
+            throw_error(VIBID_E_NUMERICAL, "e^{A h} overflows (h = %g s): some mode grows by more than 1e308 over one "
+                                           "sample", h);
         store(G, Gm);
         store(Gamma, Gam);
         return VIBID_OK;);

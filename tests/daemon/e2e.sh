@@ -117,6 +117,11 @@ replay_csv)
     [ "$rows" -eq 200 ] || fail "expected 200 rows (40000 samples / 200), got $rows"
     [ "$(status_val state status)" = stopped ] || fail "status state"
     [ "$(status_val samples status)" = 40000 ] || fail "status samples"
+    # a replay waits for room in the ring and drops nothing: no overflows in its status
+    # (before, every wait counted as one; issue 12, item 10)
+    [ "$(status_val ring_overflows status)" = 0 ] ||
+        fail "ring_overflows $(status_val ring_overflows status) in a replay (replay_waits $(status_val replay_waits status))"
+    note "replay_waits $(status_val replay_waits status), ring_overflows 0"
     ;;
 replay_candump)
     $GEN "$STAND" --duration 20 --noise 0.001 --seed 2 --candump cap.log 2>/dev/null || fail "generator"

@@ -389,14 +389,14 @@ static void test_silent_server(void **state)
  * order, gaps only as GAP records), gap samples and faults; fault texts containing `want`
  * counted in *matched. Returns the last s (-1: none). */
 typedef struct {
-    uint64_t samples, gap_samples, faults, matched, backwards;
+    uint64_t samples, gap_samples, faults, matched, backwards, doubled_prefix;
     long first_s, last_s;
 } read_tally;
 
 static read_tally read_for(vibid_source *s, double secs, const char *want)
 {
     static vibid_record r[256];
-    read_tally t = {0, 0, 0, 0, 0, -1, -1};
+    read_tally t = {0, 0, 0, 0, 0, 0, -1, -1};
     uint64_t next_k = 0;
     vibid_drv_error err = {0};
     int64_t end = mono() + (int64_t)(secs * 1e9);
@@ -410,6 +410,9 @@ static read_tally read_for(vibid_source *s, double secs, const char *want)
                 t.faults++;
                 if (want && strstr(r[i].text, want))
                     t.matched++;
+                const char *p = strstr(r[i].text, "Modbus ");
+                if (p && strstr(p + 7, "Modbus 127.0.0.1"))
+                    t.doubled_prefix++; /* "Modbus host:port: Modbus host:port: ..." */
                 continue;
             }
             if (next_k == 0 && t.samples == 0 && t.gap_samples == 0)
@@ -463,6 +466,7 @@ static void test_fifo_wrong_base(void **state)
                   (unsigned long long)t.matched, (unsigned long long)st.connect_failures,
                   (unsigned long long)t.samples);
     assert_true(t.matched >= 2 && st.connect_failures >= 2); /* retried, not given up */
+    assert_int_equal(t.doubled_prefix, 0); /* the log line names the device once */
     assert_int_equal(t.samples, 0);
     vibid_source_close(s);
     cfg.fifo_base = 0;

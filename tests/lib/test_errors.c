@@ -38,6 +38,20 @@ static void test_last_error_names_entry_point(void **state) {
     assert_true(strncmp(vibid_last_error(), "vibid_lsq_create: ", 18) == 0);
 }
 
+/* vibid_zoh: non-finite input and an overflowing exponential are errors, and the outputs
+ * stay as they were (issue 12, item 10: it returned OK with Inf in G). */
+static void test_zoh_refuses_overflow(void **state) {
+    (void)state;
+    double A[1] = {NAN}, B[1] = {1.0}, G[1] = {-7.0}, Gam[1] = {-7.0};
+    assert_int_equal(vibid_zoh(1, 1, A, B, 1e-3, G, Gam), VIBID_E_NONFINITE);
+    A[0] = 1e3; /* e^{1000 * 1 s} overflows */
+    assert_int_equal(vibid_zoh(1, 1, A, B, 1.0, G, Gam), VIBID_E_NUMERICAL);
+    assert_non_null(strstr(vibid_last_error(), "overflows"));
+    assert_true(G[0] == -7.0 && Gam[0] == -7.0);
+    assert_int_equal(vibid_zoh(1, 1, A, B, 1e-3, G, Gam), VIBID_OK); /* e^1: fine */
+    assert_true(fabs(G[0] - exp(1.0)) < 1e-12 * exp(1.0));
+}
+
 static void test_version(void **state) {
     (void)state;
     assert_string_equal(vibid_version_string(), VIBID_VERSION_STRING);
@@ -48,6 +62,7 @@ int main(void) {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_strerror_covers_every_status),
         cmocka_unit_test(test_last_error_names_entry_point),
+        cmocka_unit_test(test_zoh_refuses_overflow),
         cmocka_unit_test(test_version),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);

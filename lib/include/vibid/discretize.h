@@ -36,7 +36,9 @@ typedef struct vibid_log_info {
  * input matrix), computed as the exponential of the augmented matrix [A Bv; 0 0] h, so
  * singular A is fine.
  *   n_states 1..512, n_inputs 0..512; A n x n, Bv n x n_inputs (NULL if 0); h > 0 in s;
- *   G n x n, Gamma n x n_inputs (NULL if 0). */
+ *   G n x n, Gamma n x n_inputs (NULL if 0).
+ * VIBID_E_NONFINITE for NaN/Inf in A or Bv; VIBID_E_NUMERICAL when e^{A h} overflows (a
+ * mode growing by more than 1e308 over one sample); G and Gamma are then left untouched. */
 VIBID_API vibid_status vibid_zoh(size_t n_states, size_t n_inputs, const double *A, const double *Bv, double h,
                                  double *G, double *Gamma);
 
