@@ -762,17 +762,22 @@ static int load_log(ctx *c, config_t *cf)
     return get_double(c, g, "log", "status_interval", 0.0, 0.0, 86400.0, &cfg->log_status_interval_s);
 }
 
+void vd_path_dir(const char *path, char *dir, size_t n)
+{
+    const char *slash = strrchr(path, '/');
+    if (slash)
+        snprintf(dir, n, "%.*s", slash == path ? 1 : (int)(slash - path), path);
+    else
+        snprintf(dir, n, ".");
+}
+
 int vd_config_load(const char *path, vd_config *cfg, vd_config_error *err)
 {
     memset(cfg, 0, sizeof *cfg);
     memset(err, 0, sizeof *err);
     ctx c = {path, err, cfg};
     snprintf(cfg->path, sizeof cfg->path, "%s", path);
-    const char *slash = strrchr(path, '/');
-    if (slash)
-        snprintf(cfg->dir, sizeof cfg->dir, "%.*s", (int)(slash - path) ? (int)(slash - path) : 1, path);
-    else
-        snprintf(cfg->dir, sizeof cfg->dir, ".");
+    vd_path_dir(path, cfg->dir, sizeof cfg->dir);
     config_t cf;
     config_init(&cf);
     config_set_include_dir(&cf, cfg->dir);
@@ -840,10 +845,7 @@ static int path_identity(const char *path, path_id *id)
     }
     char dir[PATH_MAX], real[PATH_MAX];
     const char *slash = strrchr(path, '/');
-    if (slash)
-        snprintf(dir, sizeof dir, "%.*s", slash == path ? 1 : (int)(slash - path), path);
-    else
-        snprintf(dir, sizeof dir, ".");
+    vd_path_dir(path, dir, sizeof dir);
     if (!realpath(dir, real)) return -1; /* a missing directory: the writers report it */
     snprintf(id->canon, sizeof id->canon, "%s/%s", real, slash ? slash + 1 : path);
     return 0;

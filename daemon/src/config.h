@@ -133,6 +133,9 @@ typedef struct vd_config {
 
 /* Reads and checks the file. Returns 0, or -1 with *err filled. On success the
  * config owns the stand, DBC and register map: release with vd_config_free. */
+/* The directory part of path into dir (n bytes): "." without a slash, "/" for a file in
+ * the root. */
+void vd_path_dir(const char *path, char *dir, size_t n);
 int vd_config_load(const char *path, vd_config *cfg, vd_config_error *err);
 void vd_config_free(vd_config *cfg);
 /* Outputs must not destroy each other or the inputs: any two of the output paths (tracks,

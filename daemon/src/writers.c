@@ -397,11 +397,7 @@ static int check_output_path(const char *what, const char *path, char *err, size
     if (!path[0])
         return 0;
     char dir[VD_PATH_MAX];
-    const char *slash = strrchr(path, '/');
-    if (slash)
-        snprintf(dir, sizeof dir, "%.*s", slash == path ? 1 : (int)(slash - path), path);
-    else
-        snprintf(dir, sizeof dir, ".");
+    vd_path_dir(path, dir, sizeof dir);
     struct stat st;
     if (stat(dir, &st) != 0) {
         snprintf(err, cap, "%s %s: the directory %s: %s", what, path, dir, strerror(errno));

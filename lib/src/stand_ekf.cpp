@@ -902,7 +902,7 @@ vibid_status StandEkf::step(const double *prev, const double *cur) {
     const Index n = n_, nx = nx_;
     const double h = set_.h;
     const double s_k = base_disp(prev);
-    x_prev_ = a_.head(nx);
+    if (set_.kf_rls) x_prev_ = a_.head(nx);  // the regression's start of the interval
     // xi0 = [x_k (+ kick); e_k; slopes]
     VecX &x0 = xi_[0];
     x0.setZero();

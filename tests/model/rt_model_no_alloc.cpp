@@ -28,6 +28,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <new>
+#include <initializer_list>
 #include <vector>
 
 #include <fcntl.h>
@@ -268,26 +269,26 @@ void run_ekf(const vibid_model *m, vibid_estimator est, double forgetting) {
     vibid_ident_destroy(id);
 }
 
-void test_ekf_no_alloc(void **state) {
-    (void)state;
-    for (int variant : {0, 1}) {
+// run_ekf on each model variant, without and with forgetting.
+void run_variants(vibid_estimator est, std::initializer_list<int> variants) {
+    for (int variant : variants) {
         vibid_model *m = make_ekf_model(variant);
-        run_ekf(m, VIBID_ESTIMATOR_EKF, 1.0);
-        run_ekf(m, VIBID_ESTIMATOR_EKF, 0.999);
+        run_ekf(m, est, 1.0);
+        run_ekf(m, est, 0.999);
         vibid_model_destroy(m);
     }
+}
+
+void test_ekf_no_alloc(void **state) {
+    (void)state;
+    run_variants(VIBID_ESTIMATOR_EKF, {0, 1});
 }
 
 // The KF+RLS (VIBID_ESTIMATOR_KF_RLS): the same path with the regression on the
 // parameters (its scale pass at the start, its steps, its covariance in estimates).
 void test_kf_rls_no_alloc(void **state) {
     (void)state;
-    for (int variant : {1, 2}) {
-        vibid_model *m = make_ekf_model(variant);
-        run_ekf(m, VIBID_ESTIMATOR_KF_RLS, 1.0);
-        run_ekf(m, VIBID_ESTIMATOR_KF_RLS, 0.999);
-        vibid_model_destroy(m);
-    }
+    run_variants(VIBID_ESTIMATOR_KF_RLS, {1, 2});
 }
 
 }  // namespace
