@@ -195,6 +195,23 @@ std::string strprintf(const char *fmt, ...) {
     return buf;
 }
 
+// The model's inputs held between samples (VIBID_HOLD_ZOH), the base as "base", comma
+// separated; empty when every input is smooth.
+std::string held_signals(const vibid_model &m) {
+    std::string held;
+    for (const auto &u : m.inputs)
+        if (u.hold == VIBID_HOLD_ZOH) held += (held.empty() ? "" : ", ") + u.name;
+    if (m.has_base && m.base_hold == VIBID_HOLD_ZOH) held += held.empty() ? "base" : ", base";
+    return held;
+}
+
+// Restarts the difference window, the pre-filter and the instrument ring together, so
+// that every later row is again an exact regression (after a gap or an overflowing row).
+void restart_window(vibid_ident &id) {
+    vibid_regressor_reset(id.reg);
+    id.n_built = 0;
+}
+
 // Resolves every automatic setting of cfg for the model and writes why into `why`.
 vibid_ident_config resolve_config(const vibid_model &m, const vibid_ident_config &cfg, double f_nominal_max,
                                   std::string &why) {
@@ -285,10 +302,7 @@ vibid_ident_config resolve_config(const vibid_model &m, const vibid_ident_config
                          1.0 / (1.0 - cfg.forgetting), h / (1.0 - cfg.forgetting));
     else
         why += "forgetting: none (every sample counts alike)\n";
-    std::string held;
-    for (const auto &u : m.inputs)
-        if (u.hold == VIBID_HOLD_ZOH) held += (held.empty() ? "" : ", ") + u.name;
-    if (m.has_base && m.base_hold == VIBID_HOLD_ZOH) held += held.empty() ? "base" : ", base";
+    const std::string held = held_signals(m);
     if (!held.empty())
         why += "held inputs: " + held +
                (zoh ? " (exact in the ZOH form)\n" : " (entered as their hold equivalents, regressor.h)\n");
@@ -586,9 +600,8 @@ std::unique_ptr<vibid_ident> create_ident(const vibid_model *model, const vibid_
     // Not with held inputs: their hold equivalents describe a hold of h, which every
     // second sample does not show (on the held-base test stand the check reported 10 to
     // 100 times the actual errors); the a-priori bound stays for them.
-    bool held = model->has_base && model->base_hold == VIBID_HOLD_ZOH;
-    for (const auto &u : model->inputs) held = held || u.hold == VIBID_HOLD_ZOH;
-    if (with_check && id->biv && !id->zoh && !held && rcfg.prefilter_hz < 0.45 / (2.0 * rcfg.sample_time)) {
+    if (with_check && id->biv && !id->zoh && held_signals(*model).empty() &&
+        rcfg.prefilter_hz < 0.45 / (2.0 * rcfg.sample_time)) {
         vibid_ident_config hc = rcfg;
         hc.estimator = VIBID_ESTIMATOR_IV;
         hc.sample_time = 2.0 * rcfg.sample_time;
@@ -727,14 +740,11 @@ VIBID_API vibid_status vibid_ident_push(vibid_ident *ident, const double *channe
     int ready = 0;
     vibid_status s = vibid_regressor_push(ident->reg, channels, ident->x.data(), ident->y.data(), &ready);
     if (s != VIBID_OK) {
-        // A gap: restart the difference window, the pre-filter and the instrument ring
-        // together, so that every later row is again an exact regression.
+        // A gap: both this estimator and its discretization check start afresh.
         if (s == VIBID_E_NONFINITE) {
-            vibid_regressor_reset(ident->reg);
-            ident->n_built = 0;
+            restart_window(*ident);
             if (ident->half) {
-                vibid_regressor_reset(ident->half->reg);
-                ident->half->n_built = 0;
+                restart_window(*ident->half);
                 ident->half_take = true;
             }
         }
@@ -760,8 +770,7 @@ VIBID_API vibid_status vibid_ident_push(vibid_ident *ident, const double *channe
     case VIBID_ESTIMATOR_AUTO: {
         // A cubic term of a wild sample can overflow: such a row would poison every sum.
         if (!vibid::all_finite(ident->x.data(), p * m) || !vibid::all_finite(ident->y.data(), m * ident->q)) {
-            vibid_regressor_reset(ident->reg);
-            ident->n_built = 0;
+            restart_window(*ident);
             return VIBID_FAIL(VIBID_E_NONFINITE, "regressor overflow (non-finite row): window restarted");
         }
         const std::size_t L = ident->cfg.iv_lag, slots = L + 1, block = p * m;
