@@ -306,35 +306,37 @@ NB_MODULE(_core, m) {
         .def_prop_ro("params", &Stand::params)
         .def_prop_ro("n_dof", [](const Stand &s) { return s.dims().n_dof; });
 
-    nb::class_<Estimate>(m, "Estimate")
-        .def_ro("status", &Estimate::status)
-        .def_ro("message", &Estimate::message)
-        .def_prop_ro("theta", [](Estimate &e) { return to_numpy(std::vector<double>(e.theta)); })
-        .def_prop_ro("se", [](Estimate &e) { return to_numpy(std::vector<double>(e.se)); })
-        .def_prop_ro("covariance",
-                     [](Estimate &e) {
-                         return to_numpy(std::vector<double>(e.cov), e.theta.size(), e.theta.size());
-                     })
-        .def_prop_ro("freq_hz", [](Estimate &e) { return to_numpy(std::vector<double>(e.freq)); })
-        .def_prop_ro("freq_hz_se", [](Estimate &e) { return to_numpy(std::vector<double>(e.freq_se)); })
-        .def_prop_ro("zeta", [](Estimate &e) { return to_numpy(std::vector<double>(e.zeta)); })
-        .def_prop_ro("zeta_se", [](Estimate &e) { return to_numpy(std::vector<double>(e.zeta_se)); })
-        .def_ro("quality", &Estimate::quality)
-        .def_ro("param_quality", &Estimate::param_quality)
-        .def_ro("param_implausible", &Estimate::param_implausible)
-        .def_ro("mode_implausible", &Estimate::mode_implausible)
-        .def_ro("implausible", &Estimate::implausible)
-        .def_ro("why", &Estimate::why)
-        .def_ro("z_consistency", &Estimate::z_consistency)
-        .def_ro("n_blocks", &Estimate::n_blocks)
-        .def_ro("n_samples", &Estimate::n_samples);
-
     nb::class_<Ident>(m, "Ident")
         // keep_alive: the identification reads the stand's model (plausibility, modes).
         .def(nb::init<const Stand &, int, double, double, size_t>(), "stand"_a, "estimator"_a, "forgetting"_a,
              "prefilter_hz"_a, "iv_lag"_a, nb::keep_alive<1, 2>())
         .def("push", &Ident::push, "data"_a, "start"_a, "stop"_a)
-        .def("estimate", &Ident::estimate)
+        // A dict of plain values and arrays that own their storage (moved, not copied).
+        .def("estimate",
+             [](Ident &id) {
+                 Estimate e = id.estimate();
+                 const size_t p = e.theta.size();
+                 nb::dict d;
+                 d["status"] = e.status;
+                 d["message"] = e.message;
+                 d["theta"] = to_numpy(std::move(e.theta)).cast();
+                 d["se"] = to_numpy(std::move(e.se)).cast();
+                 d["covariance"] = to_numpy(std::move(e.cov), p, p).cast();
+                 d["freq_hz"] = to_numpy(std::move(e.freq)).cast();
+                 d["freq_hz_se"] = to_numpy(std::move(e.freq_se)).cast();
+                 d["zeta"] = to_numpy(std::move(e.zeta)).cast();
+                 d["zeta_se"] = to_numpy(std::move(e.zeta_se)).cast();
+                 d["quality"] = e.quality;
+                 d["param_quality"] = e.param_quality;
+                 d["param_implausible"] = e.param_implausible;
+                 d["mode_implausible"] = e.mode_implausible;
+                 d["implausible"] = e.implausible;
+                 d["why"] = e.why;
+                 d["z_consistency"] = e.z_consistency;
+                 d["n_blocks"] = e.n_blocks;
+                 d["n_samples"] = e.n_samples;
+                 return d;
+             })
         .def("describe", &Ident::describe)
         .def("config", &Ident::config);
 

@@ -152,18 +152,18 @@ class Result:
         self.tracks = tracks
         self.n_samples = n_samples
         self.diverged_samples = diverged_samples
-        theta, se = est.theta, est.se
+        theta, se = est["theta"], est["se"]
         truth = np.asarray(stand.true_values, dtype=float)
         with np.errstate(divide="ignore", invalid="ignore"):
             z = (theta - truth) / se
         pflags = []
         for i in range(len(theta)):
             f = ""
-            if est.param_implausible[i]:
+            if est["param_implausible"][i]:
                 f += "P"
-            if est.param_quality[i] & _core.QUALITY_SE_INVALID:
+            if est["param_quality"][i] & _core.QUALITY_SE_INVALID:
                 f += "U"
-            if est.param_quality[i] & _core.QUALITY_NOT_EXCITED:
+            if est["param_quality"][i] & _core.QUALITY_NOT_EXCITED:
                 f += "I"
             pflags.append(f)
         self.parameters = pd.DataFrame(
@@ -171,13 +171,13 @@ class Result:
              "flags": pflags},
             index=pd.Index(stand.parameters, name="parameter"))
         self.modes = pd.DataFrame(
-            {"freq_hz": est.freq_hz, "freq_hz_se": est.freq_hz_se, "zeta": est.zeta, "zeta_se": est.zeta_se,
-             "flags": ["P" if f else "" for f in est.mode_implausible]},
-            index=pd.Index(range(1, len(est.freq_hz) + 1), name="mode"))
-        self.covariance = np.array(est.covariance)
-        self.flags = _flags(True, est.implausible, est.quality)
-        self.why = est.why
-        self.z_consistency = est.z_consistency
+            {"freq_hz": est["freq_hz"], "freq_hz_se": est["freq_hz_se"], "zeta": est["zeta"], "zeta_se": est["zeta_se"],
+             "flags": ["P" if f else "" for f in est["mode_implausible"]]},
+            index=pd.Index(range(1, len(est["freq_hz"]) + 1), name="mode"))
+        self.covariance = np.array(est["covariance"])
+        self.flags = _flags(True, est["implausible"], est["quality"])
+        self.why = est["why"]
+        self.z_consistency = est["z_consistency"]
 
     @property
     def method(self) -> str:
@@ -256,20 +256,20 @@ def identify(stand: Stand | str | os.PathLike, data: Any, method: str = "auto",
             idx = stop - 1
             row = {"time_s": t[idx] if t is not None else idx / stand.sample_rate, "index": idx}
             for i, p in enumerate(names):
-                row[p] = e.theta[i]
-                row[p + "_se"] = e.se[i]
-            for i in range(len(e.freq_hz)):
-                row[f"f{i + 1}_hz"] = e.freq_hz[i]
-                row[f"f{i + 1}_hz_se"] = e.freq_hz_se[i]
-                row[f"zeta{i + 1}"] = e.zeta[i]
-                row[f"zeta{i + 1}_se"] = e.zeta_se[i]
-            row["flags"] = _flags(e.status == 0, e.implausible, e.quality)
+                row[p] = e["theta"][i]
+                row[p + "_se"] = e["se"][i]
+            for i in range(len(e["freq_hz"])):
+                row[f"f{i + 1}_hz"] = e["freq_hz"][i]
+                row[f"f{i + 1}_hz_se"] = e["freq_hz_se"][i]
+                row[f"zeta{i + 1}"] = e["zeta"][i]
+                row[f"zeta{i + 1}_se"] = e["zeta_se"][i]
+            row["flags"] = _flags(e["status"] == 0, e["implausible"], e["quality"])
             rows.append(row)
         final = e if n else ident.estimate()
     else:
         diverged += ident.push(block, 0, n)
         final = ident.estimate()
-    if final.status != 0:
-        raise VibidError(f"vibid_ident_estimate after {n} samples: {final.message}")
+    if final["status"] != 0:
+        raise VibidError(f"vibid_ident_estimate after {n} samples: {final['message']}")
     tracks = pd.DataFrame(rows)
     return Result(stand, final, ident.describe(), config, tracks, n, diverged)
