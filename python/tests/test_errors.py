@@ -106,7 +106,7 @@ def test_stand_file_error_names_file_and_line(tmp_path):
 
 def test_stand_file_syntax_error(tmp_path):
     path = tmp_path / "syntax.cfg"
-    path.write_text('stand = {\n  name = "x"\n  sample_rate = 1.0;\n};\n')  # missing ';' on line 2
+    path.write_text('stand = {\n  name = "x";\n  sample_rate = = 1.0;\n};\n')  # '= =' on line 3
     with pytest.raises(vibid.VibidError, match=re.escape(str(path)) + r":3: "):
         vibid.Stand.load(path)
 
@@ -117,7 +117,7 @@ def test_missing_stand_file(tmp_path):
 
 
 def test_from_dict_error_names_field():
-    with pytest.raises(vibid.VibidError, match=r"stand\.nodes\.\[0\]\.mass_unknown: unknown setting"):
+    with pytest.raises(vibid.VibidError, match=r"^stand dict: stand\.nodes\.\[0\]\.mass_unknown: unknown setting"):
         vibid.Stand.from_dict({"sample_rate": 100.0,
                                "nodes": [{"name": "m1", "mass_unknown": True, "measure": {"displacement": "x"}}]})
 

@@ -9,7 +9,7 @@ import pandas as pd
 import pytest
 
 import vibid
-from conftest import EX1_TRUTH, example1_capture, example1_modes
+from conftest import EX1_TRUTH, EXAMPLE1, example1_capture, example1_modes
 
 
 def rel_err(result):
@@ -20,7 +20,10 @@ def rel_err(result):
 def test_auto_noise_free_example1(example1_stand, ex1_clean):
     data, _ = ex1_clean
     r = vibid.identify(example1_stand, data)
-    assert r.method == "iv"  # auto resolves to IV with block statistics (identify.h)
+    assert r.method == "auto"
+    # what auto chose, in the library's words (identify.h: IV with block statistics)
+    assert r.description.startswith("estimator: instrumental variables with block statistics")
+    assert r.config["prefilter_hz"] == 100.0  # f_a / 20: the stand gives no nominal values
     assert list(r.parameters.index) == ["c1", "d", "c2"]
     assert list(r.parameters["unit"]) == ["N/m", "N s/m", "N/m"]
     err = rel_err(r)
@@ -98,13 +101,24 @@ def test_rls_tracks_converge(example1_stand, ex1_clean):
     last = tr.iloc[-1]
     for p in ["c1", "d", "c2"]:
         assert last[p] == r.parameters.loc[p, "value"]
-    # RLS on central differences: within 1 % at the end (bias (w h)^2/6 as for LS), and
-    # the spring c2 is closer at the end than after the first second.
-    for name, e in rel_err(r).items():
-        assert abs(e) < 1e-2, (name, e)
-    first_err = abs(tr["c2"].iloc[0] / EX1_TRUTH["c2"] - 1)
-    assert abs(last["c2"] / EX1_TRUTH["c2"] - 1) <= first_err
+    # RLS on the automatic pre-filter and stencils, noise-free: within 1e-3 from the first
+    # second on (README: RLS noise-free with the automatic prior, errors of 1e-5..1e-3 relative)
+    for p in ["c1", "d", "c2"]:
+        err = np.abs(tr[p] / EX1_TRUTH[p] - 1)
+        assert (err < 1e-3).all(), (p, err.max())
+    # measured: largest |error| over all rows 1.9e-5 (c2)
     assert all("U" in f for f in tr["flags"])  # RLS: textbook errors, flagged
+
+
+def test_rls_tracks_with_noise(example1_stand):
+    # 0.5 % noise: the standard errors shrink as the samples come (about as 1/sqrt(N): ten
+    # times the samples, a third; measured c1 119.6 -> 22.9 N/m, 0.19), and the estimates
+    # stay within 1 % all along (measured: largest 0.28 %, d after the first second).
+    data, _ = example1_capture(noise=0.005, seed=2)
+    tr = vibid.identify(example1_stand, data, method="rls", track_every=2000).tracks
+    for p in ["c1", "d", "c2"]:
+        assert tr[p + "_se"].iloc[-1] < 0.5 * tr[p + "_se"].iloc[0], (p, tr[p + "_se"].iloc[[0, -1]])
+        assert (np.abs(tr[p] / EX1_TRUTH[p] - 1) < 1e-2).all(), (p, tr[p])
 
 
 def test_default_tracks_for_recursive_settings(example1_stand, ex1_clean):
@@ -117,18 +131,22 @@ def test_default_tracks_for_recursive_settings(example1_stand, ex1_clean):
 
 def test_block_and_strided_paths_agree(example1_stand, ex1_clean):
     # The dict is gathered into one column-major block and pushed by vibid_ident_push_block;
-    # a C-order 2-D array and tracks go through the strided row loop. Same samples, same
-    # estimator: bit-identical results, or the strides are wrong.
+    # a C-order 2-D array goes through the strided row loop. Same samples, same estimator:
+    # bit-identical results, or the strides are wrong.
     data, _ = ex1_clean
     r_block = vibid.identify(example1_stand, data)
     arr = np.column_stack([data[c] for c in example1_stand.channels])  # C order
     assert arr.flags.c_contiguous and not arr.flags.f_contiguous
     r_rows = vibid.identify(example1_stand, arr)
+    np.testing.assert_array_equal(r_rows.parameters["value"], r_block.parameters["value"])
+    np.testing.assert_array_equal(r_rows.parameters["se"], r_block.parameters["se"])
+    np.testing.assert_array_equal(r_rows.covariance, r_block.covariance)
+    # Tracks push ranges of rows and estimate in between; an estimate in between rounds the
+    # estimator's running sums differently (measured: 1.8e-15 relative), so 1e-12 here; a
+    # row range off by one sample would move the estimate by far more.
     r_tracked = vibid.identify(example1_stand, data, track_every=777)
-    for r in (r_rows, r_tracked):
-        np.testing.assert_array_equal(r.parameters["value"], r_block.parameters["value"])
-        np.testing.assert_array_equal(r.parameters["se"], r_block.parameters["se"])
-        np.testing.assert_array_equal(r.covariance, r_block.covariance)
+    np.testing.assert_allclose(r_tracked.parameters["value"], r_block.parameters["value"], rtol=1e-12, atol=0)
+    np.testing.assert_allclose(r_tracked.parameters["se"], r_block.parameters["se"], rtol=1e-9, atol=0)
 
 
 def test_dataframe_csv_and_dict_stand(tmp_path, example1_stand, ex1_clean):
@@ -139,7 +157,7 @@ def test_dataframe_csv_and_dict_stand(tmp_path, example1_stand, ex1_clean):
     np.testing.assert_array_equal(r_df.parameters["value"], ref.parameters["value"])
     csv = tmp_path / "capture.csv"
     df.to_csv(csv, index=False, float_format="%.17g")  # round-trips doubles exactly
-    r_csv = vibid.identify(str(csv), csv)  # stand given as a path too
+    r_csv = vibid.identify(str(EXAMPLE1), csv)  # stand given as a path too
     np.testing.assert_array_equal(r_csv.parameters["value"], ref.parameters["value"])
     # the same stand as a dict: one reader (the C loader), so the same model
     stand_dict = {

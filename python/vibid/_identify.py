@@ -106,7 +106,7 @@ def _columns(stand: Stand, data: Any) -> tuple[np.ndarray, Optional[np.ndarray]]
     if not finite.all():
         col = int(np.argmin(finite.all(axis=0)))
         row = int(np.argmin(finite[:, col]))
-        raise ValueError(f"channel {channels[col]!r}: non-finite value {block[row, col]!r} at row {row} "
+        raise ValueError(f"channel {channels[col]!r}: non-finite value {float(block[row, col])!r} at row {row} "
                          "(the estimators would restart their difference windows there; remove or fill gaps first)")
     if t is not None and len(t) > 2:
         # As vibidd: a capture whose rate is more than 1 % off the stand's is refused,

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 import tempfile
 from typing import Any, Mapping
 
@@ -89,14 +90,18 @@ class Stand:
     def from_dict(cls, d: Mapping) -> "Stand":
         """The same schema as a stand file, as nested dicts and lists: e.g.
         ``{"name": "s", "sample_rate": 1000.0, "nodes": [{"name": "m1", ...}], ...}``.
-        Written to a temporary libconfig file and read by the C loader; error messages
-        name the temporary file and the field."""
+        Written to a temporary libconfig file and read by the C loader, so the checks are
+        the stand file's; an error names the field (``stand dict: stand.nodes.[0].mass: ...``),
+        not the temporary file, whose name and line mean nothing to the caller."""
         text = to_libconfig(d)
         fd, path = tempfile.mkstemp(prefix="vibid-stand-", suffix=".cfg")
         try:
             with os.fdopen(fd, "w") as f:
                 f.write(text)
-            return cls(_core.Stand(path), "<dict>")
+            try:
+                return cls(_core.Stand(path), "<dict>")
+            except _core.VibidError as e:
+                raise _core.VibidError(re.sub(re.escape(path) + r":\d+: ", "stand dict: ", str(e))) from None
         finally:
             os.unlink(path)
 
