@@ -50,3 +50,5 @@ def test_tracks_equal_vibidd_replay(tmp_path, ex1_clean, method):
     np.testing.assert_allclose(theirs[value_cols].to_numpy(float), ours[value_cols].to_numpy(float),
                                rtol=1e-9, atol=0)
     assert list(theirs["flags"].fillna("")) == list(ours["flags"])
+    # time_s: the capture's t of the row's last sample in both (vibidd: microseconds)
+    np.testing.assert_allclose(theirs["time_s"], ours["time_s"], rtol=0, atol=1e-6)
