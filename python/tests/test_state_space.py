@@ -67,3 +67,17 @@ def test_kf_rls_is_flagged_and_close():
     assert "U" in r.flags and all("U" in f for f in r.tracks["flags"])
     err = r.parameters.loc["c1", "value"] / C1 - 1
     assert abs(err) < 2e-2, err
+
+
+def test_no_true_value_no_z():
+    # Without true_value the nominal value is a start value, not a truth: no z.
+    d = dict(STAND)
+    d["elements"] = [dict(e) for e in STAND["elements"]]
+    del d["elements"][0]["true_value"]
+    st = vibid.Stand.from_dict(d)
+    assert st.nominal_values == [1.0e5]
+    assert np.isnan(st.true_values[0])
+    r = vibid.identify(st, capture(n=5000), method="ekf", track_every=0)
+    assert np.isnan(r.parameters.loc["c1", "true_value"]) and np.isnan(r.parameters.loc["c1", "z"])
+    assert np.isfinite(r.parameters.loc["c1", "value"])
+    assert len(r.tracks) == 0  # track_every=0: none, even for a recursive estimator
