@@ -161,9 +161,11 @@ public:
         const int64_t rs = data.stride(0), cs = data.stride(1);  // in elements
         vibid_status s = VIBID_OK;
         size_t diverged = 0, bad_row = 0;
+        bool whole_block = false;
         {
             nb::gil_scoped_release release;
-            if (!state_space_ && start == 0 && stop == n && rs == 1 && cs == static_cast<int64_t>(n)) {
+            whole_block = !state_space_ && start == 0 && stop == n && rs == 1 && cs == static_cast<int64_t>(n);
+            if (whole_block) {
                 // The whole column-major block: straight to the C API, no copy.
                 s = vibid_ident_push_block(ident_.get(), n, base);
             } else {
@@ -188,7 +190,9 @@ public:
             }
         }
         if (s != VIBID_OK) {
-            std::string what = "vibid_ident_push (row " + std::to_string(bad_row) + ")";
+            // push_block does not say which sample failed; the row loop does.
+            std::string what = whole_block ? std::string("vibid_ident_push_block")
+                                           : "vibid_ident_push (row " + std::to_string(bad_row) + ")";
             raise_status(what.c_str(), s);
         }
         return diverged;

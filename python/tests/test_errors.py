@@ -140,3 +140,18 @@ def test_not_identifiable_names_parameters():
         vibid.identify(st, data)
     msg = str(ei.value)
     assert "ka" in msg and "kb" in msg, msg
+
+
+def test_binding_reports_push_status(example1_stand):
+    # Below identify's own checks: the C status and message reach Python as VibidError,
+    # with the row where the row loop stopped (push_block does not say which sample).
+    from vibid import _core
+    block = np.ones((50, 3))
+    block[5, 1] = np.nan
+    ident = _core.Ident(example1_stand._core, _core.ESTIMATOR_AUTO, 1.0, -1.0, 0)
+    with pytest.raises(vibid.VibidError, match=r"vibid_ident_push \(row 5\): NaN or Inf in input data: vibid_regressor_push"):
+        ident.push(block, 0, 50)  # C order: the row loop
+    with pytest.raises(vibid.VibidError, match=r"vibid_ident_push_block: NaN or Inf in input data"):
+        ident.push(np.asfortranarray(block), 0, 50)  # the whole column-major block
+    with pytest.raises(ValueError, match="2 columns for 3 channels"):
+        ident.push(np.ones((5, 2)), 0, 5)
