@@ -12,8 +12,10 @@ packages+=(gnuplot-nox)
 if [[ "${1:-}" == "--test" ]]; then
   # Independent peers and tools for tests: can-utils (candump/cangen/canplayer),
   # qemu + busybox + cpio for the SocketCAN VM test, python3-venv for cantools/pymodbus,
-  # clang + its runtime for the libFuzzer targets of the parsers.
-  packages+=(can-utils qemu-system-x86 busybox-static cpio xz-utils python3-venv clang libclang-rt-14-dev)
+  # clang + its runtime for the libFuzzer targets of the parsers, python3-dev for the
+  # headers the Python package's extension module compiles against (python/).
+  packages+=(can-utils qemu-system-x86 busybox-static cpio xz-utils python3-venv python3-dev clang
+             libclang-rt-14-dev)
 fi
 
 missing=()

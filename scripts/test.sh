@@ -9,7 +9,9 @@ scripts/install-deps.sh --test
 
 root=${VIBID_BUILD_ROOT:-build}
 jobs=$(nproc)
-# Independent reference tools from PyPI (cantools, pymodbus, python-can) for the tests.
+# Independent reference tools from PyPI (cantools, pymodbus, python-can) for the tests, and
+# what the Python package needs to build and test (numpy, pandas, pytest, nanobind,
+# scikit-build-core).
 VIBID_BUILD_ROOT="$root" scripts/python-venv.sh
 
 run_suite() {
@@ -21,6 +23,10 @@ run_suite() {
 }
 
 run_suite werror
+# The Python package, linked against the libraries just built, and its pytest suite (not
+# under the sanitizers: an ASan runtime would have to be preloaded into the interpreter).
+echo "==== test suite: python ===="
+VIBID_BUILD_ROOT="$root" scripts/python-test.sh "$root/werror"
 # Sanitized build: -O1 keeps it fast enough; leaks are errors too.
 ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 \
   run_suite sanitize -DVIBID_SANITIZE=ON -DCMAKE_BUILD_TYPE=Debug -DCMAKE_CXX_FLAGS=-O1 -DCMAKE_C_FLAGS=-O1 -DVIBID_BUILD_BENCH=OFF

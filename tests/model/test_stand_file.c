@@ -223,6 +223,12 @@ static void test_unknown_gain_true_value(void **state) {
     assert_float_equal(tv[0], 2.5, 0.0);  /* the mass: its true_value */
     assert_float_equal(tv[1], 3.0, 0.0);  /* gain f: no true_value, the nominal gain */
     assert_float_equal(tv[2], 4.0, 0.0);  /* gain g: its true_value */
+    /* Which of them are truths rather than nominal stand-ins (the Python package's z). */
+    assert_int_equal(vibid_stand_true_value_given(st, 0), 1);
+    assert_int_equal(vibid_stand_true_value_given(st, 1), 0);
+    assert_int_equal(vibid_stand_true_value_given(st, 2), 1);
+    assert_int_equal(vibid_stand_true_value_given(st, 3), 0);    /* out of range */
+    assert_int_equal(vibid_stand_true_value_given(NULL, 0), 0);
     vibid_stand_destroy(st);
     remove(CFG);
 }

@@ -16,6 +16,8 @@ struct vibid_stand {
     size_t n_channels;
     char **channel_names; /* per model channel */
     double *true_values;  /* per unknown */
+    unsigned char *true_given; /* per unknown: 1 if the file gives its true_value */
+    size_t n_unknowns;         /* length of true_values and true_given */
     double *true_std;     /* per disturbance, N (vibid_stand_disturbance_true_std) */
 };
 
@@ -239,6 +241,7 @@ void vibid_stand_destroy(vibid_stand *stand) {
         for (size_t i = 0; i < stand->n_channels; ++i) free(stand->channel_names[i]);
     free(stand->channel_names);
     free(stand->true_values);
+    free(stand->true_given);
     free(stand->true_std);
     free(stand);
 }
@@ -672,12 +675,17 @@ vibid_stand *vibid_stand_from_setting(const void *setting_v, const char *file, v
     st->n_channels = dims.n_channels;
     st->channel_names = calloc(dims.n_channels ? dims.n_channels : 1, sizeof(char *));
     st->true_values = calloc(dims.n_params ? dims.n_params : 1, sizeof(double));
+    st->true_given = calloc(dims.n_params ? dims.n_params : 1, 1);
+    st->n_unknowns = dims.n_params;
     if (!st->true_std) st->true_std = calloc(1, sizeof(double)); /* no disturbances: never NULL */
-    if (!st->name || !st->channel_names || !st->true_values || !st->true_std) goto fail_oom;
+    if (!st->name || !st->channel_names || !st->true_values || !st->true_given || !st->true_std) goto fail_oom;
     if (mats) {
         vibid_model_nominal(m, st->true_values);
     } else {
-        for (size_t i = 0; i < dims.n_params; ++i) st->true_values[i] = pd->true_values[i];
+        for (size_t i = 0; i < dims.n_params; ++i) {
+            st->true_values[i] = pd->true_values[i];
+            st->true_given[i] = pd->has_true[i] ? 1 : 0;
+        }
     }
     for (size_t i = 0; i < dims.n_channels; ++i) {
         vibid_channel_info ci;
@@ -738,6 +746,10 @@ const char *vibid_stand_name(const vibid_stand *stand) { return stand ? stand->n
 double vibid_stand_sample_rate(const vibid_stand *stand) { return stand ? stand->sample_rate : 0.0; }
 const double *vibid_stand_true_values(const vibid_stand *stand) { return stand ? stand->true_values : NULL; }
 const double *vibid_stand_disturbance_true_std(const vibid_stand *stand) { return stand ? stand->true_std : NULL; }
+int vibid_stand_true_value_given(const vibid_stand *stand, size_t index) {
+    if (!stand || index >= stand->n_unknowns) return 0;
+    return stand->true_given[index];
+}
 
 const char *vibid_stand_channel_name(const vibid_stand *stand, size_t channel) {
     if (!stand || channel >= stand->n_channels) return NULL;

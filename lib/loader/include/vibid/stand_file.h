@@ -64,6 +64,12 @@ size_t vibid_stand_find_channel(const vibid_stand *stand, const char *name);
  * long as the stand. */
 const double *vibid_stand_true_values(const vibid_stand *stand);
 
+/* Non-zero if the file gives unknown `index` (model parameter order) an explicit
+ * `true_value`: then vibid_stand_true_values holds a truth to compare an estimate with
+ * (the Python package's z), not a nominal start value. 0 for full-matrix stands (they have
+ * no true_value fields) and for an index out of range. */
+int vibid_stand_true_value_given(const vibid_stand *stand, size_t index);
+
 /* True standard deviations of the disturbances for simulation (N, n_disturbances of
  * vibid_model_get_dims, in the model's disturbance order, vibid_model_disturbance_info):
  * the `true_std` field, or `std` where it is absent. 0 where std is unknown and true_std

@@ -1,0 +1,18 @@
+"""vibid: identification of mechanical vibration systems (masses, damping, stiffness,
+natural frequencies, damping ratios) by least squares, over the C library libvibid.
+
+    import vibid
+    stand = vibid.Stand.load("examples/stands/paper_example1.cfg")
+    result = vibid.identify(stand, "capture.csv")
+    result.parameters, result.modes, result.covariance, result.tracks
+
+Documentation: docs/python.md in the repository.
+"""
+
+from ._core import VibidError
+from ._core import version as _lib_version
+from ._identify import METHODS, Result, identify
+from ._stand import Stand
+
+__version__ = _lib_version()
+__all__ = ["Stand", "identify", "Result", "VibidError", "METHODS", "__version__"]
