@@ -169,12 +169,16 @@ static void fill_row(vd_est *e, const vibid_record *rec, uint64_t rel, vd_row *r
         e->est_errors++;
     } else {
         const double *cov = vibid_ident_covariance(e->ident, e->cov) == VIBID_OK ? e->cov : NULL;
-        if (vibid_model_modal(e->model, row->theta, cov, row->freq, cov ? row->freq_se : NULL, row->zeta,
-                              cov ? row->zeta_se : NULL, NULL, NULL) != VIBID_OK) {
+        vibid_status ms = vibid_model_modal(e->model, row->theta, cov, row->freq, cov ? row->freq_se : NULL,
+                                            row->zeta, cov ? row->zeta_se : NULL, NULL, NULL);
+        if (ms != VIBID_OK && ms != VIBID_E_UNSTABLE) {
             for (size_t k = 0; k < e->nmodes; k++)
                 row->freq[k] = row->freq_se[k] = row->zeta[k] = row->zeta_se[k] = NAN;
         }
         check_plausible(e, row);
+        /* An unstable estimate is impossible for a passive stand whatever the rules say. */
+        if (ms == VIBID_E_UNSTABLE)
+            row->flags |= VD_FLAG_IMPLAUSIBLE;
         vibid_ident_quality q;
         if (vibid_ident_get_quality(e->ident, &q, NULL) == VIBID_OK) {
             if (q.flags & VIBID_QUALITY_SE_INVALID)

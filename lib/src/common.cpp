@@ -61,6 +61,7 @@ VIBID_API const char *vibid_strerror(vibid_status status) {
     case VIBID_E_DIVERGED: return "estimator diverged";
     case VIBID_E_UNSUPPORTED: return "not supported";
     case VIBID_E_INTERNAL: return "internal error";
+    case VIBID_E_UNSTABLE: return "model is unstable";
     }
     return "unknown status";
 }

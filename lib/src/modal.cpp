@@ -26,7 +26,10 @@ struct Mode {
 
 // shapes = false skips the eigenvectors (Mode::shape stays empty): the perturbed solves of
 // the standard-error propagation need only the eigenvalues, at about half the cost.
-std::vector<Mode> modes_of(const MatrixXd &M, const MatrixXd &D, const MatrixXd &C, bool shapes = true) {
+// growth (may be null): the largest eigenvalue real part above 1e-12 of the state
+// matrix's norm (an unstable model), 0 when there is none.
+std::vector<Mode> modes_of(const MatrixXd &M, const MatrixXd &D, const MatrixXd &C, bool shapes = true,
+                           double *growth = nullptr) {
     const Eigen::Index n = M.rows();
     Eigen::FullPivLU<MatrixXd> lu(M);
     if (!lu.isInvertible()) throw_error(VIBID_E_NUMERICAL, "mass matrix is singular");
@@ -39,8 +42,11 @@ std::vector<Mode> modes_of(const MatrixXd &M, const MatrixXd &D, const MatrixXd 
     std::vector<Mode> modes;
     std::vector<std::pair<double, Eigen::Index>> real_roots;
     const double scale = std::max(A.norm(), 1e-300);
+    if (growth) *growth = 0.0;
     for (Eigen::Index i = 0; i < 2 * n; ++i) {
         const std::complex<double> l = es.eigenvalues()(i);
+        // A rigid-body root is 0 up to rounding: only a clearly positive part is growth.
+        if (growth && l.real() > 1e-12 * scale) *growth = std::max(*growth, l.real());
         if (std::fabs(l.imag()) > 1e-12 * scale) {
             if (l.imag() < 0) continue;  // the conjugate describes the same mode
             const double w = std::abs(l);
@@ -94,12 +100,24 @@ void write_modes(const std::vector<Mode> &modes, std::size_t n, double *freq_hz,
     }
 }
 
-std::vector<Mode> model_modes(const vibid_model *model, const double *theta, bool shapes = true) {
+std::vector<Mode> model_modes(const vibid_model *model, const double *theta, bool shapes = true,
+                              double *growth = nullptr) {
     const std::size_t n = model->nodes.size();
     MatrixXd M(n, n), D(n, n), C(n, n);
     if (vibid_model_assemble(model, theta, M.data(), D.data(), C.data(), nullptr, nullptr, nullptr) != VIBID_OK)
         throw_error(VIBID_E_NUMERICAL, "assembling the model failed: %s", vibid_last_error());
-    return modes_of(M, D, C, shapes);
+    return modes_of(M, D, C, shapes, growth);
+}
+
+// The status of an unstable model, for the API function `fn`: its outputs are written all
+// the same.
+vibid_status unstable(const char *fn, double growth) {
+    vibid::set_last_error(fn,
+                      "the model is unstable: an eigenvalue has real part %g 1/s > 0 (negative damping gives "
+                      "zeta < 0; a negative stiffness a non-oscillating divergent pair, reported as f = 0, "
+                      "zeta = 1)",
+                      growth);
+    return VIBID_E_UNSTABLE;
 }
 
 }  // namespace
@@ -115,10 +133,11 @@ VIBID_API vibid_status vibid_modal(size_t n, const double *M, const double *D, c
             throw_error(VIBID_E_NONFINITE, "matrix with NaN or Inf");
         const Eigen::Index N = static_cast<Eigen::Index>(n);
         MatrixXd Dm = D ? MatrixXd(Eigen::Map<const MatrixXd>(D, N, N)) : MatrixXd::Zero(N, N);
+        double growth = 0.0;
         auto modes = modes_of(Eigen::Map<const MatrixXd>(M, N, N), Dm, Eigen::Map<const MatrixXd>(C, N, N),
-                              shape_re || shape_im);
+                              shape_re || shape_im, &growth);
         write_modes(modes, n, freq_hz, zeta, shape_re, shape_im);
-        return VIBID_OK;);
+        return growth > 0.0 ? unstable("vibid_modal", growth) : VIBID_OK;);
 }
 
 VIBID_API vibid_status vibid_model_modal(const vibid_model *model, const double *theta, const double *cov,
@@ -134,7 +153,8 @@ VIBID_API vibid_status vibid_model_modal(const vibid_model *model, const double 
         else
             vibid_model_nominal(model, th.data());
         if (!vibid::all_finite(th.data(), p)) throw_error(VIBID_E_NONFINITE, "theta has NaN or Inf");
-        const auto modes = model_modes(model, th.data(), shape_re || shape_im);
+        double growth = 0.0;
+        const auto modes = model_modes(model, th.data(), shape_re || shape_im, &growth);
         write_modes(modes, n, freq_hz, zeta, shape_re, shape_im);
         if (cov && (freq_se || zeta_se)) {
             if (!vibid::all_finite(cov, p * p)) throw_error(VIBID_E_NONFINITE, "cov has NaN or Inf");
@@ -165,7 +185,7 @@ VIBID_API vibid_status vibid_model_modal(const vibid_model *model, const double 
                 if (zeta_se) zeta_se[j] = 0.0;
             }
         }
-        return VIBID_OK;);
+        return growth > 0.0 ? unstable("vibid_model_modal", growth) : VIBID_OK;);
 }
 
 }  // extern "C"

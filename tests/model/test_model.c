@@ -330,6 +330,39 @@ static void test_modal_analytic(void **state) {
     assert_float_equal(re[2] * re[3], -1.0, 1e-9); /* out of phase */
 }
 
+/* Unstable models say so (VIBID_E_UNSTABLE) and still write their modes: negative damping
+ * (zeta = d / (2 sqrt(c m)) < 0 exactly, 1e-10 rounding), negative stiffness (a divergent
+ * real pair: f = 0, zeta = 1 as documented); a rigid-body root (c = 0) is not unstable. */
+static void test_modal_unstable(void **state) {
+    (void)state;
+    double M = 2.0, C = 8.0e4, D = -40.0, f = 0, z = 0;
+    assert_int_equal(vibid_modal(1, &M, &D, &C, &f, &z, NULL, NULL), VIBID_E_UNSTABLE);
+    assert_non_null(strstr(vibid_last_error(), "unstable"));
+    assert_float_equal(f, sqrt(C / M) / (2 * M_PI), 1e-10 * f);
+    assert_float_equal(z, D / (2 * sqrt(C * M)), 1e-10);
+    double Cn = -8.0e4, Dp = 40.0;
+    assert_int_equal(vibid_modal(1, &M, &Dp, &Cn, &f, &z, NULL, NULL), VIBID_E_UNSTABLE);
+    assert_float_equal(f, 0.0, 0.0);
+    assert_float_equal(z, 1.0, 0.0);
+    double C0 = 0.0;
+    assert_int_equal(vibid_modal(1, &M, &Dp, &C0, &f, &z, NULL, NULL), VIBID_OK);
+    /* the same through a model and its parameters */
+    vibid_model *m = vibid_model_create();
+    size_t a;
+    assert_int_equal(vibid_model_add_node(m, "m1", 2.0, 0, &a), VIBID_OK);
+    assert_int_equal(vibid_model_add_element(m, "k", VIBID_ELEMENT_SPRING, a, VIBID_GROUND, 8.0e4, 1), VIBID_OK);
+    assert_int_equal(vibid_model_add_element(m, "d", VIBID_ELEMENT_DAMPER, a, VIBID_GROUND, 40.0, 1), VIBID_OK);
+    assert_int_equal(vibid_model_set_measured(m, a, VIBID_MEASURE_DISPLACEMENT), VIBID_OK);
+    assert_int_equal(vibid_model_finalize(m), VIBID_OK);
+    const double stable[2] = {8.0e4, 40.0}, neg_d[2] = {8.0e4, -40.0}, cov[4] = {1.0, 0.0, 0.0, 1e-4};
+    double fse = 0, zse = 0;
+    assert_int_equal(vibid_model_modal(m, stable, cov, &f, &fse, &z, &zse, NULL, NULL), VIBID_OK);
+    assert_int_equal(vibid_model_modal(m, neg_d, cov, &f, &fse, &z, &zse, NULL, NULL), VIBID_E_UNSTABLE);
+    assert_float_equal(z, -40.0 / (2 * sqrt(8.0e4 * 2.0)), 1e-10);
+    assert_true(zse > 0.0); /* the standard errors are written too */
+    vibid_model_destroy(m);
+}
+
 /* vibid_model_modal's standard errors (delta method, central differences of the modal
  * solution) against the analytic first-order propagation for one mass on a spring and a
  * damper to ground, unknowns d and c (model order: as added):
@@ -505,6 +538,7 @@ int main(void) {
         cmocka_unit_test(test_ident_prior_zoh),
         cmocka_unit_test(test_bad_input),
         cmocka_unit_test(test_modal_analytic),
+        cmocka_unit_test(test_modal_unstable),
         cmocka_unit_test(test_modal_standard_errors),
         cmocka_unit_test(test_discretization_round_trip),
         cmocka_unit_test(test_loader),

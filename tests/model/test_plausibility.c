@@ -67,7 +67,9 @@ static unsigned check_theta(const vibid_model *m, double h, const double *theta,
     double f[8], z[8];
     vibid_model_dims dims;
     assert_int_equal(vibid_model_get_dims(m, &dims), VIBID_OK);
-    assert_int_equal(vibid_model_modal(m, theta, NULL, f, NULL, z, NULL, NULL, NULL), VIBID_OK);
+    /* impossible values may well give an unstable model (modes written all the same) */
+    vibid_status s = vibid_model_modal(m, theta, NULL, f, NULL, z, NULL, NULL, NULL);
+    assert_true(s == VIBID_OK || s == VIBID_E_UNSTABLE);
     unsigned flags = 12345;
     assert_int_equal(vibid_plausibility_check(m, h, theta, f, z, dims.n_dof, ref, &flags, pf, mf, why, cap), VIBID_OK);
     return flags;

@@ -41,7 +41,9 @@ typedef enum vibid_status {
     VIBID_E_STATE = 9,            /* call not valid in the object's current state */
     VIBID_E_DIVERGED = 10,        /* an iterative or recursive estimator diverged */
     VIBID_E_UNSUPPORTED = 11,     /* valid request that this version does not implement */
-    VIBID_E_INTERNAL = 12         /* unexpected internal error (a bug: please report) */
+    VIBID_E_INTERNAL = 12,        /* unexpected internal error (a bug: please report) */
+    VIBID_E_UNSTABLE = 13         /* the model is unstable (modal.h): the outputs are written, but
+                                     describe no decaying vibration */
 } vibid_status;
 
 /* Short, static, English description of a status code. Never NULL; unknown codes

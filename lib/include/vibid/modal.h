@@ -28,6 +28,10 @@ extern "C" {
  *   freq_hz, zeta: n each. shape_re, shape_im: n x n, column j = mode j (either may be
  *   NULL). VIBID_E_NUMERICAL if M is singular or the eigen solver fails; a rigid-body
  *   mode (lambda = 0) gives f = 0, zeta = 1. */
+/* An unstable model (an eigenvalue with real part > 1e-12 of the state matrix's norm:
+ * negative damping or stiffness) returns VIBID_E_UNSTABLE with every output written:
+ * oscillating modes with zeta < 0, a divergent real pair as f = 0, zeta = 1. A rigid-body
+ * root (0) is not unstable. Both functions below. */
 VIBID_API vibid_status vibid_modal(size_t n, const double *M, const double *D, const double *C, double *freq_hz,
                                    double *zeta, double *shape_re, double *shape_im);
 
