@@ -229,8 +229,13 @@ public:
             return e;
         }
         const bool have_cov = vibid_ident_covariance(ident_.get(), e.cov.data()) == VIBID_OK;
-        if (vibid_model_modal(model_, e.theta.data(), have_cov ? e.cov.data() : nullptr, e.freq.data(),
-                              e.freq_se.data(), e.zeta.data(), e.zeta_se.data(), nullptr, nullptr) != VIBID_OK) {
+        // An unstable estimate (VIBID_E_UNSTABLE) keeps its modes: a negative zeta or f = 0
+        // is what the plausibility check below flags, and what the analyst needs to see.
+        const vibid_status ms = vibid_model_modal(model_, e.theta.data(), have_cov ? e.cov.data() : nullptr,
+                                                  e.freq.data(), e.freq_se.data(), e.zeta.data(),
+                                                  e.zeta_se.data(), nullptr, nullptr);
+        const std::string unstable_why = ms == VIBID_E_UNSTABLE ? vibid_last_error() : "";
+        if (ms != VIBID_OK && ms != VIBID_E_UNSTABLE) {
             std::fill(e.freq.begin(), e.freq.end(), NAN);
             std::fill(e.zeta.begin(), e.zeta.end(), NAN);
         }
@@ -250,6 +255,12 @@ public:
             e.why = std::string("plausibility check failed: ") + vibid_last_error();
         } else {
             e.why = why;
+        }
+        if (!unstable_why.empty()) {
+            // Impossible for a passive stand whatever the rules say (vibidd flags it P); a
+            // growth within the rules' 1e-6 zeta tolerance is a slightly negative zeta.
+            if (!e.implausible) e.implausible = VIBID_IMPLAUSIBLE_ZETA_NEGATIVE;
+            e.why += (e.why.empty() ? "" : "; ") + unstable_why;
         }
         vibid_ident_quality q;
         if (vibid_ident_get_quality(ident_.get(), &q, e.param_quality.data()) == VIBID_OK) {
