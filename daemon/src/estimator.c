@@ -118,10 +118,12 @@ static void note_gap(vd_est *e, uint64_t count)
 }
 
 /* Flags the row P when its estimate is physically impossible (a failed modal computation,
- * NaN modes, counts too: the estimate has no physical modes). The reference for the
+ * NaN modes, counts too: the estimate has no physical modes; so does an unstable one,
+ * `unstable_why` non-NULL: vibid_model_modal's VIBID_E_UNSTABLE, which a growth within the
+ * rules' 1e-6 zeta tolerance would otherwise pass). The reference for the
  * damping-ratio rule (the stand's nominal modes) is made at the first row: it allocates,
  * which the row rate tolerates; the check itself allocates nothing. */
-static void check_plausible(vd_est *e, vd_row *row)
+static void check_plausible(vd_est *e, vd_row *row, const char *unstable_why)
 {
     if (!e->pref_ready) {
         if (vibid_plausibility_ref_init(e->model, NULL, &e->pref) != VIBID_OK) {
@@ -139,6 +141,10 @@ static void check_plausible(vd_est *e, vd_row *row)
          * passed as plausible either */
         snprintf(e->why, sizeof e->why, "plausibility check failed: %s", vibid_last_error());
         found = VIBID_IMPLAUSIBLE_NONFINITE;
+    }
+    if (unstable_why && !found) {
+        snprintf(e->why, sizeof e->why, "%s", unstable_why);
+        found = VIBID_IMPLAUSIBLE_ZETA_NEGATIVE;
     }
     if (found) {
         row->implausible = found;
@@ -175,10 +181,11 @@ static void fill_row(vd_est *e, const vibid_record *rec, uint64_t rel, vd_row *r
             for (size_t k = 0; k < e->nmodes; k++)
                 row->freq[k] = row->freq_se[k] = row->zeta[k] = row->zeta_se[k] = NAN;
         }
-        check_plausible(e, row);
-        /* An unstable estimate is impossible for a passive stand whatever the rules say. */
+        /* copied: the plausibility calls may replace the last error */
+        char unstable_why[256];
         if (ms == VIBID_E_UNSTABLE)
-            row->flags |= VD_FLAG_IMPLAUSIBLE;
+            snprintf(unstable_why, sizeof unstable_why, "%s", vibid_last_error());
+        check_plausible(e, row, ms == VIBID_E_UNSTABLE ? unstable_why : NULL);
         vibid_ident_quality q;
         if (vibid_ident_get_quality(e->ident, &q, NULL) == VIBID_OK) {
             if (q.flags & VIBID_QUALITY_SE_INVALID)
