@@ -69,8 +69,18 @@ typedef enum vibid_estimator {
  *    forgetting < 1 the sums are exponentially weighted (tracking).
  *  - difference_order 4 (five-point stencils: bias (w h)^4 / 30 instead of (w h)^2 / 6).
  *  - prefilter_hz: 4 times the highest natural frequency of the nominal model (when the
- *    stand gives nominal values for every unknown), else f_a / 20; kept within
- *    [f_a / 50, f_a / 8].
+ *    stand gives nominal values for every unknown), else of the data: a pilot over the
+ *    first max(4096, ceil(2 / h)) samples runs with f_a / 20 (vibid_ident_get_config says
+ *    f_a / 20 until then); at its last sample, the highest natural frequency of its
+ *    estimate sets the cutoff, and where that differs from f_a / 20 by more than 10 %
+ *    an estimator with the new cutoff (and lag) replaces the pilot's and the pilot's
+ *    samples are replayed into it: the result is bit-identical to configuring that cutoff
+ *    from the start. The push that ends the pilot allocates (the pilot's estimate, the
+ *    new estimator; about 10 ms at 2 kHz) once per run; every other push allocates
+ *    nothing. No usable pilot estimate (too little excitation, an unstable or
+ *    mode-less estimate): f_a / 20 stays. vibid_ident_describe grows by the choice. A
+ *    reset during the pilot restarts it; after it, the chosen cutoff stays. Within
+ *    [f_a / 50, f_a / 8] in every case.
  *  - iv_lag: the difference window plus one period of the pre-filter's cutoff,
  *    1 / (prefilter_hz h): long enough for the filtered noise to decorrelate, short
  *    enough that the instruments stay correlated with the regressors at every mode.
@@ -241,7 +251,7 @@ VIBID_API vibid_status vibid_ident_dims(const vibid_ident *ident, size_t *n_chan
 VIBID_API vibid_status vibid_ident_set_prior(vibid_ident *ident, const double *theta0, const double *P0);
 
 /* One sample: channels in the model's layout (model.h). Allocates nothing (all
- * estimators). Non-finite input: VIBID_E_NONFINITE, sample ignored, the difference
+ * estimators), but for the one push that ends the pre-filter pilot (above). Non-finite input: VIBID_E_NONFINITE, sample ignored, the difference
  * window restarts (a gap costs the next 2 samples). */
 VIBID_API vibid_status vibid_ident_push(vibid_ident *ident, const double *channels);
 
