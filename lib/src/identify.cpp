@@ -20,6 +20,7 @@
 #include <cmath>
 #include <cstdarg>
 #include <cstdio>
+#include <cstring>
 #include <memory>
 #include <string>
 #include <vector>
@@ -782,11 +783,33 @@ namespace {
 
 vibid_status push_sample(vibid_ident *ident, const double *channels);
 
-// The end of the pre-filter pilot (vibid_ident::pilot): the estimate of its samples
-// (taken with f_a / 20) gives the highest natural frequency, hence the cutoff; where that
-// differs from f_a / 20 by more than 10 %, an estimator with it replaces this one and the
-// pilot's samples are replayed into it. Allocates (once per run); never fails the push:
-// when no usable estimate comes out, f_a / 20 stays and the description says why.
+// A candidate's pre-filter line until the pilot has chosen (replaced by the reason).
+constexpr const char *kPilotPlaceholder = "pre-filter: (a pilot candidate)\n";
+
+// The pilot's figure of merit for an estimator: the sum over the parameters of
+// (se_i / theta_i)^2, the relative variances (what a track row's error bars add up to).
+// HUGE_VAL when there is no estimate or a parameter is not excited (infinite se).
+double relative_variance(vibid_ident &id) {
+    std::vector<double> th(id.p), se(id.p);
+    if (vibid_ident_estimate(&id, th.data(), se.data(), nullptr) != VIBID_OK) return HUGE_VAL;
+    double sum = 0.0;
+    for (std::size_t i = 0; i < id.p; ++i) {
+        if (!std::isfinite(se[i]) || !std::isfinite(th[i])) return HUGE_VAL;
+        if (th[i] != 0.0) sum += (se[i] / th[i]) * (se[i] / th[i]);
+    }
+    return sum;
+}
+
+// The end of the pre-filter pilot (vibid_ident::pilot). Which cutoff is best depends on
+// the data: the modes must stay inside the pass band, but where derivatives come from
+// displacements the stencils amplify sensor noise as w^2, so every hertz of band beyond
+// the response's costs variance (the paper's example 1 at 1 % noise, x only, modes 23 and
+// 48 Hz: c2 +0.13 % at f_a/20 = 100 Hz, -0.68 % at 4 x 48 Hz = 193 Hz). So the pilot's
+// samples are replayed into candidate cutoffs, f_a/50 and 2 and 4 times the highest natural
+// frequency of the pilot's estimate (within [f_a/50, f_a/8]), beside the pilot's own
+// f_a/20, and the one whose estimate has the smallest sum of relative variances goes on.
+// Allocates (once per run); never fails the push: without a usable estimate f_a/20 stays
+// and the description says why.
 void tune_prefilter(vibid_ident &id) {
     const double fa = 1.0 / id.cfg.sample_time, fc_now = id.cfg.prefilter_hz;
     const std::size_t n_pilot = id.pilot_len, nc = id.n_channels;
@@ -805,23 +828,46 @@ void tune_prefilter(vibid_ident &id) {
                 if (std::isfinite(v)) fmax = std::max(fmax, v);
         if (!(fmax > 0.0 && fmax < 0.5 * fa))
             throw_error(VIBID_E_NUMERICAL, "their estimate gives no natural frequency between 0 and f_a/2");
-        const double fc = cutoff_for(fmax, fa);
-        if (std::fabs(fc / fc_now - 1.0) <= 0.1) {
-            keep_why = strprintf("pre-filter after the first %zu samples: stays %.4g Hz (the highest natural "
-                                 "frequency of their estimate, %.4g Hz, gives %.4g Hz, within 10 %%)\n",
-                                 n_pilot, fc_now, fmax, fc);
-        } else {
+        // The candidates, each at least 10 % from the others (the pilot's f_a/20 first).
+        std::vector<double> cand{fc_now};
+        for (double fc : {fa / 50.0, cutoff_for(0.5 * fmax, fa), cutoff_for(fmax, fa)}) {
+            bool distinct = true;
+            for (double c : cand) distinct = distinct && std::fabs(fc / c - 1.0) > 0.1;
+            if (distinct) cand.push_back(fc);
+        }
+        std::vector<double> score{relative_variance(id)};
+        std::unique_ptr<vibid_ident> best;
+        std::size_t best_k = 0;
+        for (std::size_t k = 1; k < cand.size(); ++k) {
             vibid_ident_config cfg = id.requested;
-            cfg.prefilter_hz = fc;
-            const std::string why =
-                strprintf("pre-filter: %.4g Hz (automatic, from the data: 4 x the highest natural frequency of the "
-                          "estimate over the first %zu samples, %.4g Hz, within [f_a/50, f_a/8]; those samples were "
-                          "taken with f_a/20 = %.4g Hz and replayed)\n",
-                          fc, n_pilot, fmax, fc_now);
-            std::unique_ptr<vibid_ident> tuned = create_ident(&id.model, &cfg, true, why);
+            cfg.prefilter_hz = cand[k];
+            std::unique_ptr<vibid_ident> trial = create_ident(&id.model, &cfg, true, kPilotPlaceholder);
             // Their statuses were returned when they were first pushed.
-            for (std::size_t k = 0; k < n_pilot; ++k) (void)push_sample(tuned.get(), pilot.data() + k * nc);
-            id = std::move(*tuned);
+            for (std::size_t s = 0; s < n_pilot; ++s) (void)push_sample(trial.get(), pilot.data() + s * nc);
+            score.push_back(relative_variance(*trial));
+            if (score[k] < score[best_k]) {
+                best = std::move(trial);
+                best_k = k;
+            }
+        }
+        std::string scores;
+        for (std::size_t k = 0; k < cand.size(); ++k)
+            scores += strprintf("%s%.4g Hz: %.3g", k ? ", " : "", cand[k], score[k]);
+        if (!best) {
+            if (!(score[0] < HUGE_VAL)) throw_error(VIBID_E_INSUFFICIENT_DATA, "no candidate gave error bars");
+            keep_why = strprintf("pre-filter after the first %zu samples: stays %.4g Hz (f_a/20), the smallest sum of "
+                                 "relative variances of the candidates (%s; highest natural frequency %.4g Hz)\n",
+                                 n_pilot, fc_now, scores.c_str(), fmax);
+        } else {
+            // The chosen estimator's description: its pre-filter line says why.
+            const std::string why =
+                strprintf("pre-filter: %.4g Hz (automatic, from the data: of the candidates f_a/20, f_a/50, 2 and 4 x "
+                          "the highest natural frequency of the estimate over the first %zu samples (%.4g Hz), within "
+                          "[f_a/50, f_a/8], the smallest sum of relative variances: %s; those samples replayed)\n",
+                          cand[best_k], n_pilot, fmax, scores.c_str());
+            const std::size_t at = best->description.find(kPilotPlaceholder);
+            if (at != std::string::npos) best->description.replace(at, std::strlen(kPilotPlaceholder), why);
+            id = std::move(*best);
             return;
         }
     } catch (const std::exception &e) {
