@@ -71,14 +71,19 @@ typedef enum vibid_estimator {
  *  - prefilter_hz: 4 times the highest natural frequency of the nominal model (when the
  *    stand gives nominal values for every unknown), else of the data: a pilot over the
  *    first max(4096, ceil(2 / h)) samples runs with f_a / 20 (vibid_ident_get_config says
- *    f_a / 20 until then); at its last sample, the highest natural frequency of its
- *    estimate sets the cutoff, and where that differs from f_a / 20 by more than 10 %
- *    an estimator with the new cutoff (and lag) replaces the pilot's and the pilot's
- *    samples are replayed into it: the result is bit-identical to configuring that cutoff
- *    from the start. The push that ends the pilot allocates (the pilot's estimate, the
- *    new estimator; about 10 ms at 2 kHz) once per run; every other push allocates
- *    nothing. No usable pilot estimate (too little excitation, an unstable or
- *    mode-less estimate): f_a / 20 stays. vibid_ident_describe grows by the choice. A
+ *    f_a / 20 until then); at its last sample, with f_max the highest natural frequency
+ *    of its estimate, the pilot's samples are replayed into estimators with the candidate
+ *    cutoffs f_a / 50, 2 f_max and 4 f_max (each within [f_a / 50, f_a / 8], none below
+ *    2 f_max / 1.1 but f_a / 8, each more than 10 % from f_a / 20 and the ones before),
+ *    and of these and f_a / 20 (if not below 2 f_max / 1.1) the one whose estimate has the
+ *    smallest sum over the parameters of (se / value)^2 goes on, its lag with it (the
+ *    stencils amplify displacement noise as w^2, so a wider band than the response needs
+ *    costs variance; a narrower one loses the response). The result is bit-identical to
+ *    configuring that cutoff from the start. The push that ends the pilot allocates
+ *    (the estimates, the candidates; bench_ident prints its time) once per run; every
+ *    other push allocates nothing. No usable pilot estimate (too little excitation, an
+ *    unstable or mode-less estimate): f_a / 20 stays. vibid_ident_describe grows by the
+ *    choice and the candidates' scores. A
  *    reset during the pilot restarts it; after it, the chosen cutoff stays. Within
  *    [f_a / 50, f_a / 8] in every case.
  *  - iv_lag: the difference window plus one period of the pre-filter's cutoff,
