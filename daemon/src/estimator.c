@@ -41,7 +41,7 @@ int vd_est_init(vd_est *e, const vd_config *cfg, char *err, size_t cap)
     /* What the automatic estimator chose and why: for --check, the log and the tracks
      * file's header. */
     vibid_ident_get_config(e->ident, &e->resolved);
-    vibid_ident_describe(e->ident, e->choices, sizeof e->choices, NULL);
+    vibid_ident_describe(e->ident, e->choices, sizeof e->choices, &e->choices_len);
     vibid_ident_dims(e->ident, &e->nch, &e->p);
     if (cfg->has_start && vibid_ident_set_prior(e->ident, cfg->start_theta, NULL) != VIBID_OK) {
         snprintf(err, cap, "%s: estimator.start_values: %s", cfg->path, vibid_last_error());
@@ -153,6 +153,24 @@ static void check_plausible(vd_est *e, vd_row *row, const char *unstable_why)
     }
 }
 
+/* The pre-filter pilot (identify.h) ended since the last row: its choice goes to the
+ * log (the tracks file's header was written at the start; it states the rule). */
+static void note_new_choices(vd_est *e)
+{
+    size_t len = 0;
+    if (vibid_ident_describe(e->ident, NULL, 0, &len) != VIBID_OK || len == e->choices_len)
+        return;
+    vibid_ident_get_config(e->ident, &e->resolved);
+    vibid_ident_describe(e->ident, e->choices, sizeof e->choices, &e->choices_len);
+    const char *rest = e->choices, *line = rest;
+    int n;
+    while (vd_next_line(&rest, &n)) {
+        if (!strncmp(line, "pre-filter", 10) || !strncmp(line, "instrument lag", 14))
+            vd_notice("%.*s", n, line);
+        line = rest;
+    }
+}
+
 static void fill_row(vd_est *e, const vibid_record *rec, uint64_t rel, vd_row *row)
 {
     const vd_config *cfg = e->cfg;
@@ -166,6 +184,7 @@ static void fill_row(vd_est *e, const vibid_record *rec, uint64_t rel, vd_row *r
     e->gap_since_row = 0;
     for (size_t k = 0; k < VD_MAX_PARAMS; k++)
         row->theta[k] = row->se[k] = row->freq[k] = row->freq_se[k] = row->zeta[k] = row->zeta_se[k] = NAN;
+    note_new_choices(e);
     vibid_status st = vibid_ident_estimate(e->ident, row->theta, row->se, NULL);
     row->est_status = (int)st;
     if (st != VIBID_OK) {

@@ -94,6 +94,8 @@ typedef struct vd_est {
     char why[512];          /* what the latest flagged row's estimate got wrong */
     vibid_ident_config resolved;   /* the settings in force (automatic choices resolved) */
     char choices[2048];            /* vibid_ident_describe: one line per choice and why */
+    size_t choices_len;            /* its full length (the description grows when the
+                                      pre-filter pilot ends, identify.h) */
 } vd_est;
 
 /* 0, or -1 with a message in err (cap bytes): the model is not identifiable, ... */

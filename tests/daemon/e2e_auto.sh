@@ -58,6 +58,10 @@ check)
         fail "printout read back chooses differently"
     timeout 60 "$VIBIDD" -c v.cfg 2> log || fail "vibidd: $(cat log)"
     grep -q 'pre-filter: 50 Hz' log || fail "the log at start lacks the choices: $(head -5 log)"
+    # The pilot (the first 4096 samples, 4.1 s of the 5 s) ends in the run: the log says
+    # which cutoff goes on, with the candidates' scores (identify.h).
+    grep -q 'pre-filter.*first 4096 samples.*relative variances' log ||
+        fail "the log lacks the pilot's choice of cutoff: $(grep -i 'pre-filter' log)"
     head -1 tracks.csv | grep -q '^# estimator: instrumental variables' || fail "tracks header lacks the choices"
     grep -v '^#' tracks.csv | head -1 | grep -q '^time_s,index,c1,c1_se' || fail "tracks column header"
     note "--check, log and tracks header state: $(grep -c '^# ' check.out) choices"

@@ -29,6 +29,7 @@
 #include <cstdlib>
 #include <new>
 #include <initializer_list>
+#include <cstring>
 #include <vector>
 
 #include <fcntl.h>
@@ -53,15 +54,17 @@ namespace {
 // Two-mass stand with everything the per-sample paths distinguish. cubic = true: central
 // differences with a cubic spring m2-base, an accelerometer on m2 and an input of unknown
 // gain on m1. cubic = false: the linear stand (ZOH needs a linear model and displacements).
-vibid_model *make_model(bool cubic, vibid_discretization disc) {
+// nominal = false: the unknowns get value 0 (no nominal value: the pre-filter pilot runs).
+vibid_model *make_model(bool cubic, vibid_discretization disc, bool nominal = true) {
+    const double v = nominal ? 1.0 : 0.0;
     vibid_model *m = vibid_model_create();
     assert_non_null(m);
     std::size_t n1 = 0, n2 = 0;
     assert_int_equal(vibid_model_add_node(m, "m1", 10.0, 0, &n1), VIBID_OK);
     assert_int_equal(vibid_model_add_node(m, "m2", 20.0, 0, &n2), VIBID_OK);
-    assert_int_equal(vibid_model_add_element(m, "c1", VIBID_ELEMENT_SPRING, n1, n2, 2.5e5, 1), VIBID_OK);
-    assert_int_equal(vibid_model_add_element(m, "d", VIBID_ELEMENT_DAMPER, n1, n2, 300.0, 1), VIBID_OK);
-    assert_int_equal(vibid_model_add_element(m, "c2", VIBID_ELEMENT_SPRING, n2, VIBID_BASE, 1.5e6, 1), VIBID_OK);
+    assert_int_equal(vibid_model_add_element(m, "c1", VIBID_ELEMENT_SPRING, n1, n2, v * 2.5e5, 1), VIBID_OK);
+    assert_int_equal(vibid_model_add_element(m, "d", VIBID_ELEMENT_DAMPER, n1, n2, v * 300.0, 1), VIBID_OK);
+    assert_int_equal(vibid_model_add_element(m, "c2", VIBID_ELEMENT_SPRING, n2, VIBID_BASE, v * 1.5e6, 1), VIBID_OK);
     assert_int_equal(vibid_model_set_measured(m, n1, VIBID_MEASURE_DISPLACEMENT), VIBID_OK);
     assert_int_equal(vibid_model_set_measured(m, VIBID_BASE, VIBID_MEASURE_DISPLACEMENT), VIBID_OK);
     if (cubic) {
@@ -186,6 +189,47 @@ void run_ident(const vibid_model *m, vibid_estimator est, double prefilter_hz) {
     vibid_ident_destroy(id);
 }
 
+// The automatic estimator on a stand without nominal values runs the pre-filter pilot
+// (identify.h): every push allocates nothing but the one that ends it (4096 samples at
+// 2 kHz), which chooses the cutoff and replays the pilot into the estimator it creates.
+void test_ident_pilot_no_alloc(void **state) {
+    (void)state;
+    // No nominal value, so no natural frequency before the data.
+    vibid_model *m = make_model(false, VIBID_DISC_CENTRAL_DIFFERENCE, false);
+    vibid_ident_config cfg;
+    vibid_ident_config_init(&cfg, 5e-4);
+    vibid_ident *id = vibid_ident_create(m, &cfg);
+    assert_non_null(id);
+    std::size_t nc = 0;
+    assert_int_equal(vibid_ident_dims(id, &nc, nullptr), VIBID_OK);
+    std::vector<double> ch(nc);
+    const std::size_t pilot = 4096;
+    std::size_t bad_status = 0, allocs_pilot = 0, allocs_after = 0;
+    auto push = [&](std::size_t k) {
+        for (std::size_t c = 0; c < nc; ++c) ch[c] = value(k, c);
+        if (vibid_ident_push(id, ch.data()) != VIBID_OK) ++bad_status;
+    };
+    arm();
+    for (std::size_t k = 0; k + 1 < pilot; ++k) push(k);
+    allocs_pilot = disarm();
+    push(pilot - 1);  // ends the pilot: allowed to allocate
+    arm();
+    for (std::size_t k = pilot; k < pilot + 2000; ++k) push(k);
+    allocs_after = disarm();
+    assert_int_equal(bad_status, 0);
+    assert_int_equal(allocs_pilot, 0);
+    assert_int_equal(allocs_after, 0);
+    vibid_ident_config used;
+    assert_int_equal(vibid_ident_get_config(id, &used), VIBID_OK);
+    assert_true(used.prefilter_hz > 0.0);
+    // The pilot ended: its choice (a new cutoff, or f_a/20 kept and why) is described.
+    char why[4096];
+    assert_int_equal(vibid_ident_describe(id, why, sizeof why, nullptr), VIBID_OK);
+    assert_true(std::strstr(why, "(automatic, from the data") || std::strstr(why, "pre-filter after the first"));
+    vibid_ident_destroy(id);
+    vibid_model_destroy(m);
+}
+
 void test_ident_no_alloc(void **state) {
     (void)state;
     vibid_model *cd = make_model(true, VIBID_DISC_CENTRAL_DIFFERENCE);
@@ -299,6 +343,7 @@ int main(void) {
         cmocka_unit_test(test_forces_no_alloc),
         cmocka_unit_test(test_regressor_no_alloc),
         cmocka_unit_test(test_ident_no_alloc),
+        cmocka_unit_test(test_ident_pilot_no_alloc),
         cmocka_unit_test(test_ekf_no_alloc),
         cmocka_unit_test(test_kf_rls_no_alloc),
     };

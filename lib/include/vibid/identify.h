@@ -69,8 +69,23 @@ typedef enum vibid_estimator {
  *    forgetting < 1 the sums are exponentially weighted (tracking).
  *  - difference_order 4 (five-point stencils: bias (w h)^4 / 30 instead of (w h)^2 / 6).
  *  - prefilter_hz: 4 times the highest natural frequency of the nominal model (when the
- *    stand gives nominal values for every unknown), else f_a / 20; kept within
- *    [f_a / 50, f_a / 8].
+ *    stand gives nominal values for every unknown), else of the data: a pilot over the
+ *    first max(4096, ceil(2 / h)) samples runs with f_a / 20 (vibid_ident_get_config says
+ *    f_a / 20 until then); at its last sample, with f_max the highest natural frequency
+ *    of its estimate, the pilot's samples are replayed into estimators with the candidate
+ *    cutoffs f_a / 50, 2 f_max and 4 f_max (each within [f_a / 50, f_a / 8], none below
+ *    2 f_max / 1.1 but f_a / 8, each more than 10 % from f_a / 20 and the ones before),
+ *    and of these and f_a / 20 (if not below 2 f_max / 1.1) the one whose estimate has the
+ *    smallest sum over the parameters of (se / value)^2 goes on, its lag with it (the
+ *    stencils amplify displacement noise as w^2, so a wider band than the response needs
+ *    costs variance; a narrower one loses the response). The result is bit-identical to
+ *    configuring that cutoff from the start. The push that ends the pilot allocates
+ *    (the estimates, the candidates; bench_ident prints its time) once per run; every
+ *    other push allocates nothing. No usable pilot estimate (too little excitation, an
+ *    unstable or mode-less estimate): f_a / 20 stays. vibid_ident_describe grows by the
+ *    choice and the candidates' scores. A
+ *    reset during the pilot restarts it; after it, the chosen cutoff stays. Within
+ *    [f_a / 50, f_a / 8] in every case.
  *  - iv_lag: the difference window plus one period of the pre-filter's cutoff,
  *    1 / (prefilter_hz h): long enough for the filtered noise to decorrelate, short
  *    enough that the instruments stay correlated with the regressors at every mode.
@@ -241,7 +256,7 @@ VIBID_API vibid_status vibid_ident_dims(const vibid_ident *ident, size_t *n_chan
 VIBID_API vibid_status vibid_ident_set_prior(vibid_ident *ident, const double *theta0, const double *P0);
 
 /* One sample: channels in the model's layout (model.h). Allocates nothing (all
- * estimators). Non-finite input: VIBID_E_NONFINITE, sample ignored, the difference
+ * estimators), but for the one push that ends the pre-filter pilot (above). Non-finite input: VIBID_E_NONFINITE, sample ignored, the difference
  * window restarts (a gap costs the next 2 samples). */
 VIBID_API vibid_status vibid_ident_push(vibid_ident *ident, const double *channels);
 
