@@ -15,13 +15,27 @@
 #include <vibid/common.h>
 
 #include <cmath>
+#include <cstring>
 #include <cstddef>
 #include <exception>
 #include <new>
 #include <stdexcept>
 #include <string>
+#include <type_traits>
 
 namespace vibid {
+
+// The value of an enum argument or configuration field as the int the C caller stored.
+// A C caller can store any int there; reading one outside the enum's range as the C++
+// enum type is undefined behaviour (UBSan: "load of value 99, which is not a valid value
+// for type ..."), so the value is copied out of its bytes. Check it against the
+// enumerators before the enum itself is read.
+template <class E> int enum_value(const E &e) {
+    static_assert(std::is_enum<E>::value && sizeof(E) == sizeof(int), "a C enum, stored as an int");
+    int v;
+    std::memcpy(&v, &e, sizeof v);
+    return v;
+}
 
 class Error : public std::runtime_error {
 public:

@@ -501,10 +501,10 @@ std::unique_ptr<vibid_ident> create_ident(const vibid_model *model, const vibid_
                                           const std::string &prefilter_why = std::string()) {
     vibid::require_finalized(model);
     if (!cfg) throw_error(VIBID_E_NULL_ARGUMENT, "cfg is NULL");
-    if (cfg->estimator != VIBID_ESTIMATOR_LS && cfg->estimator != VIBID_ESTIMATOR_IV &&
-        cfg->estimator != VIBID_ESTIMATOR_RLS && cfg->estimator != VIBID_ESTIMATOR_AUTO &&
-        cfg->estimator != VIBID_ESTIMATOR_EKF && cfg->estimator != VIBID_ESTIMATOR_KF_RLS)
-        throw_error(VIBID_E_OUT_OF_RANGE, "estimator %d unknown", static_cast<int>(cfg->estimator));
+    const int est = vibid::enum_value(cfg->estimator);
+    if (est != VIBID_ESTIMATOR_LS && est != VIBID_ESTIMATOR_IV && est != VIBID_ESTIMATOR_RLS &&
+        est != VIBID_ESTIMATOR_AUTO && est != VIBID_ESTIMATOR_EKF && est != VIBID_ESTIMATOR_KF_RLS)
+        throw_error(VIBID_E_OUT_OF_RANGE, "estimator %d unknown", est);
     if (!(cfg->sample_time > 0.0) || !std::isfinite(cfg->sample_time))
         throw_error(VIBID_E_OUT_OF_RANGE, "sample_time = %g s must be > 0 and finite", cfg->sample_time);
     if (cfg->difference_order != 0 && cfg->difference_order != 2 && cfg->difference_order != 4)

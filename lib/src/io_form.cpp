@@ -35,8 +35,9 @@ void check_config(const vibid_ioform_config *cfg) {
         vibid::throw_error(VIBID_E_DIMENSION, "n_outputs = %zu outside 1..%zu", cfg->n_outputs, kMaxIo);
     if (cfg->n_inputs > kMaxIo)
         vibid::throw_error(VIBID_E_DIMENSION, "n_inputs = %zu outside 0..%zu", cfg->n_inputs, kMaxIo);
-    if (cfg->method != VIBID_IOFORM_LS && cfg->method != VIBID_IOFORM_IV)
-        vibid::throw_error(VIBID_E_OUT_OF_RANGE, "method = %d unknown", static_cast<int>(cfg->method));
+    const int method = vibid::enum_value(cfg->method);
+    if (method != VIBID_IOFORM_LS && method != VIBID_IOFORM_IV)
+        vibid::throw_error(VIBID_E_OUT_OF_RANGE, "method = %d unknown", method);
     if (cfg->method == VIBID_IOFORM_IV && (cfg->iv_lags < cfg->order || cfg->iv_lags > kMaxLags))
         vibid::throw_error(VIBID_E_OUT_OF_RANGE, "iv_lags = %zu outside order..%zu", cfg->iv_lags, kMaxLags);
 }

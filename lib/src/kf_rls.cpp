@@ -139,8 +139,9 @@ vibid_kfrls *vibid_kfrls_create(const vibid_kfrls_config *cfg, const double *U, 
         if (r > kMaxInputs) vibid::throw_error(VIBID_E_DIMENSION, "n_inputs = %zu outside 0..%zu", r, kMaxInputs);
         if (cfg->first_free_row >= n)
             vibid::throw_error(VIBID_E_DIMENSION, "first_free_row = %zu not below n_states", cfg->first_free_row);
-        if (cfg->method != VIBID_KFRLS_PAPER && cfg->method != VIBID_KFRLS_EKF)
-            vibid::throw_error(VIBID_E_OUT_OF_RANGE, "method = %d unknown", static_cast<int>(cfg->method));
+        const int method = vibid::enum_value(cfg->method);
+        if (method != VIBID_KFRLS_PAPER && method != VIBID_KFRLS_EKF)
+            vibid::throw_error(VIBID_E_OUT_OF_RANGE, "method = %d unknown", method);
         if (!(cfg->forgetting > 0.0 && cfg->forgetting <= 1.0))
             vibid::throw_error(VIBID_E_OUT_OF_RANGE, "forgetting = %g outside (0, 1]", cfg->forgetting);
         if (!(cfg->param_noise >= 0.0) || !std::isfinite(cfg->param_noise))

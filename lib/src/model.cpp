@@ -446,8 +446,9 @@ VIBID_API vibid_status vibid_model_add_element(vibid_model *model, const char *n
         require_editable(model);
         if (model->full_matrix) throw_error(VIBID_E_STATE, "model was given as full matrices");
         check_name(model, name, "element");
-        if (kind != VIBID_ELEMENT_SPRING && kind != VIBID_ELEMENT_DAMPER && kind != VIBID_ELEMENT_CUBIC_SPRING)
-            throw_error(VIBID_E_OUT_OF_RANGE, "element '%s': unknown kind %d", name, static_cast<int>(kind));
+        const int k = vibid::enum_value(kind);
+        if (k != VIBID_ELEMENT_SPRING && k != VIBID_ELEMENT_DAMPER && k != VIBID_ELEMENT_CUBIC_SPRING)
+            throw_error(VIBID_E_OUT_OF_RANGE, "element '%s': unknown kind %d", name, k);
         const std::size_t n = model->nodes.size();
         if (node_a >= n)
             throw_error(VIBID_E_OUT_OF_RANGE, "element '%s': first end %zu is not a declared node (%zu nodes)", name,
@@ -627,8 +628,9 @@ VIBID_API vibid_status vibid_model_set_matrices(vibid_model *model, size_t n_dof
 VIBID_API vibid_status vibid_model_set_hold(vibid_model *model, size_t input, vibid_hold hold) {
     VIBID_GUARD(
         require_editable(model);
-        if (hold != VIBID_HOLD_SMOOTH && hold != VIBID_HOLD_ZOH)
-            throw_error(VIBID_E_OUT_OF_RANGE, "hold %d unknown (VIBID_HOLD_SMOOTH or VIBID_HOLD_ZOH)", static_cast<int>(hold));
+        const int hv = vibid::enum_value(hold);
+        if (hv != VIBID_HOLD_SMOOTH && hv != VIBID_HOLD_ZOH)
+            throw_error(VIBID_E_OUT_OF_RANGE, "hold %d unknown (VIBID_HOLD_SMOOTH or VIBID_HOLD_ZOH)", hv);
         if (input == VIBID_BASE)
             model->base_hold = hold;
         else if (input < model->inputs.size())
@@ -655,8 +657,9 @@ VIBID_API vibid_status vibid_model_get_hold(const vibid_model *model, size_t inp
 VIBID_API vibid_status vibid_model_set_discretization(vibid_model *model, vibid_discretization disc) {
     VIBID_GUARD(
         require_editable(model);
-        if (disc != VIBID_DISC_CENTRAL_DIFFERENCE && disc != VIBID_DISC_ZOH)
-            throw_error(VIBID_E_OUT_OF_RANGE, "discretization %d unknown", static_cast<int>(disc));
+        const int dv = vibid::enum_value(disc);
+        if (dv != VIBID_DISC_CENTRAL_DIFFERENCE && dv != VIBID_DISC_ZOH)
+            throw_error(VIBID_E_OUT_OF_RANGE, "discretization %d unknown", dv);
         model->discretization = disc;
         return VIBID_OK;);
 }

@@ -349,14 +349,6 @@ struct vibid_rls {
 
 namespace {
 
-template <class E>
-int enum_bits(const E &value) {
-    static_assert(sizeof(E) == sizeof(int), "C enums are int-sized here");
-    int bits;
-    std::memcpy(&bits, &value, sizeof bits);
-    return bits;
-}
-
 vibid_rls *make_rls(const vibid_rls_config *cfg) {
     using vibid::throw_error;
     if (!cfg) throw_error(VIBID_E_NULL_ARGUMENT, "cfg is NULL");
@@ -366,9 +358,7 @@ vibid_rls *make_rls(const vibid_rls_config *cfg) {
         throw_error(VIBID_E_DIMENSION, "n_outputs = %zu outside 1..%zu", cfg->n_outputs, kMaxDim);
     if (cfg->n_equations < 1 || cfg->n_equations > kMaxDim)
         throw_error(VIBID_E_DIMENSION, "n_equations = %zu outside 1..%zu", cfg->n_equations, kMaxDim);
-    // A C caller can store any int in an enum field; loading an out-of-range value as the
-    // C++ enum type is undefined, so the raw representation is inspected.
-    const int form = enum_bits(cfg->form), windup = enum_bits(cfg->windup);
+    const int form = vibid::enum_value(cfg->form), windup = vibid::enum_value(cfg->windup);
     if (form != VIBID_RLS_FORM_BIERMAN_UD && form != VIBID_RLS_FORM_COVARIANCE)
         throw_error(VIBID_E_OUT_OF_RANGE, "form = %d is not a vibid_rls_form", form);
     if (!(cfg->forgetting > 0.0 && cfg->forgetting <= 1.0))
