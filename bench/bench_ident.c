@@ -14,9 +14,16 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <time.h>
+#include <unistd.h>
 
 #include <vibid/identify.h>
 #include <vibid/model.h>
+#include <vibid/stand_file.h>
+
+#include "sim_config.h"
+#include "sim_engine.h"
+
+#include "chain_stand.h" /* tests/ident: the stand of ident.default */
 
 #define H (1.0 / 2000.0)
 
@@ -43,9 +50,7 @@ static vibid_model *example1(void)
     return m;
 }
 
-/* The chain; nominal = 0 gives it no nominal values (so the automatic estimator runs the
- * pre-filter pilot). */
-static vibid_model *chain3_nominal(int nominal)
+static vibid_model *chain3(void)
 {
     vibid_model *m = vibid_model_create();
     size_t n[3];
@@ -54,13 +59,12 @@ static vibid_model *chain3_nominal(int nominal)
         vibid_model_add_node(m, names[i], 1.0 + 0.5 * i, 0, &n[i]);
         vibid_model_set_measured(m, n[i], VIBID_MEASURE_DISPLACEMENT | VIBID_MEASURE_ACCELERATION);
     }
-    const double v = nominal ? 1.0 : 0.0;
-    vibid_model_add_element(m, "k1", VIBID_ELEMENT_SPRING, n[0], VIBID_GROUND, 4e4 * v, 1);
-    vibid_model_add_element(m, "d1", VIBID_ELEMENT_DAMPER, n[0], VIBID_GROUND, 20 * v, 1);
-    vibid_model_add_element(m, "k2", VIBID_ELEMENT_SPRING, n[1], n[0], 3e4 * v, 1);
-    vibid_model_add_element(m, "d2", VIBID_ELEMENT_DAMPER, n[1], n[0], 15 * v, 1);
-    vibid_model_add_element(m, "k3", VIBID_ELEMENT_SPRING, n[2], n[1], 2e4 * v, 1);
-    vibid_model_add_element(m, "d3", VIBID_ELEMENT_DAMPER, n[2], n[1], 10 * v, 1);
+    vibid_model_add_element(m, "k1", VIBID_ELEMENT_SPRING, n[0], VIBID_GROUND, 4e4, 1);
+    vibid_model_add_element(m, "d1", VIBID_ELEMENT_DAMPER, n[0], VIBID_GROUND, 20, 1);
+    vibid_model_add_element(m, "k2", VIBID_ELEMENT_SPRING, n[1], n[0], 3e4, 1);
+    vibid_model_add_element(m, "d2", VIBID_ELEMENT_DAMPER, n[1], n[0], 15, 1);
+    vibid_model_add_element(m, "k3", VIBID_ELEMENT_SPRING, n[2], n[1], 2e4, 1);
+    vibid_model_add_element(m, "d3", VIBID_ELEMENT_DAMPER, n[2], n[1], 10, 1);
     size_t in;
     vibid_model_add_input(m, "f", n[2], 1.0, 0, &in);
     vibid_model_set_hold(m, in, VIBID_HOLD_ZOH);
@@ -68,56 +72,40 @@ static vibid_model *chain3_nominal(int nominal)
     return m;
 }
 
-static vibid_model *chain3(void) { return chain3_nominal(1); }
-
-/* The chain's response to a held random force (uniform, +-50 N, new each sample), by RK4
- * with 10 steps per sample: n samples of the channels x1 a1 x2 a2 x3 a3 f, sample-major
- * (malloc'd, the caller frees). Accurate enough for a timing run, which needs only an
- * estimate with modes where the stand has them. */
-static double *chain3_response(long n)
+static void die(const char *what)
 {
-    const double mass[3] = {1.0, 1.5, 2.0}, k[3] = {4e4, 3e4, 2e4}, d[3] = {20, 15, 10};
-    double x[3] = {0}, v[3] = {0}, *out = malloc((size_t)n * 7 * sizeof(double));
-    unsigned seed = 12345u;
-    for (long s = 0; s < n; s++) {
-        seed = seed * 1103515245u + 12345u;
-        const double f = 100.0 * ((double)(seed >> 8) / 16777216.0 - 0.5);
-        double acc[3];
-        for (int sub = 0; sub <= 10; sub++) {
-            /* accelerations of state (xs, vs): springs/dampers k1 d1 to ground, k2 d2 and
-             * k3 d3 between neighbours, the force on node 3 */
-            double kx[4][3], kv[4][3], xs[3], vs[3];
-            for (int st = 0; st < 4; st++) {
-                const double c = st == 0 ? 0.0 : (st == 3 ? 1.0 : 0.5);
-                for (int i = 0; i < 3; i++) {
-                    xs[i] = x[i] + (st ? c * (H / 10) * kx[st - 1][i] : 0.0);
-                    vs[i] = v[i] + (st ? c * (H / 10) * kv[st - 1][i] : 0.0);
-                }
-                const double f1 = k[0] * xs[0] + d[0] * vs[0], f2 = k[1] * (xs[1] - xs[0]) + d[1] * (vs[1] - vs[0]),
-                             f3 = k[2] * (xs[2] - xs[1]) + d[2] * (vs[2] - vs[1]);
-                const double a[3] = {(-f1 + f2) / mass[0], (-f2 + f3) / mass[1], (-f3 + f) / mass[2]};
-                for (int i = 0; i < 3; i++) {
-                    kx[st][i] = vs[i];
-                    kv[st][i] = a[i];
-                }
-                if (st == 0)
-                    for (int i = 0; i < 3; i++) acc[i] = a[i];
-            }
-            if (sub == 0) {
-                for (int i = 0; i < 3; i++) {
-                    out[(size_t)s * 7 + 2 * (size_t)i] = x[i];
-                    out[(size_t)s * 7 + 2 * (size_t)i + 1] = acc[i];
-                }
-                out[(size_t)s * 7 + 6] = f;
-            }
-            if (sub == 10) break;
-            for (int i = 0; i < 3; i++) {
-                x[i] += (H / 10) / 6.0 * (kx[0][i] + 2 * kx[1][i] + 2 * kx[2][i] + kx[3][i]);
-                v[i] += (H / 10) / 6.0 * (kv[0][i] + 2 * kv[1][i] + 2 * kv[2][i] + kv[3][i]);
-            }
-        }
+    fprintf(stderr, "bench_ident: %s\n", what);
+    exit(1);
+}
+
+/* Loads chain_stand (tests/ident/chain_stand.h; *stand, the caller destroys it) and
+ * simulates n samples of its channels, sample-major (malloc'd, the caller frees). */
+static double *pilot_capture(long n, vibid_stand **stand, size_t *nc)
+{
+    char path[] = "/tmp/bench_ident_XXXXXX", err[1024];
+    const int fd = mkstemp(path);
+    if (fd < 0) die("cannot create a temporary stand file");
+    FILE *f = fdopen(fd, "w");
+    if (!f || fputs(chain_stand, f) < 0 || fclose(f)) die("cannot write the temporary stand file");
+    vibid_stand_error serr;
+    *stand = vibid_stand_load(path, &serr);
+    if (!*stand) die(serr.text);
+    sim_config cfg;
+    if (sim_config_load(path, *stand, NULL, &cfg, err, sizeof err)) die(err);
+    unlink(path);
+    sim_engine *e = sim_engine_create(*stand, &cfg, err, sizeof err);
+    if (!e) die(err);
+    *nc = sim_engine_channels(e);
+    double *data = malloc((size_t)n * *nc * sizeof(double));
+    if (!data) die("out of memory");
+    for (long k = 0; k < n; k++) {
+        uint64_t kk;
+        double t;
+        if (sim_engine_next(e, &kk, &t, data + (size_t)k * *nc, NULL)) die(sim_engine_error(e));
     }
-    return out;
+    sim_engine_destroy(e);
+    sim_config_free(&cfg);
+    return data;
 }
 
 /* The push that ends the pre-filter pilot (chain without nominal values, the automatic
@@ -126,8 +114,10 @@ static double *chain3_response(long n)
 static void time_pilot_end(void)
 {
     enum { PILOT = 4096 };
-    vibid_model *m = chain3_nominal(0);
-    double *data = chain3_response(PILOT);
+    vibid_stand *stand;
+    size_t nc;
+    double *data = pilot_capture(PILOT, &stand, &nc);
+    const vibid_model *m = vibid_stand_model(stand);
     vibid_ident_config aut, rls, used;
     vibid_ident_config_init(&aut, H);
     vibid_ident_config_init(&rls, H);
@@ -137,16 +127,13 @@ static void time_pilot_end(void)
     double best_end = 1e300, best_rls = 1e300;
     for (int rep = 0; rep < 3; rep++) {
         vibid_ident *id = vibid_ident_create(m, &aut), *yard = vibid_ident_create(m, &rls);
-        if (!id || !yard) {
-            fprintf(stderr, "bench_ident: %s\n", vibid_last_error());
-            exit(1);
-        }
-        for (long k = 0; k < PILOT - 1; k++) vibid_ident_push(id, data + (size_t)k * 7);
+        if (!id || !yard) die(vibid_last_error());
+        for (long k = 0; k < PILOT - 1; k++) vibid_ident_push(id, data + (size_t)k * nc);
         double t0 = now_s();
-        vibid_ident_push(id, data + (size_t)(PILOT - 1) * 7);
+        vibid_ident_push(id, data + (size_t)(PILOT - 1) * nc);
         best_end = fmin(best_end, now_s() - t0);
         t0 = now_s();
-        for (long k = 0; k < PILOT; k++) vibid_ident_push(yard, data + (size_t)k * 7);
+        for (long k = 0; k < PILOT; k++) vibid_ident_push(yard, data + (size_t)k * nc);
         best_rls = fmin(best_rls, now_s() - t0);
         vibid_ident_get_config(id, &used);
         vibid_ident_destroy(id);
@@ -158,7 +145,7 @@ static void time_pilot_end(void)
     printf("  %-62s %10.2f ms  ratio %.1f\n", "yardstick: the pilot's samples through RLS, (1.17), 200 Hz", 1e3 * best_rls,
            best_end / best_rls);
     free(data);
-    vibid_model_destroy(m);
+    vibid_stand_destroy(stand);
 }
 
 /* ns per sample of vibid_ident_push, best of 3; *est_us: one vibid_ident_estimate. */

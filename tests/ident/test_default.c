@@ -41,24 +41,11 @@
 #include "sim_engine.h"
 #include "sim_test_util.h"
 #include "capture.h"
+#include "chain_stand.h"
 
 #define FS 2000.0
 #define SECONDS 20.0
 #define MC_RUNS 200
-
-static const char *chain_stand =
-    "stand = { name = \"chain3\"; sample_rate = 2000.0;\n"
-    "  nodes = ( { name = \"m1\"; mass = 2.0; measure = { displacement = \"x1\"; acceleration = \"a1\"; }; },\n"
-    "            { name = \"m2\"; mass = 1.5; measure = { displacement = \"x2\"; acceleration = \"a2\"; }; },\n"
-    "            { name = \"m3\"; mass = 1.0; measure = { displacement = \"x3\"; acceleration = \"a3\"; }; } );\n"
-    "  elements = ( { name = \"k1\"; kind = \"spring\"; between = [\"m1\", \"ground\"]; unknown = true; true_value = 4.0e4; },\n"
-    "               { name = \"d1\"; kind = \"damper\"; between = [\"m1\", \"ground\"]; unknown = true; true_value = 20.0; },\n"
-    "               { name = \"k2\"; kind = \"spring\"; between = [\"m2\", \"m1\"]; unknown = true; true_value = 3.0e4; },\n"
-    "               { name = \"d2\"; kind = \"damper\"; between = [\"m2\", \"m1\"]; unknown = true; true_value = 15.0; },\n"
-    "               { name = \"k3\"; kind = \"spring\"; between = [\"m3\", \"m2\"]; unknown = true; true_value = 2.0e4; },\n"
-    "               { name = \"d3\"; kind = \"damper\"; between = [\"m3\", \"m2\"]; unknown = true; true_value = 10.0; } );\n"
-    "  inputs = ( { name = \"f\"; node = \"m3\"; gain = 1.0; channel = \"F\"; hold = \"zoh\"; } ); };\n"
-    "simulation = { seed = 3; excitation = ( { target = \"f\"; kind = \"noise\"; amplitude = 20.0; f_high = 150.0; } ); };\n";
 
 static const char *cubic_stand =
     "stand = { name = \"cubic1\"; sample_rate = 2000.0;\n"
