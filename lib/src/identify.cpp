@@ -807,18 +807,23 @@ vibid_status estimate_without_trace(vibid_ident &id, double *theta, double *se) 
     return s;
 }
 
-// The pilot's figure of merit for an estimator: the sum over the parameters of
+// The pilot's figure of merit for an estimate: the sum over the parameters of
 // (se_i / theta_i)^2, the relative variances (what a track row's error bars add up to).
-// HUGE_VAL when there is no estimate or a parameter is not excited (infinite se).
-double relative_variance(vibid_ident &id) {
-    std::vector<double> th(id.p), se(id.p);
-    if (estimate_without_trace(id, th.data(), se.data()) != VIBID_OK) return HUGE_VAL;
+// HUGE_VAL when a parameter is not excited (infinite se).
+double sum_relative_variance(const std::vector<double> &th, const std::vector<double> &se) {
     double sum = 0.0;
-    for (std::size_t i = 0; i < id.p; ++i) {
+    for (std::size_t i = 0; i < th.size(); ++i) {
         if (!std::isfinite(se[i]) || !std::isfinite(th[i])) return HUGE_VAL;
         if (th[i] != 0.0) sum += (se[i] / th[i]) * (se[i] / th[i]);
     }
     return sum;
+}
+
+// The same for an estimator's current estimate; HUGE_VAL when it gives none.
+double relative_variance(vibid_ident &id) {
+    std::vector<double> th(id.p), se(id.p);
+    if (estimate_without_trace(id, th.data(), se.data()) != VIBID_OK) return HUGE_VAL;
+    return sum_relative_variance(th, se);
 }
 
 // The end of the pre-filter pilot (vibid_ident::pilot). Which cutoff is best depends on
@@ -838,8 +843,8 @@ void tune_prefilter(vibid_ident &id) {
     id.pilot_len = id.pilot_count = 0;
     std::string keep_why;
     try {
-        std::vector<double> th(id.p), f(id.n), z(id.n);
-        if (estimate_without_trace(id, th.data(), nullptr) != VIBID_OK)
+        std::vector<double> th(id.p), se(id.p), f(id.n), z(id.n);
+        if (estimate_without_trace(id, th.data(), se.data()) != VIBID_OK)
             throw_error(VIBID_E_INSUFFICIENT_DATA, "no estimate: %s", vibid_last_error());
         const vibid_status ms =
             vibid_model_modal(&id.model, th.data(), nullptr, f.data(), nullptr, z.data(), nullptr, nullptr, nullptr);
@@ -861,7 +866,7 @@ void tune_prefilter(vibid_ident &id) {
             for (double c : cand) distinct = distinct && std::fabs(fc / c - 1.0) > 0.1;
             if (distinct) cand.push_back(fc);
         }
-        std::vector<double> score{fc_now >= lowest ? relative_variance(id) : HUGE_VAL};
+        std::vector<double> score{fc_now >= lowest ? sum_relative_variance(th, se) : HUGE_VAL};
         std::unique_ptr<vibid_ident> best;
         std::size_t best_k = 0;
         for (std::size_t k = 1; k < cand.size(); ++k) {
