@@ -16,6 +16,7 @@ if [[ "${1:-}" == "--test" ]]; then
   # headers the Python package's extension module compiles against (python/).
   packages+=(can-utils qemu-system-x86 busybox-static cpio xz-utils python3-venv python3-dev clang
              libclang-rt-14-dev)
+  packages+=(systemd)  # systemd-analyze, and systemd as PID 1 in the VM (tests/daemon/systemd)
 fi
 
 missing=()

@@ -469,11 +469,13 @@ int main(int argc, char **argv)
             sim_modbus_stats ms;
             sim_modbus_stats_get(mb, &ms);
             fprintf(stderr, "vibid-sim: modbus: %llu clients accepted, %llu closed, %llu requests (%llu writes refused), %llu records, "
-                            "%llu sessions; FIFO records dropped %llu, corrupted %llu; %llu encode errors\n",
+                            "%llu sessions; FIFO records dropped %llu, corrupted %llu; %llu encode errors; %llu clients closed for not "
+                            "reading their replies, %llu for bad frames\n",
                     (unsigned long long)ms.accepted, (unsigned long long)ms.closed, (unsigned long long)ms.requests,
                     (unsigned long long)ms.refused_writes, (unsigned long long)ms.records, (unsigned long long)ms.sessions,
                     (unsigned long long)mb_faults.dropped, (unsigned long long)mb_faults.corrupted,
-                    (unsigned long long)ms.encode_errors);
+                    (unsigned long long)ms.encode_errors, (unsigned long long)ms.slow_clients,
+                    (unsigned long long)ms.bad_frames);
         }
         if (saturated) fprintf(stderr, "vibid-sim: warning: %llu values saturated in integer CAN signals (raise the scale)\n",
                                (unsigned long long)saturated);

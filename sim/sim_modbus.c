@@ -24,6 +24,8 @@ struct sim_modbus {
     int port;
     int listen_fd;
     int clients[MAX_CLIENTS];
+    uint8_t inbuf[MAX_CLIENTS][MODBUS_TCP_MAX_ADU_LENGTH]; /* per client: bytes of requests not yet answered */
+    size_t inlen[MAX_CLIENTS];
     modbus_t *ctx;
     modbus_mapping_t *map;
     vibid_regmap rm;
@@ -80,14 +82,19 @@ static int open_listen(sim_modbus *m, char *err, size_t errlen)
     return 0;
 }
 
+/* Drops client slot i (its socket closed, its partial request forgotten). */
+static void drop_client(sim_modbus *m, int i)
+{
+    close(m->clients[i]);
+    m->clients[i] = -1;
+    m->inlen[i] = 0;
+    m->st.closed++;
+}
+
 static void close_all(sim_modbus *m)
 {
     for (int i = 0; i < MAX_CLIENTS; i++)
-        if (m->clients[i] >= 0) {
-            close(m->clients[i]);
-            m->clients[i] = -1;
-            m->st.closed++;
-        }
+        if (m->clients[i] >= 0) drop_client(m, i);
     if (m->listen_fd >= 0) close(m->listen_fd);
     m->listen_fd = -1;
 }
@@ -125,10 +132,54 @@ static void fifo_restart(sim_modbus *m, double h)
 
 static int is_write(int fc) { return fc == 0x05 || fc == 0x06 || fc == 0x0F || fc == 0x10 || fc == 0x16 || fc == 0x17; }
 
+/* Answers every complete request in client i's buffer. Requests are framed by their MBAP
+ * header here, not by modbus_receive: that call blocks on a partial request (a client
+ * dripping bytes stalled every client), and a reply sent on a blocking socket to a client
+ * that pipelines requests without reading stalled the thread, with the register lock
+ * held, once the socket buffers filled. Sockets are non-blocking: a reply that cannot be
+ * sent at once closes that client (counted), the others never wait. 0, or -1 when the
+ * client was dropped. */
+static int serve_requests(sim_modbus *m, int i)
+{
+    uint8_t *b = m->inbuf[i];
+    for (;;) {
+        if (m->inlen[i] < 6) return 0;
+        unsigned len = ((unsigned)b[4] << 8) | b[5]; /* unit id + PDU */
+        if (len < 2 || len > MODBUS_TCP_MAX_ADU_LENGTH - 6) {
+            m->st.bad_frames++;
+            drop_client(m, i);
+            return -1;
+        }
+        size_t total = 6 + (size_t)len;
+        if (m->inlen[i] < total) return 0;
+        uint8_t req[MODBUS_TCP_MAX_ADU_LENGTH] = {0}; /* zeros past a short PDU: never stale bytes */
+        memcpy(req, b, total);
+        memmove(b, b + total, m->inlen[i] - total);
+        m->inlen[i] -= total;
+        modbus_set_socket(m->ctx, m->clients[i]);
+        pthread_mutex_lock(&m->lock);
+        m->st.requests++;
+        int fc = req[7], r2;
+        if (is_write(fc)) {
+            m->st.refused_writes++;
+            r2 = modbus_reply_exception(m->ctx, req, MODBUS_EXCEPTION_ILLEGAL_FUNCTION);
+        } else if (fc >= 1 && fc <= 4 && len < 6) { /* a read needs address and count */
+            r2 = modbus_reply_exception(m->ctx, req, MODBUS_EXCEPTION_ILLEGAL_DATA_VALUE);
+        } else {
+            r2 = modbus_reply(m->ctx, req, (int)total, m->map);
+        }
+        pthread_mutex_unlock(&m->lock);
+        if (r2 < 0) { /* EAGAIN: its replies pile up unread; or the peer is gone */
+            if (errno == EAGAIN || errno == EWOULDBLOCK || errno == EMBBADDATA) m->st.slow_clients++;
+            drop_client(m, i);
+            return -1;
+        }
+    }
+}
+
 static void *server_thread(void *arg)
 {
     sim_modbus *m = arg;
-    uint8_t query[MODBUS_TCP_MAX_ADU_LENGTH];
     char err[256];
     while (!m->quit) {
         pthread_mutex_lock(&m->lock);
@@ -168,7 +219,7 @@ static void *server_thread(void *arg)
         int n = select(maxfd + 1, &rd, NULL, NULL, &tv);
         if (n <= 0) continue;
         if (m->listen_fd >= 0 && FD_ISSET(m->listen_fd, &rd)) {
-            int fd = accept4(m->listen_fd, NULL, NULL, SOCK_CLOEXEC);
+            int fd = accept4(m->listen_fd, NULL, NULL, SOCK_CLOEXEC | SOCK_NONBLOCK);
             if (fd >= 0) {
                 int slot = -1;
                 for (int i = 0; i < MAX_CLIENTS && slot < 0; i++)
@@ -177,6 +228,7 @@ static void *server_thread(void *arg)
                     close(fd); /* too many clients: refuse this one, keep the others */
                 } else {
                     m->clients[slot] = fd;
+                    m->inlen[slot] = 0;
                     m->st.accepted++;
                 }
             }
@@ -184,30 +236,14 @@ static void *server_thread(void *arg)
         for (int i = 0; i < MAX_CLIENTS; i++) {
             int fd = m->clients[i];
             if (fd < 0 || !FD_ISSET(fd, &rd)) continue;
-            modbus_set_socket(m->ctx, fd);
-            int rc = modbus_receive(m->ctx, query);
-            if (rc < 0) { /* disconnect, timeout inside a request, or garbage */
-                close(fd);
-                m->clients[i] = -1;
-                m->st.closed++;
+            ssize_t got = recv(fd, m->inbuf[i] + m->inlen[i], sizeof m->inbuf[i] - m->inlen[i], 0);
+            if (got == 0 || (got < 0 && errno != EAGAIN && errno != EWOULDBLOCK && errno != EINTR)) {
+                drop_client(m, i); /* disconnected */
                 continue;
             }
-            if (rc == 0) continue;
-            int off = modbus_get_header_length(m->ctx);
-            pthread_mutex_lock(&m->lock);
-            m->st.requests++;
-            int r2;
-            if (is_write(query[off])) {
-                m->st.refused_writes++;
-                r2 = modbus_reply_exception(m->ctx, query, MODBUS_EXCEPTION_ILLEGAL_FUNCTION);
-            } else {
-                r2 = modbus_reply(m->ctx, query, rc, m->map);
-            }
-            pthread_mutex_unlock(&m->lock);
-            if (r2 < 0) {
-                close(fd);
-                m->clients[i] = -1;
-                m->st.closed++;
+            if (got > 0) {
+                m->inlen[i] += (size_t)got;
+                serve_requests(m, i);
             }
         }
     }

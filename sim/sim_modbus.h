@@ -24,6 +24,8 @@ typedef struct sim_modbus sim_modbus;
 
 typedef struct sim_modbus_stats {
     uint64_t accepted, closed, requests, refused_writes, encode_errors, records, sessions;
+    uint64_t slow_clients;   /* closed because they did not read their replies (send would block) */
+    uint64_t bad_frames;     /* closed because of an impossible MBAP header (length 0, 1 or > 254) */
 } sim_modbus_stats;
 
 /* host "127.0.0.1", "0.0.0.0", "::1", ...; port 0 picks a free port (sim_modbus_port).

@@ -17,6 +17,7 @@
 #include <string.h>
 #include <sys/stat.h>
 
+#include <vibid/units.h>
 #include <vibid_drivers/source_replay.h>
 
 typedef struct ctx {
@@ -28,9 +29,37 @@ typedef struct ctx {
 static int fail_at(ctx *c, const config_setting_t *s, const char *field, const char *fmt, ...)
     __attribute__((format(printf, 4, 5)));
 
-static int fail_at(ctx *c, const config_setting_t *s, const char *field, const char *fmt, ...)
+static int fail_line(ctx *c, const char *file, int line, const char *field, const char *fmt, ...)
+    __attribute__((format(printf, 5, 6)));
+
+static int vfail_line(ctx *c, const char *file, int line, const char *field, const char *fmt, va_list ap)
 {
     vd_config_error *e = c->err;
+    snprintf(e->file, sizeof e->file, "%s", file);
+    e->line = line;
+    snprintf(e->field, sizeof e->field, "%s", field ? field : "");
+    char msg[1400];
+    vsnprintf(msg, sizeof msg, fmt, ap);
+    if (line > 0)
+        snprintf(e->text, sizeof e->text, "%s:%d: %s: %s", file, line, e->field, msg);
+    else
+        snprintf(e->text, sizeof e->text, "%s: %s: %s", file, e->field, msg);
+    return -1;
+}
+
+/* An error at file:line (a place libconfig's settings do not carry, e.g. a channel of a
+ * separate channel-map file). */
+static int fail_line(ctx *c, const char *file, int line, const char *field, const char *fmt, ...)
+{
+    va_list ap;
+    va_start(ap, fmt);
+    vfail_line(c, file, line, field, fmt, ap);
+    va_end(ap);
+    return -1;
+}
+
+static int fail_at(ctx *c, const config_setting_t *s, const char *field, const char *fmt, ...)
+{
     const char *file = c->file;
     int line = 0;
     if (s) {
@@ -39,18 +68,10 @@ static int fail_at(ctx *c, const config_setting_t *s, const char *field, const c
         if (sf && *sf)
             file = sf;
     }
-    snprintf(e->file, sizeof e->file, "%s", file);
-    e->line = line;
-    snprintf(e->field, sizeof e->field, "%s", field ? field : "");
-    char msg[1400];
     va_list ap;
     va_start(ap, fmt);
-    vsnprintf(msg, sizeof msg, fmt, ap);
+    vfail_line(c, file, line, field, fmt, ap);
     va_end(ap);
-    if (line > 0)
-        snprintf(e->text, sizeof e->text, "%s:%d: %s: %s", file, line, e->field, msg);
-    else
-        snprintf(e->text, sizeof e->text, "%s: %s: %s", file, e->field, msg);
     return -1;
 }
 
@@ -341,9 +362,17 @@ static int load_chanmap(ctx *c, const config_setting_t *src)
         return fail_at(c, src, "source.channels",
                        "missing: map the stand's channels to signals/registers/columns (channels = (...); or "
                        "channel_map = \"file\";)");
-    if (st != VIBID_DRV_OK)
+    if (st != VIBID_DRV_OK) {
+        /* The channel map's own "file:line: reason" is the place to point at. */
+        const char *file = cfg->chanmap_file[0] ? cfg->chanmap_file : c->file;
+        size_t fl = strlen(file);
+        char *end = NULL;
+        long line = strncmp(de.text, file, fl) == 0 && de.text[fl] == ':' ? strtol(de.text + fl + 1, &end, 10) : 0;
+        if (line > 0 && end && strncmp(end, ": ", 2) == 0)
+            return fail_line(c, file, (int)line, "source.channels", "%s", end + 2);
         return fail_at(c, inl ? inl : config_setting_get_member(src, "channel_map"), "source.channels", "%s",
                        de.text);
+    }
     /* Embedded counter/trigger/time_column beside an external channel map override it. */
     char tmp[VIBID_CHAN_NAME_LEN];
     const char *const keys[] = {"counter", "trigger", "time_column"};
@@ -371,6 +400,118 @@ static int load_chanmap(ctx *c, const config_setting_t *src)
                            ci.name);
         }
         cfg->model_to_chan[i] = k;
+    }
+    return 0;
+}
+
+/* Dimension of a channel-map quantity; -1 for `input` (its own units, any label). */
+static int quantity_dim(vibid_quantity q)
+{
+    switch (q) {
+    case VIBID_Q_DISPLACEMENT:
+    case VIBID_Q_BASE_DISPLACEMENT: return VIBID_DIM_LENGTH;
+    case VIBID_Q_VELOCITY:
+    case VIBID_Q_BASE_VELOCITY: return VIBID_DIM_VELOCITY;
+    case VIBID_Q_ACCELERATION:
+    case VIBID_Q_BASE_ACCELERATION: return VIBID_DIM_ACCELERATION;
+    case VIBID_Q_FORCE: return VIBID_DIM_FORCE;
+    case VIBID_Q_INPUT: return -1;
+    }
+    return -1;
+}
+
+/* Factor from channel k's unit to the stand's units, into cfg->chan_scale[k]. The unit is
+ * the channel map's `unit`, else the DBC signal's unit, else none (the stand's units, 1).
+ * A unit given twice must agree. */
+static int channel_scale(ctx *c, const char *map_file, size_t k)
+{
+    vd_config *cfg = c->cfg;
+    const vibid_channel *ch = &cfg->chanmap.ch[k];
+    const vibid_dbc_signal *sig = NULL;
+    const vibid_dbc_message *msg = NULL;
+    if (ch->source == VIBID_CHAN_SIGNAL && cfg->dbc)
+        sig = vibid_dbc_lookup_signal(cfg->dbc, ch->ref, ch->message, &msg, NULL);
+    const char *dbc_unit = sig && sig->unit[0] ? sig->unit : NULL;
+    const char *unit = ch->unit[0] ? ch->unit : dbc_unit;
+    int dim = quantity_dim(ch->quantity);
+    cfg->chan_scale[k] = 1.0;
+    if (dim < 0 || !unit)
+        return 0;
+    char f[200];
+    snprintf(f, sizeof f, "source.channels.%s.unit", ch->name);
+    double si, dbc_si;
+    if (vibid_unit_si_factor((vibid_unit_dim)dim, unit, &si)) {
+        if (unit == dbc_unit)
+            return fail_line(c, map_file, (int)ch->line, f,
+                             "channel '%s' (%s) takes the unit '%s' of DBC signal '%s' (%s:%u), which is not a %s "
+                             "unit (%s): declare the channel's unit, or map a signal of the right quantity",
+                             ch->name, vibid_quantity_name(ch->quantity), unit, sig->name, cfg->dbc_file, sig->line,
+                             vibid_unit_dim_name((vibid_unit_dim)dim), vibid_unit_names((vibid_unit_dim)dim));
+        return fail_line(c, map_file, (int)ch->line, f, "'%s' is not a %s unit for a %s channel (%s)", unit,
+                         vibid_unit_dim_name((vibid_unit_dim)dim), vibid_quantity_name(ch->quantity),
+                         vibid_unit_names((vibid_unit_dim)dim));
+    }
+    if (dbc_unit && unit != dbc_unit &&
+        (vibid_unit_si_factor((vibid_unit_dim)dim, dbc_unit, &dbc_si) || fabs(dbc_si - si) > 1e-12 * si))
+        return fail_line(c, map_file, (int)ch->line, f,
+                         "channel '%s' says '%s' but DBC signal '%s' (%s:%u) is in '%s': one of them is wrong",
+                         ch->name, unit, sig->name, cfg->dbc_file, sig->line, dbc_unit);
+    double stand_si = dim == VIBID_DIM_FORCE ? 1.0 : vibid_stand_length_si(cfg->stand);
+    cfg->chan_scale[k] = si / stand_si;
+    return 0;
+}
+
+/* The channel map against the stand: every channel's unit known for its quantity (and
+ * converted), and every channel the stand reads declared with the quantity and node the
+ * stand gives it. Runs after the source's DBC is loaded (a signal's unit comes from it). */
+static int check_channels(ctx *c)
+{
+    vd_config *cfg = c->cfg;
+    const char *map_file = cfg->chanmap_file[0] ? cfg->chanmap_file : c->file;
+    for (size_t k = 0; k < cfg->chanmap.n; k++)
+        if (channel_scale(c, map_file, k))
+            return -1;
+    const vibid_model *m = vibid_stand_model(cfg->stand);
+    for (size_t i = 0; i < cfg->n_channels; i++) {
+        const vibid_channel *ch = &cfg->chanmap.ch[cfg->model_to_chan[i]];
+        vibid_channel_info ci;
+        vibid_model_channel_info(m, i, &ci);
+        char f[200], want[160];
+        snprintf(f, sizeof f, "source.channels.%s", ch->name);
+        bool ok;
+        long node = -1;
+        if (ci.kind == VIBID_CHANNEL_INPUT) {
+            node = vibid_stand_input_node(cfg->stand, ci.index);
+            ok = (ch->quantity == VIBID_Q_FORCE || ch->quantity == VIBID_Q_INPUT) && (node < 0 || ch->node == node);
+            snprintf(want, sizeof want, "force (or input) on node %ld", node);
+            if (node < 0)
+                snprintf(want, sizeof want, "force (or input)");
+        } else {
+            static const vibid_quantity node_q[] = {VIBID_Q_DISPLACEMENT, VIBID_Q_VELOCITY, VIBID_Q_ACCELERATION};
+            static const vibid_quantity base_q[] = {VIBID_Q_BASE_DISPLACEMENT, VIBID_Q_BASE_VELOCITY,
+                                                    VIBID_Q_BASE_ACCELERATION};
+            unsigned kind = (unsigned)ci.kind < 3 ? (unsigned)ci.kind : 0;
+            if (ci.index == VIBID_BASE) {
+                ok = ch->quantity == base_q[kind];
+                snprintf(want, sizeof want, "%s", vibid_quantity_name(base_q[kind]));
+            } else {
+                node = (long)ci.index;
+                ok = ch->quantity == node_q[kind] && ch->node == node;
+                snprintf(want, sizeof want, "%s on node %ld", vibid_quantity_name(node_q[kind]), node);
+            }
+        }
+        if (!ok) {
+            char have[160];
+            if (vibid_quantity_is_base(ch->quantity))
+                snprintf(have, sizeof have, "%s", vibid_quantity_name(ch->quantity));
+            else
+                snprintf(have, sizeof have, "%s on node %d", vibid_quantity_name(ch->quantity), ch->node);
+            return fail_line(c, map_file, (int)ch->line, f,
+                             "declared as %s, but the stand reads channel '%s' as %s (%s): the channel map and the "
+                             "stand disagree",
+                             have, ch->name, ci.name, want);
+        }
+        cfg->model_scale[i] = cfg->chan_scale[cfg->model_to_chan[i]];
     }
     return 0;
 }
@@ -502,7 +643,7 @@ static int load_source(ctx *c, config_t *cf)
         break;
     }
     }
-    return 0;
+    return check_channels(c);
 }
 
 static const char *const acq_known[] = {"ring_size",   "read_batch",   "read_timeout", "realtime_priority",
@@ -930,8 +1071,11 @@ void vd_config_print(const vd_config *cfg, FILE *o)
     for (size_t i = 0; i < cfg->n_channels; i++) {
         vibid_channel_info ci;
         vibid_model_channel_info(m, i, &ci);
-        fprintf(o, "#   channel %zu: %s <- source channel '%s'\n", i, ci.name,
-                cfg->chanmap.ch[cfg->model_to_chan[i]].name);
+        fprintf(o, "#   channel %zu: %s <- source channel '%s'", i, ci.name, cfg->chanmap.ch[cfg->model_to_chan[i]].name);
+        if (cfg->model_scale[i] != 1.0)
+            fprintf(o, " x %.12g (its unit to the stand's %s)", cfg->model_scale[i],
+                    ci.kind == VIBID_CHANNEL_INPUT ? "N" : vibid_stand_length_unit(cfg->stand));
+        fputc('\n', o);
     }
     fprintf(o, "source = {\n  kind = \"%s\";\n", vd_source_kind_name(cfg->source_kind));
     switch (cfg->source_kind) {
@@ -983,8 +1127,12 @@ void vd_config_print(const vd_config *cfg, FILE *o)
         static const char *const srcn[] = {"signal", "register", "column"};
         for (size_t i = 0; i < cfg->chanmap.n; i++) {
             const vibid_channel *ch = &cfg->chanmap.ch[i];
-            fprintf(o, "    { name = \"%s\"; quantity = \"%s\"; node = %d; unit = \"%s\"; %s = \"%s\";", ch->name,
-                    vibid_quantity_name(ch->quantity), ch->node, ch->unit, srcn[ch->source], ch->ref);
+            fprintf(o, "    { name = \"%s\"; quantity = \"%s\";", ch->name, vibid_quantity_name(ch->quantity));
+            if (ch->node >= 0)
+                fprintf(o, " node = %d;", ch->node);
+            if (ch->unit[0])
+                fprintf(o, " unit = \"%s\";", ch->unit);
+            fprintf(o, " %s = \"%s\";", srcn[ch->source], ch->ref);
             if (ch->message[0])
                 fprintf(o, " message = \"%s\";", ch->message);
             fprintf(o, " }%s\n", i + 1 < cfg->chanmap.n ? "," : "");

@@ -61,6 +61,8 @@ typedef struct vd_config {
     char chanmap_file[VD_PATH_MAX]; /* "" when inline */
     vibid_chanmap chanmap;
     size_t model_to_chan[VIBID_DRV_MAX_CHANNELS]; /* model channel i -> chanmap index */
+    double chan_scale[VIBID_DRV_MAX_CHANNELS];    /* chanmap channel k: its unit -> the stand's units (> 0) */
+    double model_scale[VIBID_DRV_MAX_CHANNELS];   /* model channel i: chan_scale of its chanmap channel */
     /* socketcan */
     char iface[32];
     int rcvbuf_bytes;

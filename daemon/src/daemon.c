@@ -332,7 +332,8 @@ static void *acq_main(void *arg)
 static const char *fault_name(vibid_fault_code c)
 {
     static const char *const n[] = {"none",      "bad_line",  "unknown_id", "short_frame", "nonfinite", "duplicate",
-                                    "late",      "bus_error", "dropped",    "poll",        "link",       "corrupt"};
+                                    "late",      "bus_error", "dropped",    "poll",        "link",       "corrupt",
+                                    "clock"};
     return (unsigned)c < sizeof n / sizeof n[0] ? n[c] : "fault";
 }
 
@@ -486,7 +487,7 @@ static void write_status(vd_daemon *d, const char *state, double now)
       (unsigned long long)ss.link_losses, (unsigned long long)ss.reconnects, (unsigned long long)ss.connect_failures,
       (unsigned long long)ss.overruns, (unsigned long long)ss.implausible);
     S("jitter_mean_s=%.9g\njitter_std_s=%.3g\n", ss.jitter.mean_s, ss.jitter.std_s);
-    for (unsigned c = 1; c <= (unsigned)VIBID_FAULT_CORRUPT; c++) /* faults by kind */
+    for (unsigned c = 1; c <= (unsigned)VIBID_FAULT_LAST; c++) /* faults by kind */
         S("faults_%s=%llu\n", fault_name((vibid_fault_code)c), (unsigned long long)d->faults_by_code[c]);
     S("rows=%llu\nestimate_failures=%llu\nimplausible_rows=%llu\nnonfinite_samples=%llu\n",
       (unsigned long long)d->est.rows, (unsigned long long)d->est.est_errors,

@@ -239,7 +239,7 @@ int vd_est_record(vd_est *e, const vibid_record *rec, vd_row *row)
     }
     e->next_index = rec->index + 1;
     for (size_t i = 0; i < e->nch; i++)
-        e->chan[i] = rec->values[e->cfg->model_to_chan[i]];
+        e->chan[i] = rec->values[e->cfg->model_to_chan[i]] * e->cfg->model_scale[i]; /* to the stand's units */
     vibid_status st = vibid_ident_push(e->ident, e->chan);
     e->last_push_status = (int)st;
     if (st != VIBID_OK)

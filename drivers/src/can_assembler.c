@@ -117,25 +117,15 @@ vibid_can_assembler *vibid_can_assembler_create(const vibid_dbc *dbc, const vibi
                            ch->name, ch->line);
             goto fail;
         }
-        const vibid_dbc_message *found = NULL;
-        const vibid_dbc_signal *sig = NULL;
-        for (size_t i = 0; i < vibid_dbc_message_count(dbc); i++) {
-            const vibid_dbc_message *m = vibid_dbc_message_at(dbc, i);
-            if (ch->message[0] && strcmp(m->name, ch->message) != 0)
-                continue;
-            const vibid_dbc_signal *s = vibid_dbc_find_signal(m, ch->ref);
-            if (!s)
-                continue;
-            if (found) {
-                vibid_drv_fail(err, VIBID_DRV_E_ARG,
-                               "channel '%s' (line %u): signal '%s' is in messages %s and %s; add message = \"...\"",
-                               ch->name, ch->line, ch->ref, found->name, m->name);
-                goto fail;
-            }
-            found = m;
-            sig = s;
+        const vibid_dbc_message *found = NULL, *second = NULL;
+        const vibid_dbc_signal *sig = vibid_dbc_lookup_signal(dbc, ch->ref, ch->message, &found, &second);
+        if (second) {
+            vibid_drv_fail(err, VIBID_DRV_E_ARG,
+                           "channel '%s' (line %u): signal '%s' is in messages %s and %s; add message = \"...\"",
+                           ch->name, ch->line, ch->ref, found->name, second->name);
+            goto fail;
         }
-        if (!found) {
+        if (!sig) {
             vibid_drv_fail(err, VIBID_DRV_E_NOT_FOUND, "channel '%s' (line %u): no signal '%s'%s%s in the DBC",
                            ch->name, ch->line, ch->ref, ch->message[0] ? " in message " : "", ch->message);
             goto fail;

@@ -4,12 +4,34 @@
 #include <stdio.h>
 #include <string.h>
 
-static const char *const qnames[] = {"displacement", "velocity", "acceleration", "force",
-                                     "base_displacement"};
+#define N_QUANTITIES 8
+static const char *const qnames[N_QUANTITIES] = {"displacement",      "velocity",      "acceleration",
+                                                 "force",             "base_displacement", "base_velocity",
+                                                 "base_acceleration", "input"};
 
 const char *vibid_quantity_name(vibid_quantity q)
 {
-    return (unsigned)q < 5 ? qnames[q] : "unknown";
+    return (unsigned)q < N_QUANTITIES ? qnames[q] : "unknown";
+}
+
+bool vibid_quantity_is_base(vibid_quantity q)
+{
+    return q == VIBID_Q_BASE_DISPLACEMENT || q == VIBID_Q_BASE_VELOCITY || q == VIBID_Q_BASE_ACCELERATION;
+}
+
+/* First member of g whose name is not in known (NULL-terminated), or NULL. */
+static const config_setting_t *unknown_member(const config_setting_t *g, const char *const *known)
+{
+    for (int i = 0; i < config_setting_length(g); i++) {
+        const config_setting_t *e = config_setting_get_elem(g, (unsigned)i);
+        const char *nm = config_setting_name(e);
+        bool ok = false;
+        for (const char *const *k = known; *k && nm; k++)
+            ok = ok || strcmp(*k, nm) == 0;
+        if (!ok)
+            return e;
+    }
+    return NULL;
 }
 
 /* 0: key absent; 1: copied; -1: longer than cap - 1 (dst left empty: never a silent cut). */
@@ -63,23 +85,40 @@ vibid_drv_status vibid_chanmap_from_setting(const config_setting_t *group, const
         if (got == 0 || !c->name[0])
             return vibid_drv_fail(err, VIBID_DRV_E_SYNTAX, "%s:%d: channel #%d needs name = \"...\"", file,
                                   line, i + 1);
+        static const char *const ch_known[] = {"name",   "quantity", "node",   "unit",
+                                               "signal", "register", "column", "message", NULL};
+        const config_setting_t *bad = unknown_member(g, ch_known);
+        if (bad)
+            return vibid_drv_fail(err, VIBID_DRV_E_SYNTAX,
+                                  "%s:%d: channel '%s': unknown setting '%s' (name, quantity, node, unit, signal, "
+                                  "register, column, message)",
+                                  file, config_setting_source_line(bad), c->name, config_setting_name(bad));
         if (!config_setting_lookup_string(g, "quantity", &q))
             return vibid_drv_fail(err, VIBID_DRV_E_SYNTAX, "%s:%d: channel '%s' needs quantity", file, line,
                                   c->name);
         int qi = -1;
-        for (int k = 0; k < 5; k++)
+        for (int k = 0; k < N_QUANTITIES; k++)
             if (strcmp(q, qnames[k]) == 0)
                 qi = k;
         if (qi < 0)
             return vibid_drv_fail(err, VIBID_DRV_E_SYNTAX,
                                   "%s:%d: channel '%s': quantity '%s' is not displacement, velocity, "
-                                  "acceleration, force or base_displacement",
+                                  "acceleration, force, input, base_displacement, base_velocity or base_acceleration",
                                   file, line, c->name, q);
         c->quantity = (vibid_quantity)qi;
-        c->is_input = c->quantity == VIBID_Q_FORCE || c->quantity == VIBID_Q_BASE_DISPLACEMENT;
-        if (!config_setting_lookup_int(g, "node", &c->node) || c->node < 0)
+        c->is_input = c->quantity == VIBID_Q_FORCE || c->quantity == VIBID_Q_INPUT || vibid_quantity_is_base(c->quantity);
+        const config_setting_t *node = config_setting_get_member(g, "node");
+        if (vibid_quantity_is_base(c->quantity)) {
+            /* The base is not a node; 0 is accepted because earlier maps wrote it. */
+            if (node && (config_setting_type(node) != CONFIG_TYPE_INT || config_setting_get_int(node) != 0))
+                return vibid_drv_fail(err, VIBID_DRV_E_SYNTAX,
+                                      "%s:%d: channel '%s': a %s belongs to the base, not to a node: omit node",
+                                      file, config_setting_source_line(node), c->name, q);
+            c->node = -1;
+        } else if (!config_setting_lookup_int(g, "node", &c->node) || c->node < 0) {
             return vibid_drv_fail(err, VIBID_DRV_E_SYNTAX, "%s:%d: channel '%s' needs node = <integer >= 0>",
                                   file, line, c->name);
+        }
         snprintf(who, sizeof who, "channel '%s'", c->name);
         if (copy_opt(g, "unit", c->unit, sizeof c->unit) < 0)
             return too_long(err, file, line, who, "unit", sizeof c->unit);
@@ -129,7 +168,14 @@ vibid_drv_status vibid_chanmap_load(const char *path, vibid_chanmap *map, vibid_
             st = vibid_drv_fail(err, VIBID_DRV_E_SYNTAX, "%s:%d: %s", path, config_error_line(&cfg),
                                 config_error_text(&cfg));
     } else {
-        st = vibid_chanmap_from_setting(config_root_setting(&cfg), path, map, err);
+        static const char *const root_known[] = {"channels", "counter", "trigger", "time_column", NULL};
+        const config_setting_t *bad = unknown_member(config_root_setting(&cfg), root_known);
+        if (bad)
+            st = vibid_drv_fail(err, VIBID_DRV_E_SYNTAX,
+                                "%s:%d: unknown setting '%s' (channels, counter, trigger, time_column)", path,
+                                config_setting_source_line(bad), config_setting_name(bad));
+        else
+            st = vibid_chanmap_from_setting(config_root_setting(&cfg), path, map, err);
     }
     config_destroy(&cfg);
     return st;

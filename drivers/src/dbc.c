@@ -799,6 +799,36 @@ const vibid_dbc_signal *vibid_dbc_find_signal(const vibid_dbc_message *msg, cons
     return NULL;
 }
 
+const vibid_dbc_signal *vibid_dbc_lookup_signal(const vibid_dbc *dbc, const char *name, const char *message,
+                                                const vibid_dbc_message **msg_out,
+                                                const vibid_dbc_message **second_out)
+{
+    const vibid_dbc_message *found = NULL;
+    const vibid_dbc_signal *sig = NULL;
+    if (msg_out)
+        *msg_out = NULL;
+    if (second_out)
+        *second_out = NULL;
+    for (size_t i = 0; dbc && name && i < vibid_dbc_message_count(dbc); i++) {
+        const vibid_dbc_message *m = vibid_dbc_message_at(dbc, i);
+        if (message && message[0] && strcmp(m->name, message) != 0)
+            continue;
+        const vibid_dbc_signal *s = vibid_dbc_find_signal(m, name);
+        if (!s)
+            continue;
+        if (found) {
+            if (second_out)
+                *second_out = m;
+            return NULL;
+        }
+        found = m;
+        sig = s;
+        if (msg_out)
+            *msg_out = m;
+    }
+    return sig;
+}
+
 vibid_drv_status vibid_dbc_signal_raw(const vibid_dbc_signal *sig, const uint8_t *data, size_t len,
                                       uint64_t *raw)
 {

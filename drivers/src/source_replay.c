@@ -30,6 +30,9 @@ typedef struct replay {
     /* candump */
     vibid_candump_reader *cd;
     vibid_can_assembler *as;
+    bool have_frame_t;
+    int64_t last_frame_t;          /* re-based time of the previous frame, ns */
+    int64_t clock_offset;          /* added to the log's times after clock steps, ns */
     /* CSV */
     vibid_csv_reader *cr;
     int col[VIBID_DRV_MAX_CHANNELS];
@@ -46,6 +49,7 @@ typedef struct replay {
     char fatal_text[VIBID_DRV_ERROR_LEN];
     bool pace_started;
     int64_t t0_rec, t0_mono;
+    int64_t pace_last_t;           /* time of the last sample handed out paced, ns */
     vibid_source_stats st;
     int64_t last_sample_t;
 } replay;
@@ -177,6 +181,40 @@ static void drain_assembler(replay *r, unsigned long line)
     }
 }
 
+/* A candump log's clock must move forward by plausible steps: a timestamp earlier than the
+ * previous frame's, or later by more than max(VIBID_REPLAY_MAX_TIME_STEP_S, 1000 sample
+ * periods), is a clock step of the logger (an NTP step, a reset, a corrupt field), not
+ * elapsed time: a paced replay would wait for days, and a counter jump would look
+ * plausible. The frame is used (its counter numbers the sample, so nothing is invented or
+ * dropped); from it on the log's times are shifted so that it lies at the previous
+ * frame's time, and a fault says so. */
+static double max_time_step(const replay *r)
+{
+    double h = r->cfg.sample_period_s;
+    return 1000.0 * h > VIBID_REPLAY_MAX_TIME_STEP_S ? 1000.0 * h : VIBID_REPLAY_MAX_TIME_STEP_S;
+}
+
+static void rebase_frame_time(replay *r, vibid_candump_entry *e)
+{
+    int64_t t = e->frame.t_ns + r->clock_offset;
+    if (r->have_frame_t) {
+        double max_step = max_time_step(r);
+        double step = (double)(t - r->last_frame_t) * 1e-9;
+        if (step < 0 || step > max_step) {
+            int64_t to = r->last_frame_t;
+            r->clock_offset += to - t;
+            rec_queue_fault(&r->q, VIBID_FAULT_CLOCK, 0, 0,
+                            "%.100s:%lu: time steps %+.6g s from the previous frame (allowed 0 .. %.6g s): a clock "
+                            "step, the replay's times are shifted by %+.6g s from here",
+                            r->base, e->line, step, max_step, (double)r->clock_offset * 1e-9);
+            t = to;
+        }
+    }
+    r->have_frame_t = true;
+    r->last_frame_t = t;
+    e->frame.t_ns = t;
+}
+
 static void produce_candump(replay *r)
 {
     vibid_candump_entry e;
@@ -201,6 +239,7 @@ static void produce_candump(replay *r)
                             e.line);
             return;
         }
+        rebase_frame_time(r, &e);
         vibid_can_assembler_push(r->as, &e.frame);
         break;
     case VIBID_CANDUMP_DROPCOUNT: {
@@ -320,7 +359,12 @@ static vibid_drv_status replay_read(vibid_source *src, vibid_record *recs, size_
                 r->pace_started = true;
                 r->t0_rec = head->t_ns;
                 r->t0_mono = mono_ns();
+            } else if ((double)(head->t_ns - r->pace_last_t) * 1e-9 > max_time_step(r)) {
+                /* a pause in a CSV capture (its gap is reported when produced) is not
+                 * waited for: the sample is due right after the previous one */
+                r->t0_rec += head->t_ns - r->pace_last_t;
             }
+            r->pace_last_t = head->t_ns;
             int64_t deadline = r->t0_mono + (int64_t)((double)(head->t_ns - r->t0_rec) / r->cfg.speed);
             if (deadline > mono_ns()) {
                 if (k > 0)

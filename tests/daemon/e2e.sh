@@ -847,6 +847,87 @@ implausible)
         fail "mixed: expected P episodes interrupted by plausible rows, got $ep episodes and $ends ends"
     [ "$alarms" -ge 1 ] || fail "mixed: no alarm event at all (plausible rows far from the truth should raise one)"
     ;;
+units)
+    # Issue 12, item 9: a capture in mm (x1, x2) and um (s), declared so in the channel map,
+    # gives the estimates of the same capture in m: the values are converted to the stand's
+    # units. The only difference is the rounding of the scaled copy (17 significant
+    # digits, then x 1e-3 / 1e-6), about 1e-16 relative per value: the parameters and
+    # their standard errors agree to 1e-9 relative; the modes' standard errors go through
+    # a central difference with a 1e-6 relative step (modal.cpp), which amplifies the
+    # eigenvalues' rounding by 1e6 or more (up to 1.5e-6 seen), so they get 1e-4, a
+    # thousandth of a percent of an error bar. A unit ignored is a factor 1e3 off.
+    # Before, the units were ignored: c1, c2 came out 1e6 off. And a unit that does not fit
+    # the quantity stops the start with file:line.
+    $GEN "$STAND" --duration 10 --noise 0.001 --seed 21 --csv cap.csv 2>/dev/null || fail "generator"
+    [ "$(head -1 cap.csv)" = "t,x1,x2,s" ] || fail "test setup: capture header $(head -1 cap.csv)"
+    awk -F, 'NR == 1 { print; next } { printf "%s,%.17g,%.17g,%.17g\n", $1, $2 * 1000, $3 * 1000, $4 * 1e6 }' \
+        cap.csv > capmm.csv
+    config_csv m.cfg ""
+    sed -e 's|file = "cap.csv"|file = "capmm.csv"|' -e 's|unit = "m"; column = "x\([12]\)"|unit = "mm"; column = "x\1"|' \
+        -e 's|unit = "m"; column = "s"|unit = "um"; column = "s"|' -e 's|tracks.csv|tracks_mm.csv|' m.cfg > mm.cfg
+    [ "$(grep -c 'unit = "mm"' mm.cfg)" -eq 2 ] && grep -q 'unit = "um"' mm.cfg || fail "test setup: units not replaced"
+    "$VIBIDD" -c mm.cfg --check > check.out 2> log || fail "--check: $(cat log)"
+    grep -q "m1.displacement <- source channel 'x1' x 0.001 (its unit to the stand's m)" check.out ||
+        fail "--check does not state the conversion of x1: $(grep channel check.out)"
+    grep -q "base.displacement <- source channel 's' x 1e-06" check.out || fail "--check: no conversion of s"
+    timeout 60 "$VIBIDD" -c m.cfg 2> log || fail "m: vibidd exit $? ($(cat log))"
+    timeout 60 "$VIBIDD" -c mm.cfg 2> log || fail "mm: vibidd exit $? ($(cat log))"
+    final=$(check_final tracks_mm.csv 1.0) || exit 1
+    python3 - tracks.csv tracks_mm.csv <<'PY' || fail "tracks of the capture in mm differ from those in m"
+import sys
+def rows(p):
+    lines = [l.rstrip("\n").split(",") for l in open(p) if not l.startswith("#")]
+    return lines[0], lines[1:]
+ha, ra = rows(sys.argv[1]); hb, rb = rows(sys.argv[2])
+assert ha == hb and len(ra) == len(rb) == 100, (len(ra), len(rb))
+worst = 0.0
+for a, b in zip(ra, rb):
+    for name, x, y in zip(ha, a, b):
+        try: x, y = float(x), float(y)
+        except ValueError:
+            assert x == y, (name, x, y); continue
+        d = abs(x - y) / max(abs(x), 1e-300) if x != y else 0.0
+        modal_se = name.endswith("_hz_se") or (name.startswith("zeta") and name.endswith("_se"))
+        assert d <= (1e-4 if modal_se else 1e-9), (name, x, y, d)
+        if not modal_se: worst = max(worst, d)
+print(f"[units] 100 rows, parameters and their se within {worst:.2g} relative of the capture in m")
+PY
+    sed 's|unit = "um"; column = "s"|unit = "kN"; column = "s"|' mm.cfg > bad.cfg
+    "$VIBIDD" -c bad.cfg --check > /dev/null 2> log; rc=$?
+    [ $rc -eq 2 ] || fail "a force unit on the base displacement: exit $rc, expected 2"
+    grep -q "bad.cfg:[0-9]*: source.channels.s.unit: 'kN' is not a length unit for a base_displacement channel" log ||
+        fail "message: $(cat log)"
+    note "$final; kN on a displacement refused: $(grep -o 'source.channels.s.unit.*' log | cut -c1-80)"
+    ;;
+clock_step)
+    # Issue 12, item 10: a candump log whose clock jumps 1e6 s forward at one frame and 5 s
+    # back at a later one. Before, a paced replay waited for the 1e6 s (11.6 days). Now both
+    # are clock faults, the times are re-based, every sample is used (the counter numbers
+    # them) and the estimates equal those of the unmodified log exactly (only the time
+    # column differs); a paced run at x20 over 10 s ends in well under the 60 s bound.
+    $GEN "$STAND" --duration 10 --noise 0.001 --seed 22 --candump cap.log 2>/dev/null || fail "generator"
+    awk '{ t = substr($1, 2, length($1) - 2) + 0
+           if (NR >= 20000) t += 1e6
+           if (NR >= 40000) t -= 5
+           printf "(%.6f) %s %s\n", t, $2, $3 }' cap.log > step.log
+    [ "$(wc -l < step.log)" -eq 60000 ] || fail "test setup: $(wc -l < step.log) lines"
+    config_candump v.cfg ""
+    sed 's|file = "cap.log"|file = "step.log"|; s|tracks.csv|tracks_step.csv|' v.cfg > step.cfg
+    timeout 60 "$VIBIDD" -c v.cfg 2> log0 || fail "unmodified log: $(cat log0)"
+    start=$(date +%s.%N)
+    timeout 60 "$VIBIDD" -c step.cfg --pace --speed 20 2> log || fail "paced replay of the stepped log: exit $? ($(tail -3 log))"
+    took=$(echo "$(date +%s.%N) - $start" | bc)
+    [ "$(status_val faults_clock status)" = 2 ] || fail "faults_clock = $(status_val faults_clock status), expected 2"
+    [ "$(status_val samples status)" = 20000 ] || fail "samples $(status_val samples status), expected 20000"
+    [ "$(status_val missing_samples status)" = 0 ] || fail "missing samples $(status_val missing_samples status)"
+    grep -q "step.log:20000: time steps +1e+06 s from the previous frame" log || fail "no clock fault at line 20000: $(grep -i clock log | head -2)"
+    grep -Eq "step.log:40000: time steps -(4\.99|5)" log || fail "no clock fault at line 40000"
+    cut -d, -f3- tracks.csv | grep -v '^#' > a.txt
+    cut -d, -f3- tracks_step.csv | grep -v '^#' > b.txt
+    [ "$(head -2 tracks.csv | tail -1 | cut -d, -f1-2)" != "" ] || fail "test setup"
+    cmp a.txt b.txt || fail "estimates of the stepped log differ from the unmodified log"
+    note "2 clock steps (+1e6 s, -5 s) counted, 20000 samples, estimates identical; paced x20 replay of 10 s took $took s"
+    ;;
 *)
     fail "unknown case"
     ;;

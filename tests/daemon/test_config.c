@@ -140,6 +140,146 @@ static void test_channel_missing(void **state)
                  ":6: source.channels:", "needs channel 'x2'");
 }
 
+/* SOURCE with channel x2's line (line 8 of the file) replaced. */
+#define SOURCE_X2(x2)                                                                                                  \
+    "source = {\n"                                                                                                     \
+    "  kind = \"replay\";\n"                                                                                           \
+    "  file = \"cap.csv\";\n"                                                                                          \
+    "  time_column = \"t\";\n"                                                                                         \
+    "  channels = (\n"                                                                                                 \
+    "    { name = \"x1\"; quantity = \"displacement\"; node = 0; unit = \"mm\"; column = \"x1\"; },\n"                 \
+    "    " x2 ",\n"                                                                                                    \
+    "    { name = \"s\"; quantity = \"base_displacement\"; unit = \"um\"; column = \"s\"; }\n"                         \
+    "  );\n"                                                                                                           \
+    "};\n"
+
+static double model_scale_of(const char *name, const char *text, size_t channel)
+{
+    const char *path = write_cfg(name, text);
+    vd_config cfg;
+    vd_config_error err;
+    if (vd_config_load(path, &cfg, &err) != 0)
+        fail_msg("%s", err.text);
+    double s = cfg.model_scale[channel];
+    vd_config_free(&cfg);
+    return s;
+}
+
+/* Issue 12, item 9: the channel map's quantity, node and unit are checked against the
+ * stand; units are converted to the stand's, or refused. Before, x2 declared a force on
+ * node 7 in kN loaded, and every unit was ignored. */
+static void test_channel_units(void **state)
+{
+    (void)state;
+    /* the issue's case: the stand reads x2 as m2's displacement (node 1) */
+    expect_error("q_node.cfg",
+                 STAND SOURCE_X2("{ name = \"x2\"; quantity = \"force\"; node = 7; unit = \"kN\"; column = \"x2\"; }"),
+                 ":8: source.channels.x2:", "declared as force on node 7, but the stand reads channel 'x2' as "
+                                            "m2.displacement (displacement on node 1)");
+    expect_error("node.cfg",
+                 STAND SOURCE_X2("{ name = \"x2\"; quantity = \"displacement\"; node = 0; column = \"x2\"; }"),
+                 ":8: source.channels.x2:", "declared as displacement on node 0");
+    expect_error("base_as_node.cfg",
+                 STAND SOURCE_X2("{ name = \"x2\"; quantity = \"base_displacement\"; column = \"x2\"; }"),
+                 ":8: source.channels.x2:", "declared as base_displacement");
+    /* a unit of another dimension, a unit nobody knows */
+    expect_error("unit_dim.cfg",
+                 STAND SOURCE_X2("{ name = \"x2\"; quantity = \"displacement\"; node = 1; unit = \"kN\"; column = \"x2\"; }"),
+                 ":8: source.channels.x2.unit:", "'kN' is not a length unit for a displacement channel (m, cm, mm");
+    expect_error("unit_typo.cfg",
+                 STAND SOURCE_X2("{ name = \"x2\"; quantity = \"displacement\"; node = 1; unit = \"mmm\"; column = \"x2\"; }"),
+                 ":8: source.channels.x2.unit:", "'mmm' is not a length unit");
+    /* a misspelt key is not "not given" */
+    expect_error("unit_key.cfg",
+                 STAND SOURCE_X2("{ name = \"x2\"; quantity = \"displacement\"; node = 1; units = \"mm\"; column = \"x2\"; }"),
+                 ":8: source.channels:", "unknown setting 'units'");
+    /* the base has no node */
+    expect_error("base_node.cfg",
+                 STAND "source = {\n  kind = \"replay\";\n  file = \"cap.csv\";\n  channels = (\n"
+                       "    { name = \"x1\"; quantity = \"displacement\"; node = 0; column = \"x1\"; },\n"
+                       "    { name = \"x2\"; quantity = \"displacement\"; node = 1; column = \"x2\"; },\n"
+                       "    { name = \"s\"; quantity = \"base_displacement\"; node = 2; column = \"s\"; }\n  );\n};\n",
+                 ":8: source.channels:", "a base_displacement belongs to the base, not to a node: omit node");
+    /* conversion factors to the stand's SI units: mm (x1), none (x2: the stand's), um (s).
+     * Exact binary values of the table's factors (1e-3, 1e-6), compared exactly. */
+    const char *ok = STAND SOURCE_X2("{ name = \"x2\"; quantity = \"displacement\"; node = 1; column = \"x2\"; }");
+    assert_true(model_scale_of("scale0.cfg", ok, 0) == 1e-3);
+    assert_true(model_scale_of("scale1.cfg", ok, 1) == 1.0);
+    assert_true(model_scale_of("scale2.cfg", ok, 2) == 1e-6);
+    /* a stand in millimetres (length_unit = "mm", masses in t): a channel in m is scaled by
+     * 1000, one in mm by 1, one in um by 1e-3 */
+    const char *mm_stand =
+        "stand = { sample_rate = 2000.0; length_unit = \"mm\";\n"
+        "  nodes = ( { name = \"m1\"; mass = 0.01; measure = { displacement = \"x1\"; }; },\n"
+        "            { name = \"m2\"; mass = 0.02; measure = { displacement = \"x2\"; }; } );\n"
+        "  base = { measure = { displacement = \"s\"; }; };\n"
+        "  elements = ( { name = \"c1\"; kind = \"spring\"; between = [\"m1\", \"m2\"]; unknown = true; value = 250.0; },\n"
+        "               { name = \"c2\"; kind = \"spring\"; between = [\"m2\", \"base\"]; unknown = true; value = 1500.0; } );\n"
+        "};\n";
+    char text[4096];
+    snprintf(text, sizeof text, "%s%s", mm_stand,
+             SOURCE_X2("{ name = \"x2\"; quantity = \"displacement\"; node = 1; unit = \"m\"; column = \"x2\"; }"));
+    assert_true(model_scale_of("mm0.cfg", text, 0) == 1.0);
+    assert_true(model_scale_of("mm1.cfg", text, 1) == 1000.0);
+    assert_true(model_scale_of("mm2.cfg", text, 2) == 1e-6 / 1e-3);
+    /* the printed configuration says what is converted, and reads back */
+    const char *path = write_cfg("mm_print.cfg", text);
+    vd_config cfg;
+    vd_config_error err;
+    assert_int_equal(vd_config_load(path, &cfg, &err), 0);
+    char *p = NULL;
+    size_t n = 0;
+    FILE *o = open_memstream(&p, &n);
+    vd_config_print(&cfg, o);
+    fclose(o);
+    vd_config_free(&cfg);
+    assert_non_null(strstr(p, "m2.displacement <- source channel 'x2' x 1000 (its unit to the stand's mm)"));
+    assert_non_null(strstr(p, "{ name = \"s\"; quantity = \"base_displacement\"; unit = \"um\"; column = \"s\"; }"));
+    free(p);
+    expect_error("bad_length_unit.cfg", "stand = { sample_rate = 1.0; length_unit = \"furlong\"; };\n" SOURCE,
+                 ":1: stand.length_unit:", "'furlong' is not a length unit");
+}
+
+/* A DBC signal's unit is the channel's unit when the map gives none, and the two must
+ * agree when both are given. */
+static void test_channel_units_dbc(void **state)
+{
+    (void)state;
+    write_cfg("u.dbc", "VERSION \"\"\n\nBO_ 256 Sample: 8 Node\n"
+                       " SG_ X1 : 0|16@1- (0.001,0) [0|0] \"mm\" Node\n"
+                       " SG_ X2 : 16|16@1- (0.001,0) [0|0] \"m\" Node\n"
+                       " SG_ S : 32|16@1- (0.001,0) [0|0] \"degK\" Node\n"
+                       " SG_ Counter : 48|16@1+ (1,0) [0|0] \"\" Node\n");
+#define CAN_SOURCE(x1, s)                                                                                              \
+    "source = {\n"                                                                                                     \
+    "  kind = \"replay\"; file = \"cap.log\"; dbc = \"u.dbc\"; counter = \"Counter\";\n"                               \
+    "  channels = (\n"                                                                                                 \
+    "    " x1 ",\n"                                                                                                    \
+    "    { name = \"x2\"; quantity = \"displacement\"; node = 1; signal = \"X2\"; },\n"                               \
+    "    " s "\n"                                                                                                      \
+    "  );\n"                                                                                                           \
+    "};\n"
+    const char *ok = STAND CAN_SOURCE("{ name = \"x1\"; quantity = \"displacement\"; node = 0; signal = \"X1\"; }",
+                                      "{ name = \"s\"; quantity = \"base_displacement\"; unit = \"m\"; signal = \"S\"; }");
+    /* S's DBC unit degK contradicts the map's m: refused, naming the DBC line */
+    expect_error("dbc_contra.cfg", ok, ":7: source.channels.s.unit:", "u.dbc:6) is in 'degK'");
+    const char *ok2 = STAND CAN_SOURCE("{ name = \"x1\"; quantity = \"displacement\"; node = 0; signal = \"X1\"; }",
+                                       "{ name = \"s\"; quantity = \"base_displacement\"; signal = \"X2\"; message = \"Sample\"; }");
+    assert_true(model_scale_of("dbc_mm.cfg", ok2, 0) == 1e-3); /* X1 in mm, from the DBC */
+    assert_true(model_scale_of("dbc_m.cfg", ok2, 1) == 1.0);
+    /* no unit in the map, a DBC unit that is not a length */
+    expect_error("dbc_degk.cfg",
+                 STAND CAN_SOURCE("{ name = \"x1\"; quantity = \"displacement\"; node = 0; signal = \"X1\"; }",
+                                  "{ name = \"s\"; quantity = \"base_displacement\"; signal = \"S\"; }"),
+                 ":7: source.channels.s.unit:", "takes the unit 'degK' of DBC signal 'S'");
+    /* the map says m, the DBC mm: one of them is wrong */
+    expect_error("dbc_mm_m.cfg",
+                 STAND CAN_SOURCE("{ name = \"x1\"; quantity = \"displacement\"; node = 0; unit = \"m\"; signal = \"X1\"; }",
+                                  "{ name = \"s\"; quantity = \"base_displacement\"; signal = \"X2\"; }"),
+                 ":5: source.channels.x1.unit:", "channel 'x1' says 'm' but DBC signal 'X1'");
+#undef CAN_SOURCE
+}
+
 static void test_alarm_param(void **state)
 {
     (void)state;
@@ -252,6 +392,7 @@ int main(void)
         cmocka_unit_test(test_alarm_param),       cmocka_unit_test(test_modbus_url),
         cmocka_unit_test(test_defaults_and_roundtrip),
         cmocka_unit_test(test_start_values),
+        cmocka_unit_test(test_channel_units),     cmocka_unit_test(test_channel_units_dbc),
     };
     int rc = cmocka_run_group_tests(tests, NULL, NULL);
     snprintf(cmd, sizeof cmd, "rm -rf %s", dir);

@@ -29,7 +29,7 @@ static void test_valid_map(void **state)
         "  { name = \"x1\"; quantity = \"displacement\"; node = 0; unit = \"m\"; signal = \"Pos1\"; message = \"Sample_A\"; },\n"
         "  { name = \"v2\"; quantity = \"velocity\"; node = 1; register = \"v2\"; },\n"
         "  { name = \"a2\"; quantity = \"acceleration\"; node = 1; unit = \"m/s^2\"; column = \"acc\"; },\n"
-        "  { name = \"xb\"; quantity = \"base_displacement\"; node = 3; column = \"xb\"; }\n"
+        "  { name = \"xb\"; quantity = \"base_displacement\"; column = \"xb\"; }\n"
         ");\n"
         "counter = \"SampleCounter\";\n"
         "trigger = \"Sample_A\";\n"
@@ -58,7 +58,7 @@ static void test_valid_map(void **state)
     assert_string_equal(map.ch[3].ref, "acc");
     assert_int_equal(map.ch[4].quantity, VIBID_Q_BASE_DISPLACEMENT);
     assert_true(map.ch[4].is_input);
-    assert_int_equal(map.ch[4].node, 3);
+    assert_int_equal(map.ch[4].node, -1); /* the base is not a node */
     assert_string_equal(map.counter, "SampleCounter");
     assert_string_equal(map.trigger, "Sample_A");
     assert_string_equal(map.time_column, "t");
@@ -75,7 +75,13 @@ static void test_errors(void **state)
         vibid_drv_status status;
         const char *expect;
     } cases[] = {
-        {"foo = 1;\n", VIBID_DRV_E_SYNTAX, "needs channels = ("},
+        {"counter = \"c\";\n", VIBID_DRV_E_SYNTAX, "needs channels = ("},
+        /* issue 12, item 9: unknown keys are errors, not "not given" */
+        {"foo = 1;\n", VIBID_DRV_E_SYNTAX, ":1: unknown setting 'foo' (channels, counter, trigger, time_column)"},
+        {"channels = (\n { name = \"x\"; quantity = \"displacement\"; node = 0;\n   units = \"mm\"; column = \"x\"; }\n);\n",
+         VIBID_DRV_E_SYNTAX, ":3: channel 'x': unknown setting 'units' (name, quantity, node, unit, signal"},
+        {"channels = (\n { name = \"s\"; quantity = \"base_velocity\"; node = 3; column = \"s\"; }\n);\n",
+         VIBID_DRV_E_SYNTAX, ":2: channel 's': a base_velocity belongs to the base, not to a node: omit node"},
         {"channels = ();\n", VIBID_DRV_E_RANGE, ":1: 0 channels, allowed 1..32"},
         {"channels = (\n { quantity = \"force\"; node = 0; signal = \"F\"; }\n);\n", VIBID_DRV_E_SYNTAX,
          ":2: channel #1 needs name"},

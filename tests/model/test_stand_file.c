@@ -11,6 +11,7 @@
 #include <cmocka.h>
 
 #include <vibid/stand_file.h>
+#include <vibid/units.h>
 
 #define CFG "test_stand_file.cfg"
 
@@ -233,6 +234,57 @@ static void test_unknown_gain_true_value(void **state) {
     remove(CFG);
 }
 
+/* Issue 12, item 9: the stand's length unit and the unit table every program converts
+ * channel units with (vibid/units.h). Factors are the table's literals, compared exactly;
+ * derived ones (per second, per second squared) are the same literal. */
+static void test_units(void **state) {
+    (void)state;
+    static const struct {
+        vibid_unit_dim dim;
+        const char *unit;
+        double si; /* 0: refused */
+    } cases[] = {
+        {VIBID_DIM_LENGTH, "m", 1.0},         {VIBID_DIM_LENGTH, "mm", 1e-3},
+        {VIBID_DIM_LENGTH, "um", 1e-6},       {VIBID_DIM_LENGTH, "\xc2\xb5m", 1e-6},
+        {VIBID_DIM_LENGTH, "in", 0.0254},     {VIBID_DIM_LENGTH, "N", 0},
+        {VIBID_DIM_LENGTH, "M", 0},           {VIBID_DIM_LENGTH, "", 0},
+        {VIBID_DIM_VELOCITY, "mm/s", 1e-3},   {VIBID_DIM_VELOCITY, "m/s", 1.0},
+        {VIBID_DIM_VELOCITY, "/s", 0},        {VIBID_DIM_VELOCITY, "mm", 0},
+        {VIBID_DIM_VELOCITY, "N/s", 0},       {VIBID_DIM_ACCELERATION, "m/s^2", 1.0},
+        {VIBID_DIM_ACCELERATION, "mm/s2", 1e-3}, {VIBID_DIM_ACCELERATION, "m/s\xc2\xb2", 1.0},
+        {VIBID_DIM_ACCELERATION, "g", 9.80665}, {VIBID_DIM_ACCELERATION, "m/s", 0},
+        {VIBID_DIM_FORCE, "N", 1.0},          {VIBID_DIM_FORCE, "kN", 1e3},
+        {VIBID_DIM_FORCE, "lbf", 4.4482216152605}, {VIBID_DIM_FORCE, "n", 0},
+        {VIBID_DIM_FORCE, "kg", 0},
+    };
+    for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
+        double f = -1;
+        int rc = vibid_unit_si_factor(cases[i].dim, cases[i].unit, &f);
+        if (cases[i].si == 0 ? rc != -1 || f != -1 : rc != 0 || f != cases[i].si)
+            fail_msg("case %zu '%s': rc %d factor %g, expected %g", i, cases[i].unit, rc, f, cases[i].si);
+    }
+    assert_int_equal(vibid_unit_si_factor(VIBID_DIM_LENGTH, NULL, NULL), -1);
+    /* a stand in mm; input nodes */
+    vibid_stand *st = load_ok("stand = {\n  sample_rate = 100.0; length_unit = \"mm\";\n"
+                              "  nodes = ( { name = \"m1\"; mass = 0.002; measure = { displacement = \"x1\"; }; },\n"
+                              "            { name = \"m2\"; mass = 0.001; measure = { displacement = \"x2\"; }; } );\n"
+                              "  elements = ( { name = \"k\"; kind = \"spring\"; between = [\"m1\", \"m2\"]; value = 1.0; unknown = true; },\n"
+                              "               { name = \"k2\"; kind = \"spring\"; between = [\"m2\", \"ground\"]; value = 1.0; } );\n"
+                              "  inputs = ( { name = \"f\"; node = \"m2\"; channel = \"F\"; } );\n};\n");
+    assert_string_equal(vibid_stand_length_unit(st), "mm");
+    assert_true(vibid_stand_length_si(st) == 1e-3);
+    assert_int_equal(vibid_stand_input_node(st, 0), 1);
+    assert_int_equal(vibid_stand_input_node(st, 1), -1); /* out of range */
+    vibid_stand_destroy(st);
+    st = load_ok(good);
+    assert_string_equal(vibid_stand_length_unit(st), "m"); /* the default */
+    assert_true(vibid_stand_length_si(st) == 1.0);
+    vibid_stand_destroy(st);
+    expect_error("stand = {\n  sample_rate = 100.0;\n  length_unit = \"mN\";\n};\n",
+                 CFG ":3: stand.length_unit: 'mN' is not a length unit (m, cm, mm, um, nm, in)");
+    remove(CFG);
+}
+
 int main(void) {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_disturbances_and_noise),
@@ -240,6 +292,7 @@ int main(void) {
         cmocka_unit_test(test_noise_errors),
         cmocka_unit_test(test_unknown_keys),
         cmocka_unit_test(test_unknown_gain_true_value),
+        cmocka_unit_test(test_units),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

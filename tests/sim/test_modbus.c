@@ -2,7 +2,9 @@
  * libmodbus client following drivers/modbus_fifo_layout.md, while another client sends
  * garbage and a third disconnects; every sample read from the FIFO equals the CSV row
  * of the same run (float32). Then stop/resume: the server closes, refuses connections,
- * and comes back with a new session and count 0. Bounded: each run lasts <= 3 s. */
+ * and comes back with a new session and count 0. Then a client pipelining requests
+ * without reading and one stopping mid-request beside a polling one. Bounded: each run
+ * lasts <= 4 s. */
 #include <arpa/inet.h>
 #include <errno.h>
 #include <math.h>
@@ -212,11 +214,86 @@ static void test_stop_resume(void **state)
     assert_int_equal(pclose(p), 0);
 }
 
+static int raw_connect(int port)
+{
+    int fd = socket(AF_INET, SOCK_STREAM, 0);
+    assert_true(fd >= 0);
+    struct sockaddr_in sa = {.sin_family = AF_INET, .sin_port = htons((uint16_t)port)};
+    sa.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+    assert_int_equal(connect(fd, (struct sockaddr *)&sa, sizeof sa), 0);
+    return fd;
+}
+
+/* Issue 12, item 10: a client that pipelines requests without reading its replies, and
+ * one that sends half a request and stops, must not stall the server for the others.
+ * Before, the server thread blocked in send() to the first (holding the register lock)
+ * and in modbus_receive on the second: the polling client's reads timed out. Now the
+ * polling client gets every reply, and the non-reading client is closed by the server
+ * (its replies are read back up to end of file). */
+static void test_hostile_clients(void **state)
+{
+    (void)state;
+    int port;
+    FILE *p = start_sim("--duration 4", &port);
+    int hog = raw_connect(port), drip = raw_connect(port);
+    /* half an MBAP header: the rest never comes */
+    const uint8_t half[3] = {0x00, 0x01, 0x00};
+    assert_int_equal(send(drip, half, sizeof half, 0), 3);
+    /* read 125 holding registers at B, pipelined without reading: 259-byte replies */
+    uint8_t req[12] = {0, 0, 0, 0, 0, 6, 1, 3, (uint8_t)(B >> 8), (uint8_t)(B & 0xFF), 0, 125};
+    long sent = 0;
+    double t0 = now_s();
+    while (sent < 400000 && now_s() - t0 < 1.0) {
+        req[0] = (uint8_t)(sent >> 8);
+        req[1] = (uint8_t)sent;
+        ssize_t w = send(hog, req, sizeof req, MSG_DONTWAIT | MSG_NOSIGNAL);
+        if (w < 0 && (errno == EAGAIN || errno == EWOULDBLOCK)) {
+            usleep(1000);
+            continue;
+        }
+        if (w < 0) break; /* the server closed it already */
+        assert_int_equal(w, (ssize_t)sizeof req);
+        sent++;
+    }
+    print_message("pipelined %ld requests without reading\n", sent);
+    /* a well-behaved client polls the FIFO's count for 1 s: every read answered */
+    modbus_t *ctx = client(port);
+    assert_non_null(ctx);
+    double worst = 0;
+    int reads = 0;
+    for (double t1 = now_s(); now_s() - t1 < 1.0; reads++) {
+        uint16_t c[4];
+        double a = now_s();
+        if (modbus_read_registers(ctx, B + 8, 4, c) != 4)
+            fail_msg("read %d of the polling client failed: %s (the server stalled)", reads, modbus_strerror(errno));
+        if (now_s() - a > worst) worst = now_s() - a;
+        usleep(10000);
+    }
+    print_message("%d reads by a polling client, slowest %.1f ms\n", reads, worst * 1e3);
+    modbus_close(ctx);
+    modbus_free(ctx);
+    /* the hog was closed by the server: its unread replies, then end of file */
+    struct timeval tv = {3, 0};
+    setsockopt(hog, SOL_SOCKET, SO_RCVTIMEO, &tv, sizeof tv);
+    static uint8_t buf[1 << 16];
+    long bytes = 0;
+    ssize_t r;
+    while ((r = recv(hog, buf, sizeof buf, 0)) > 0) bytes += r;
+    if (r != 0 && !(r < 0 && errno == ECONNRESET))
+        fail_msg("the non-reading client was not closed by the server (recv: %s)", strerror(errno));
+    print_message("non-reading client closed by the server after %ld reply bytes (%ld replies of %ld requests)\n",
+                  bytes, bytes / 259, sent);
+    close(hog);
+    close(drip);
+    assert_int_equal(pclose(p), 0);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_fifo_against_csv),
         cmocka_unit_test(test_stop_resume),
+        cmocka_unit_test(test_hostile_clients),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

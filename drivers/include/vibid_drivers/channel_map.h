@@ -7,15 +7,21 @@
  *     { name = "F1"; quantity = "force";        node = 0; unit = "N";   signal = "Force1"; },
  *     { name = "x1"; quantity = "displacement"; node = 0; unit = "m";   signal = "Pos1"; message = "Sample_A"; },
  *     { name = "x2"; quantity = "displacement"; node = 1; unit = "m";   register = "x2"; },
- *     { name = "a0"; quantity = "base_displacement"; node = 0; unit = "m"; column = "xb"; }
+ *     { name = "s";  quantity = "base_displacement"; unit = "mm"; column = "xb"; }
  *   );
  *   counter = "SampleCounter";   # optional: DBC signal numbering the samples
  *   trigger = "Sample_A";        # optional: message that starts a sample (if no counter)
  *   time_column = "t";           # optional: CSV column holding time in seconds
- * quantity: displacement | velocity | acceleration (outputs y) | force |
- * base_displacement (inputs u). Exactly one of signal / register / column per channel
- * (message only narrows a signal name that several messages share). At most
- * VIBID_DRV_MAX_CHANNELS channels; names unique.
+ * quantity: displacement | velocity | acceleration of a node (outputs y); force or input
+ * (a force input u, `input` when it is in other units than a force, e.g. a drive voltage
+ * that the stand's input gain converts); base_displacement | base_velocity |
+ * base_acceleration (the base's motion; no node). node: 0-based index of the node in the
+ * stand, required except for the base (omitted, or 0 as earlier maps wrote). unit:
+ * optional, one of vibid/units.h for the quantity's dimension (any label for `input`);
+ * the program checking the map against the stand (vibidd's configuration) converts it
+ * to the stand's units. Exactly one of signal / register / column per channel (message
+ * only narrows a signal name that several messages share). Any other key is an error. At
+ * most VIBID_DRV_MAX_CHANNELS channels; names unique.
  */
 #ifndef VIBID_DRIVERS_CHANNEL_MAP_H
 #define VIBID_DRIVERS_CHANNEL_MAP_H
@@ -38,7 +44,10 @@ typedef enum vibid_quantity {
     VIBID_Q_VELOCITY = 1,
     VIBID_Q_ACCELERATION = 2,
     VIBID_Q_FORCE = 3,
-    VIBID_Q_BASE_DISPLACEMENT = 4
+    VIBID_Q_BASE_DISPLACEMENT = 4,
+    VIBID_Q_BASE_VELOCITY = 5,
+    VIBID_Q_BASE_ACCELERATION = 6,
+    VIBID_Q_INPUT = 7 /* a force input in its own units (the stand's gain converts it) */
 } vibid_quantity;
 
 typedef enum vibid_chan_source { VIBID_CHAN_SIGNAL, VIBID_CHAN_REGISTER, VIBID_CHAN_COLUMN } vibid_chan_source;
@@ -46,9 +55,9 @@ typedef enum vibid_chan_source { VIBID_CHAN_SIGNAL, VIBID_CHAN_REGISTER, VIBID_C
 typedef struct vibid_channel {
     char name[VIBID_CHAN_NAME_LEN];
     vibid_quantity quantity;
-    bool is_input;             /* force / base_displacement: part of u_k; else y_k */
-    int node;                  /* >= 0 */
-    char unit[32];
+    bool is_input;             /* force / input / base_*: an input of the stand; else an output y_k */
+    int node;                  /* >= 0; -1 for the base quantities */
+    char unit[32];             /* as written, "" when not given */
     vibid_chan_source source;
     char ref[VIBID_CHAN_NAME_LEN];     /* signal, register or column name */
     char message[VIBID_CHAN_NAME_LEN]; /* optional message for a signal; "" = any */
@@ -69,6 +78,8 @@ vibid_drv_status vibid_chanmap_from_setting(const config_setting_t *group, const
 /* Reads a libconfig file whose root holds `channels` (and optional counter, ...). */
 vibid_drv_status vibid_chanmap_load(const char *path, vibid_chanmap *map, vibid_drv_error *err);
 const char *vibid_quantity_name(vibid_quantity q);
+/* base_displacement, base_velocity, base_acceleration */
+bool vibid_quantity_is_base(vibid_quantity q);
 
 #ifdef __cplusplus
 }

@@ -98,6 +98,14 @@ const vibid_dbc_message *vibid_dbc_message_at(const vibid_dbc *dbc, size_t i);
 const vibid_dbc_message *vibid_dbc_find_message(const vibid_dbc *dbc, uint32_t id, bool extended);
 const vibid_dbc_message *vibid_dbc_find_message_by_name(const vibid_dbc *dbc, const char *name);
 const vibid_dbc_signal *vibid_dbc_find_signal(const vibid_dbc_message *msg, const char *name);
+/* The signal `name` in any message of the DBC, or only in the message named `message`
+ * (NULL or "" = any). Returns it and sets *msg_out (may be NULL) to its message; NULL when
+ * no message holds it. When several messages hold it, returns NULL and sets *second_out
+ * (may be NULL) to the second of them (*msg_out to the first): the caller must name the
+ * message. *second_out is NULL otherwise. */
+const vibid_dbc_signal *vibid_dbc_lookup_signal(const vibid_dbc *dbc, const char *name, const char *message,
+                                                const vibid_dbc_message **msg_out,
+                                                const vibid_dbc_message **second_out);
 /* Number of statements that were skipped (not understood, but well-formed enough). */
 size_t vibid_dbc_skipped_count(const vibid_dbc *dbc);
 

@@ -32,9 +32,12 @@ typedef enum vibid_fault_code {
     VIBID_FAULT_DROPPED,      /* frames dropped by the kernel/logger (count in `count`) */
     VIBID_FAULT_POLL,         /* failed Modbus poll */
     VIBID_FAULT_LINK,         /* connection lost / re-established */
-    VIBID_FAULT_CORRUPT       /* implausible content, e.g. a CAN sample counter jumping further than
+    VIBID_FAULT_CORRUPT,      /* implausible content, e.g. a CAN sample counter jumping further than
                                  the elapsed time allows (frame not used) */
+    VIBID_FAULT_CLOCK         /* a capture's timestamps step backwards or implausibly far forward:
+                                 the replay's timeline is re-based (frame used, times shifted) */
 } vibid_fault_code;
+#define VIBID_FAULT_LAST VIBID_FAULT_CLOCK
 
 typedef struct vibid_record {
     vibid_record_kind kind;

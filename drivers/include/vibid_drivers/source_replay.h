@@ -14,9 +14,16 @@
  *   BAD_LINE fault "truncated capture" with file:line and is never turned into a value,
  *   even if it happens to parse.
  *
+ * - Clock steps: in a candump log, a frame whose timestamp is earlier than the previous
+ *   frame's, or later by more than max(VIBID_REPLAY_MAX_TIME_STEP_S, 1000 periods), is a
+ *   CLOCK fault with file:line; the frame is used (the counter numbers samples) and the
+ *   log's times from it on are shifted to continue at the previous frame's time.
+ *
  * Pace: as fast as possible, or at the recorded pace (times speed): sample k is
  * released at start + (t_k - t_0) / speed on CLOCK_MONOTONIC, slept to with
- * clock_nanosleep(TIMER_ABSTIME), so pacing errors do not accumulate.
+ * clock_nanosleep(TIMER_ABSTIME), so pacing errors do not accumulate. A time step longer
+ * than max(VIBID_REPLAY_MAX_TIME_STEP_S, 1000 periods) between two samples (a CSV
+ * capture's pause, reported as a GAP) is not waited for.
  */
 #ifndef VIBID_DRIVERS_SOURCE_REPLAY_H
 #define VIBID_DRIVERS_SOURCE_REPLAY_H
@@ -30,6 +37,11 @@
 #ifdef __cplusplus
 extern "C" {
 #endif
+
+/* The longest time step between frames or samples a replay believes as elapsed time (at
+ * least 1000 sample periods): a logger paused longer than this is replayed without the
+ * wait, and a candump clock stepping further is a CLOCK fault (see above). */
+#define VIBID_REPLAY_MAX_TIME_STEP_S 10.0
 
 typedef enum vibid_replay_format {
     VIBID_REPLAY_AUTO = 0,   /* ".csv" (any case) -> CSV, anything else -> candump */

@@ -1,6 +1,7 @@
 /* stand_file.c: libconfig stand files -> vibid_model (public C API only) plus what the
  * programs need beside the model. Format: docs/stand-file.md. */
 #include <vibid/stand_file.h>
+#include <vibid/units.h>
 
 #include <libconfig.h>
 #include <math.h>
@@ -19,6 +20,10 @@ struct vibid_stand {
     unsigned char *true_given; /* per unknown: 1 if the file gives its true_value */
     size_t n_unknowns;         /* length of true_values and true_given */
     double *true_std;     /* per disturbance, N (vibid_stand_disturbance_true_std) */
+    char length_unit[8];  /* `length_unit`, "m" unless given */
+    double length_si;     /* metres per length unit */
+    long *input_nodes;    /* per input: node index, -1 for a full-matrix stand */
+    size_t n_inputs;
 };
 
 /* Loader context: where we are, for messages. */
@@ -243,6 +248,7 @@ void vibid_stand_destroy(vibid_stand *stand) {
     free(stand->true_values);
     free(stand->true_given);
     free(stand->true_std);
+    free(stand->input_nodes);
     free(stand);
 }
 
@@ -268,6 +274,7 @@ typedef struct pending {
     size_t n_nodes;
     const char *base_names[3];
     const char *input_names[256];
+    long input_nodes[256];
     size_t n_inputs;
     double true_values[8192];
     int has_true[8192];
@@ -485,12 +492,22 @@ vibid_stand *vibid_stand_from_setting(const void *setting_v, const char *file, v
     vibid_status s;
     if (!m) goto fail_oom;
     {
-        static const char *const known[] = {"name",     "sample_rate", "discretization", "matrices", "nodes",
-                                            "base",     "elements",    "inputs",         "disturbances", NULL};
+        static const char *const known[] = {"name",   "sample_rate", "discretization", "length_unit",  "matrices",
+                                            "nodes",  "base",        "elements",       "inputs", "disturbances", NULL};
         if (reject_unknown_members(&c, g, path, known,
-                                   "name, sample_rate, discretization, nodes, base, elements, inputs, disturbances, "
-                                   "matrices"))
+                                   "name, sample_rate, discretization, length_unit, nodes, base, elements, inputs, "
+                                   "disturbances, matrices"))
             goto fail;
+    }
+    {
+        const char *lu = "m";
+        if (get_string(&c, g, path, "length_unit", &lu) < 0) goto fail;
+        if (vibid_unit_si_factor(VIBID_DIM_LENGTH, lu, &st->length_si) || strlen(lu) >= sizeof st->length_unit) {
+            fail(&c, config_setting_get_member(g, "length_unit"), "stand.length_unit", "'%s' is not a length unit (%s)",
+                 lu, vibid_unit_names(VIBID_DIM_LENGTH));
+            goto fail;
+        }
+        snprintf(st->length_unit, sizeof st->length_unit, "%s", lu);
     }
     if (get_string(&c, g, path, "name", &name) < 0) goto fail;
     if (require_number(&c, g, path, "sample_rate", &st->sample_rate)) goto fail;
@@ -660,6 +677,7 @@ vibid_stand *vibid_stand_from_setting(const void *setting_v, const char *file, v
             }
             if (unknown && note_true_value(&c, e, p, gain, pd)) goto fail;
             if (read_hold(&c, m, e, p, in_idx)) goto fail;
+            pd->input_nodes[pd->n_inputs] = (long)idx;
             pd->input_names[pd->n_inputs++] = chan;
         }
         if (dist && read_disturbances(&c, m, dist, st)) goto fail;
@@ -678,7 +696,11 @@ vibid_stand *vibid_stand_from_setting(const void *setting_v, const char *file, v
     st->true_given = calloc(dims.n_params ? dims.n_params : 1, 1);
     st->n_unknowns = dims.n_params;
     if (!st->true_std) st->true_std = calloc(1, sizeof(double)); /* no disturbances: never NULL */
-    if (!st->name || !st->channel_names || !st->true_values || !st->true_given || !st->true_std) goto fail_oom;
+    st->n_inputs = dims.n_inputs;
+    st->input_nodes = calloc(dims.n_inputs ? dims.n_inputs : 1, sizeof(long));
+    if (!st->name || !st->channel_names || !st->true_values || !st->true_given || !st->true_std || !st->input_nodes)
+        goto fail_oom;
+    for (size_t i = 0; i < dims.n_inputs; ++i) st->input_nodes[i] = mats ? -1 : pd->input_nodes[i];
     if (mats) {
         vibid_model_nominal(m, st->true_values);
     } else {
@@ -761,4 +783,9 @@ size_t vibid_stand_find_channel(const vibid_stand *stand, const char *name) {
     for (size_t i = 0; i < stand->n_channels; ++i)
         if (!strcmp(stand->channel_names[i], name)) return i;
     return (size_t)-1;
+}
+const char *vibid_stand_length_unit(const vibid_stand *stand) { return stand ? stand->length_unit : NULL; }
+double vibid_stand_length_si(const vibid_stand *stand) { return stand ? stand->length_si : 0.0; }
+long vibid_stand_input_node(const vibid_stand *stand, size_t input) {
+    return stand && input < stand->n_inputs ? stand->input_nodes[input] : -1;
 }

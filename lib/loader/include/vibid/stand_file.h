@@ -51,6 +51,19 @@ const char *vibid_stand_name(const vibid_stand *stand);
 /* Sample rate f_a in Hz (field `sample_rate`), > 0. */
 double vibid_stand_sample_rate(const vibid_stand *stand);
 
+/* The stand's length unit (field `length_unit`, default "m"; vibid/units.h), e.g. "mm";
+ * lives as long as the stand. Forces are always in N and time in s, so the mass unit is
+ * N s^2 per length unit (kg with m, t with mm). Channels that declare other units are
+ * converted to these by the program that reads them (vibidd's channel map). */
+const char *vibid_stand_length_unit(const vibid_stand *stand);
+/* Metres per length unit (1 for "m", 1e-3 for "mm"), > 0. */
+double vibid_stand_length_si(const vibid_stand *stand);
+
+/* Node index (vibid_model_find_node) that force input `input` acts on; -1 for a
+ * full-matrix stand (its B may spread an input over several coordinates) or an index out
+ * of range. */
+long vibid_stand_input_node(const vibid_stand *stand, size_t input);
+
 /* Acquisition channel name for model channel i (0 .. n_channels - 1 of
  * vibid_model_get_dims), e.g. the DBC signal or register-map name; NULL if i is out of
  * range. Lives as long as the stand. */
