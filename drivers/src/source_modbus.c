@@ -64,6 +64,18 @@ typedef struct mb {
 
 static int64_t sec_ns(double s) { return (int64_t)llround(s * 1e9); }
 
+/* n sample periods of hp ns, saturated at +-2^61 ns (73 years) so that the sums around it
+ * cannot overflow either: a device's 32-bit counter times its own 32-bit period_ns does
+ * not fit in 64 bits (found by drivers.fuzz_modbus_fifo: 4107009791 x 4160749567). */
+static int64_t periods_ns(int64_t n, int64_t hp)
+{
+    const int64_t cap = (int64_t)1 << 61;
+    int64_t r;
+    if (__builtin_mul_overflow(n, hp, &r) || r > cap || r < -cap)
+        return (n < 0) != (hp < 0) ? -cap : cap;
+    return r;
+}
+
 static void link_lost(mb *m, const char *why)
 {
     if (m->ctx) {
@@ -385,7 +397,7 @@ static void fifo_poll(mb *m, int64_t deadline)
         int64_t now = real_ns();
         if (m->have_session) {
             /* signed: after a resync first = S, the newest sample is S - 1, the next at now + h */
-            int64_t t_first = now - ((int64_t)S - 1 - (int64_t)first) * hp;
+            int64_t t_first = now - periods_ns((int64_t)S - 1 - (int64_t)first, hp);
             int64_t est = m->any_sample ? llround((double)(t_first - m->last_sample_t) / (double)hp) - 1 : 0;
             char why[128];
             if (resync)
@@ -408,7 +420,7 @@ static void fifo_poll(mb *m, int64_t deadline)
         m->session = session;
         m->s_next32 = first;
         m->s_next64 = first;
-        m->t_anchor = now - (int64_t)(S - 1) * hp;
+        m->t_anchor = now - periods_ns((int64_t)S - 1, hp);
     }
     /* believed and taken (a new session's S == 0 returned above: not yet taken, so the
      * time since the last taken poll keeps growing) */
@@ -458,7 +470,7 @@ static void fifo_poll(mb *m, int64_t deadline)
                     first[c] = 0;
                 }
                 if (decode_all(m, m->fent, regs, nr, first, v))
-                    emit_sample(m, m->t_anchor + (int64_t)m->s_next64 * hp, v);
+                    emit_sample(m, m->t_anchor + periods_ns((int64_t)m->s_next64, hp), v);
                 else
                     gap(m, 1, "FIFO record not usable (see the fault before)");
             }
