@@ -64,6 +64,16 @@ typedef struct mb {
 
 static int64_t sec_ns(double s) { return (int64_t)llround(s * 1e9); }
 
+/* s seconds (>= 0) as libmodbus's (sec, usec < 1000000) pair, rounded to the microsecond
+ * with the carry: 0.9999996 s is (1, 0), not (0, 1000000), which libmodbus refuses
+ * (EINVAL), silently keeping its 0.5 s default. */
+static void split_us(double s, uint32_t *sec, uint32_t *usec)
+{
+    long long us = llround(s * 1e6);
+    *sec = (uint32_t)(us / 1000000);
+    *usec = (uint32_t)(us % 1000000);
+}
+
 /* n sample periods of hp ns, saturated at +-2^61 ns (73 years) so that the sums around it
  * cannot overflow either: a device's 32-bit counter times its own 32-bit period_ns does
  * not fit in 64 bits (found by drivers.fuzz_modbus_fifo: 4107009791 x 4160749567). */
@@ -200,8 +210,8 @@ static vibid_drv_status try_connect(mb *m, vibid_drv_error *err)
         return vibid_drv_fail(err, VIBID_DRV_E_ARG, "Modbus %s: cannot create the context: %s", m->where,
                               modbus_strerror(errno));
     modbus_set_slave(m->ctx, c->unit_id);
-    uint32_t sec = (uint32_t)c->response_timeout_s;
-    uint32_t usec = (uint32_t)llround((c->response_timeout_s - sec) * 1e6);
+    uint32_t sec, usec;
+    split_us(c->response_timeout_s, &sec, &usec);
     modbus_set_response_timeout(m->ctx, sec, usec);
     /* Between the bytes of one answer libmodbus waits the byte timeout (default 0.5 s),
      * per byte: a peer dripping its answer one byte per 0.45 s held one request for
@@ -213,7 +223,8 @@ static vibid_drv_status try_connect(mb *m, vibid_drv_error *err)
         byte_s = 20.0 * 11.0 / c->baud;
     if (byte_s > c->response_timeout_s)
         byte_s = c->response_timeout_s;
-    modbus_set_byte_timeout(m->ctx, (uint32_t)byte_s, (uint32_t)llround((byte_s - floor(byte_s)) * 1e6));
+    split_us(byte_s, &sec, &usec);
+    modbus_set_byte_timeout(m->ctx, sec, usec);
     vibid_drv_status st = VIBID_DRV_OK;
     vibid_drv_error e2 = {0};
     if (modbus_connect(m->ctx) != 0) {

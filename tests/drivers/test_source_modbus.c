@@ -573,7 +573,8 @@ static void test_fifo_random_counter(void **state)
  * daemon's acquisition loop sees its stop flag (SIGTERM took 19 s with slow answers and
  * more than 150 s with dripped ones); the dripped answers are counted as timeouts and
  * end in a link loss and reconnects, never in a stall. */
-static void slow_run(const char *mode, double secs, double *max_call_s, vibid_source_stats *st)
+static void slow_run(const char *mode, double secs, double response_timeout_s, double *max_call_s,
+                     vibid_source_stats *st)
 {
     int port = free_port();
     vibid_regmap *rm = load_regmap();
@@ -592,7 +593,7 @@ static void slow_run(const char *mode, double secs, double *max_call_s, vibid_so
     cfg.mode = VIBID_MODBUS_FIFO;
     cfg.sample_period_s = 0.01; /* the slow server's 100 Hz: its ring holds 5 s */
     cfg.poll_period_s = 0.02;
-    cfg.response_timeout_s = 0.5;
+    cfg.response_timeout_s = response_timeout_s;
     vibid_drv_error err = {0};
     const int64_t t_open = mono();
     vibid_source *s = vibid_source_open(&vibid_source_modbus_ops, &cfg, &err);
@@ -622,14 +623,14 @@ static void test_slow_peer(void **state)
     (void)state;
     double max_call;
     vibid_source_stats st;
-    slow_run("--delay 0.45", 3.0, &max_call, &st);
+    slow_run("--delay 0.45", 3.0, 0.5, &max_call, &st);
     print_message("answers 0.45 s late: longest call %.3f s, %llu samples, %llu requests, %llu timeouts\n", max_call,
                   (unsigned long long)st.samples, (unsigned long long)st.requests, (unsigned long long)st.timeouts);
     /* 100 ms + the counter and one records request (2 x 0.45 s) + scheduling: 1.2 s;
      * before: a poll read its whole backlog, several seconds */
     assert_true(max_call < 1.2);
     assert_true(st.samples > 0); /* slow but working: data still arrives */
-    slow_run("--drip 0.45", 4.0, &max_call, &st);
+    slow_run("--drip 0.45", 4.0, 0.5, &max_call, &st);
     print_message("answers dripped 1 byte / 0.45 s: longest call %.3f s, %llu timeouts, %llu link losses, %llu "
                   "reconnects\n",
                   max_call, (unsigned long long)st.timeouts, (unsigned long long)st.link_losses,
@@ -638,6 +639,21 @@ static void test_slow_peer(void **state)
      * 0.05 s + the 100 ms call timeout + scheduling < 0.9 s; before: minutes */
     assert_true(max_call < 0.9);
     assert_true(st.timeouts >= 3 && st.link_losses >= 1);
+}
+
+/* A response timeout just under a whole second (0.9999996 s) is (1 s, 0 us) for libmodbus.
+ * Before, it was passed as (0 s, 1000000 us), which libmodbus refuses (EINVAL), keeping
+ * its 0.5 s default: answers 0.7 s late then all timed out. */
+static void test_timeout_rounding(void **state)
+{
+    (void)state;
+    double max_call;
+    vibid_source_stats st;
+    slow_run("--delay 0.7", 3.0, 0.9999996, &max_call, &st);
+    print_message("answers 0.7 s late, response_timeout 0.9999996 s: %llu samples, %llu requests, %llu timeouts\n",
+                  (unsigned long long)st.samples, (unsigned long long)st.requests, (unsigned long long)st.timeouts);
+    assert_int_equal(st.timeouts, 0);
+    assert_true(st.samples > 0);
 }
 
 int main(void)
@@ -652,6 +668,7 @@ int main(void)
         cmocka_unit_test(test_fifo_flapping_session),
         cmocka_unit_test(test_fifo_random_counter),
         cmocka_unit_test(test_slow_peer),
+        cmocka_unit_test(test_timeout_rounding),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

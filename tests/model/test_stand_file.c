@@ -200,6 +200,10 @@ static void test_unknown_keys(void **state) {
     expect_error("stand = {\n  sample_rate = 100.0;\n  matrices = { n_dof = 1; M = [1.0]; C = [1.0];\n"
                  "    unknowns = [\"C\"]; };\n};\n",
                  CFG ":4: stand.matrices.unknowns: unknown setting (n_dof, n_inputs, M, D, C, B, unknown, channels)");
+    /* n_inputs < 0 is refused before it is converted to a count ((size_t)-1.0 was
+     * undefined: UBSan float-cast-overflow, found by drivers.fuzz_stand) */
+    expect_error("stand = { sample_rate = 100.0; matrices = { n_dof = 1; n_inputs = -1; M = [1.0]; C = [1.0]; }; };\n",
+                 CFG ":1: stand.matrices.n_inputs: must be an integer in 0..256");
 #undef STAND
     remove(CFG);
 }

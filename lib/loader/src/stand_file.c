@@ -371,11 +371,12 @@ static int read_matrices(const ctx *c, vibid_model *m, const config_setting_t *g
     char f[160];
     child_path(f, sizeof f, path, "n_dof", 0);
     if (nd < 1 || nd > 256 || nd != floor(nd)) return fail(c, g, f, "must be an integer in 1..256");
-    size_t n = (size_t)nd, r = (size_t)nr;
     if (nr < 0 || nr > 256 || nr != floor(nr)) {
         child_path(f, sizeof f, path, "n_inputs", 0);
         return fail(c, g, f, "must be an integer in 0..256");
     }
+    /* cast only after the range checks: (size_t)-1.0 is undefined (found by fuzz_stand) */
+    size_t n = (size_t)nd, r = (size_t)nr;
     double *mats[4] = {calloc(n * n, sizeof(double)), calloc(n * n, sizeof(double)), calloc(n * n, sizeof(double)),
                        calloc(n * (r ? r : 1), sizeof(double))};
     static const char *const names[4] = {"M", "D", "C", "B"};
