@@ -22,14 +22,18 @@
 #    as logrotate would: mv + SIGHUP (vibidd reopens them), the previous hour's files are
 #    counted and deleted, so disk use stays at ~2 h of raw recording (~0.7 GB) and a
 #    descriptor leaked on reopen would show.
-#  - Every 10 s of wall time (1 s for runs shorter than 5 min): VmRSS, VmHWM, threads and open descriptors of vibidd (/proc),
-#    its CPU ticks and the status file's samples counter -> OUT_DIR/samples.csv.
-#  - Summary: RSS first/last/max after the warm-up (the first 60 s of wall time; less in runs
-#    shorter than 10 min), its
-#    least-squares slope in KiB per simulated hour with standard error, descriptors min/max,
-#    samples vs expected, gaps/faults/write errors, rows of every output over all rotated
-#    files against the status counters, UDP datagrams sent/received, alarms, CPU, wall time.
-#  Exit status 1 only if vibidd or the simulator fails, or samples/rows are missing.
+#  - Every 10 s of wall time (1 s in runs shorter than 5 min): VmRSS, VmHWM, threads and
+#    open descriptors of vibidd (/proc), its and the simulator's CPU ticks and the status
+#    file's samples counter -> OUT_DIR/samples.csv (default out/soak).
+#  - Summary: RSS first/last/min/max after the warm-up (the first 60 s of wall time; less in
+#    runs shorter than 10 min), its least-squares slope in KiB per simulated hour with its
+#    standard error, over the run and over its last third (past the crack's alarm), the
+#    verdicts "flat" (slope within 3 standard errors of 0) and "constant" (descriptors),
+#    samples vs expected, gaps/faults/write errors, rows of every output summed over the
+#    rotated files against the status counters, UDP datagrams sent/received, alarms, CPU,
+#    wall time. VmRSS moves in 4 KiB pages: over 24 h one page is 0.17 KiB/h.
+#  Exit status 1 only if vibidd or the simulator fails, or samples, rows or reopens are
+#  missing (never on the figures).
 set -u
 BUILD=$(cd "${1:?usage: bench_soak.sh BUILD_DIR [HOURS] [SPEED] [OUT_DIR]}" && pwd) # needs vibidd, vibid-sim
 HOURS=${2:-24}
@@ -49,6 +53,7 @@ cd "$W"
 DUR=$(awk -v h="$HOURS" 'BEGIN { printf "%.6f", h * 3600 }')
 N=$(awk -v d="$DUR" -v r=$RATE 'BEGIN { printf "%.0f", d * r }')
 PER_HOUR=$((RATE * 3600))
+SPEED_F=$(awk -v s="$SPEED" 'BEGIN { printf "%.6f", s }')
 # s of wall time before RSS counts, and between samples; shorter for a short check run
 read -r WARMUP PERIOD < <(awk -v d="$DUR" -v v="$SPEED" 'BEGIN { w = d / v
     printf "%d %d\n", (w >= 600 ? 60 : (w >= 20 ? w / 10 : 2)), (w >= 300 ? 10 : 1) }')
@@ -86,7 +91,7 @@ done
 
 cat > soak.cfg <<CFG
 stand = "stand.cfg";
-source = { kind = "replay"; file = "cap.log"; format = "candump"; paced = true; speed = $SPEED.0;
+source = { kind = "replay"; file = "cap.log"; format = "candump"; paced = true; speed = $SPEED_F;
   dbc = "$DBC"; counter = "SampleCounter";
   channels = (
     { name = "x1"; quantity = "displacement"; node = 0; signal = "x1"; },
@@ -154,6 +159,7 @@ while kill -0 $pid 2>/dev/null; do
         st=$(awk '/^VmRSS:/ { r = $2 } /^VmHWM:/ { h = $2 } /^Threads:/ { t = $2 } END { print r "," h "," t }' \
              /proc/$pid/status 2>/dev/null)
         fds=$(ls /proc/$pid/fd 2>/dev/null | wc -l)
+        u= s= su= ss=
         read -r u s < <(cpu_of $pid 2>/dev/null)
         read -r su ss < <(cpu_of $sim 2>/dev/null)
         [ -n "${u:-}" ] && [ "$fds" -gt 0 ] || continue # exited meanwhile
