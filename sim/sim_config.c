@@ -7,104 +7,23 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <vibid/cfgread.h>
 
-typedef struct ctx {
-    const char *file;
-    char *err;
-    size_t errlen;
-} ctx;
+typedef vibid_cfg_reader ctx; /* the configuration reader (vibid/cfgread.h) */
 
-static int fail(ctx *c, const config_setting_t *s, const char *path, const char *fmt, ...)
-    __attribute__((format(printf, 4, 5)));
-
-static int fail(ctx *c, const config_setting_t *s, const char *path, const char *fmt, ...)
-{
-    char msg[512];
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(msg, sizeof msg, fmt, ap);
-    va_end(ap);
-    if (c->err && c->errlen)
-        snprintf(c->err, c->errlen, "%s:%d: %s: %s", c->file, s ? (int)config_setting_source_line(s) : 0, path, msg);
-    return -1;
+/* A finite number of any size (ranges are checked where the value is used, with the
+ * reason): 1 given, 0 absent, -1 error. */
+static int get_num(const ctx *c, const config_setting_t *g, const char *gpath, const char *name,
+                   double *out) {
+    return vibid_cfg_number(c, g, gpath, name, -HUGE_VAL, HUGE_VAL, out);
 }
 
-/* number member: 1 found, 0 absent, -1 error (wrong type or not finite). */
-static int get_num(ctx *c, const config_setting_t *g, const char *gpath, const char *name, double *out)
-{
-    const config_setting_t *m = config_setting_get_member(g, name);
-    if (!m) return 0;
-    char path[256];
-    snprintf(path, sizeof path, "%s.%s", gpath, name);
-    int t = config_setting_type(m);
-    if (t == CONFIG_TYPE_INT || t == CONFIG_TYPE_INT64) *out = (double)config_setting_get_int64(m);
-    else if (t == CONFIG_TYPE_FLOAT) *out = config_setting_get_float(m);
-    else return fail(c, m, path, "must be a number");
-    if (!isfinite(*out)) return fail(c, m, path, "must be finite");
-    return 1;
-}
-
-static int get_str(ctx *c, const config_setting_t *g, const char *gpath, const char *name, const char **out)
-{
-    const config_setting_t *m = config_setting_get_member(g, name);
-    if (!m) return 0;
-    if (config_setting_type(m) != CONFIG_TYPE_STRING) {
-        char path[256];
-        snprintf(path, sizeof path, "%s.%s", gpath, name);
-        return fail(c, m, path, "must be a string");
-    }
-    *out = config_setting_get_string(m);
-    return 1;
-}
-
-static int get_bool(ctx *c, const config_setting_t *g, const char *gpath, const char *name, int *out)
-{
-    const config_setting_t *m = config_setting_get_member(g, name);
-    if (!m) return 0;
-    if (config_setting_type(m) != CONFIG_TYPE_BOOL) {
-        char path[256];
-        snprintf(path, sizeof path, "%s.%s", gpath, name);
-        return fail(c, m, path, "must be true or false");
-    }
-    *out = config_setting_get_bool(m);
-    return 1;
-}
-
-/* Rejects members that this group does not know (typos must not pass silently). */
-static int check_members(ctx *c, const config_setting_t *g, const char *gpath, const char *const *known)
-{
-    for (int i = 0; i < config_setting_length(g); i++) {
-        const config_setting_t *m = config_setting_get_elem(g, (unsigned)i);
-        const char *nm = config_setting_name(m);
-        if (!nm) continue;
-        int ok = 0;
-        for (const char *const *k = known; *k; k++)
-            if (strcmp(*k, nm) == 0) ok = 1;
-        if (!ok) {
-            char path[256], list[512] = "";
-            snprintf(path, sizeof path, "%s.%s", gpath, nm);
-            for (const char *const *k = known; *k; k++) {
-                strncat(list, *k, sizeof list - strlen(list) - 1);
-                if (k[1]) strncat(list, ", ", sizeof list - strlen(list) - 1);
-            }
-            return fail(c, m, path, "unknown setting (known: %s)", list);
-        }
-    }
-    return 0;
-}
-
-static const config_setting_t *get_list(ctx *c, const config_setting_t *g, const char *gpath, const char *name, int *err)
-{
-    const config_setting_t *m = config_setting_get_member(g, name);
-    *err = 0;
-    if (!m) return NULL;
-    if (config_setting_type(m) != CONFIG_TYPE_LIST) {
-        char path[256];
-        snprintf(path, sizeof path, "%s.%s", gpath, name);
-        *err = fail(c, m, path, "must be a list ( {...}, {...} )");
-        return NULL;
-    }
-    return m;
+/* A list member: NULL when absent; *err = -1 when it is not a list. */
+static const config_setting_t *get_list(const ctx *c, const config_setting_t *g, const char *gpath,
+                                        const char *name, int *err) {
+    const config_setting_t *l = NULL;
+    *err = vibid_cfg_list(c, g, gpath, name, &l) < 0 ? -1 : 0;
+    return l;
 }
 
 /* model channel index from an acquisition name or a model channel name */
@@ -159,21 +78,26 @@ static unsigned base_rate_measured(const vibid_model *model, const vibid_model_d
     return bits;
 }
 
-static int parse_exc(ctx *c, const config_setting_t *e, const char *path, uint64_t seed, size_t index, sim_exc_spec *s)
-{
+static int parse_exc(const ctx *c, const config_setting_t *e, const char *path, uint64_t seed, size_t index,
+                     sim_exc_spec *s) {
     static const char *const known[] = {"target", "kind", "amplitude", "offset", "frequency", "phase",
                                         "f_start", "f_stop", "sweep_time", "dwell", "steps", "f_low",
                                         "f_high", "order", "samples_per_bit", "t_on", "t_off", "seed", NULL};
-    if (check_members(c, e, path, known)) return -1;
+    if (vibid_cfg_check_keys(c, e, path, known)) return -1;
     const char *kind = NULL;
-    if (get_str(c, e, path, "kind", &kind) < 0) return -1;
-    if (!kind) return fail(c, e, path, "kind missing (constant, triangle, sine, stepped_sine, sweep_linear, sweep_log, prbs, noise)");
+    if (vibid_cfg_string_ref(c, e, path, "kind", &kind) < 0) return -1;
+    if (!kind)
+        return vibid_cfg_fail(
+            c, e, path,
+            "kind missing (constant, triangle, sine, stepped_sine, sweep_linear, sweep_log, prbs, noise)");
     int k = sim_exc_kind_from_name(kind);
     if (k < 0) {
         char p2[256];
         snprintf(p2, sizeof p2, "%s.kind", path);
-        return fail(c, config_setting_get_member(e, "kind"), p2,
-                    "unknown kind '%s' (constant, triangle, sine, stepped_sine, sweep_linear, sweep_log, prbs, noise)", kind);
+        return vibid_cfg_fail(c, config_setting_get_member(e, "kind"), p2,
+                              "unknown kind '%s' (constant, triangle, sine, stepped_sine, sweep_linear, "
+                              "sweep_log, prbs, noise)",
+                              kind);
     }
     sim_exc_spec_init(s, (sim_exc_kind)k);
     double v;
@@ -213,12 +137,15 @@ int sim_config_load(const char *path, const vibid_stand *stand, const uint64_t *
     cfg->fifo_capacity = 1000;
     for (size_t i = 0; i < SIM_MAX_CHANNELS; i++) cfg->can_sig[i] = (sim_can_signal){SIM_CAN_FLOAT32, 1.0};
 
-    ctx c = {path, err, errlen};
+    vibid_cfg_error cerr = {0};
+    ctx c = {path, &cerr};
     const vibid_model *model = vibid_stand_model(stand);
     vibid_model_dims d;
     vibid_model_get_dims(model, &d);
     if (d.n_channels > SIM_MAX_CHANNELS) {
-        fail(&c, NULL, "stand", "%zu channels; vibid-sim handles at most %d", d.n_channels, SIM_MAX_CHANNELS);
+        vibid_cfg_fail(&c, NULL, "stand", "%zu channels; vibid-sim handles at most %d", d.n_channels,
+                       SIM_MAX_CHANNELS);
+        if (err && errlen) snprintf(err, errlen, "%s", cerr.text);
         return -1;
     }
     /* Each input behaves as the stand declares it unless simulation.hold overrides all. */
@@ -226,49 +153,52 @@ int sim_config_load(const char *path, const vibid_stand *stand, const uint64_t *
     resolve_holds(cfg, model, d.n_inputs);
 
     config_t lc;
-    config_init(&lc);
     int rc = -1;
-    if (!config_read_file(&lc, path)) {
-        if (err && errlen)
-            snprintf(err, errlen, "%s:%d: %s", config_error_file(&lc) ? config_error_file(&lc) : path,
-                     config_error_line(&lc), config_error_text(&lc));
-        goto out;
-    }
+    if (vibid_cfg_read_file(&lc, path, &cerr)) goto out;
     if (seed) cfg->seed = *seed;
     const config_setting_t *g = config_lookup(&lc, "simulation");
     if (!g) { rc = 0; goto out; }
     const char *gp = "simulation";
-    if (!config_setting_is_group(g)) { fail(&c, g, gp, "must be a group { ... }"); goto out; }
+    if (!config_setting_is_group(g)) {
+        vibid_cfg_fail(&c, g, gp, "must be a group { ... }");
+        goto out;
+    }
     static const char *const known[] = {"seed", "duration", "hold", "integrator", "excitation", "noise",
                                         "changes", "can", "modbus", NULL};
-    if (check_members(&c, g, gp, known)) goto out;
+    if (vibid_cfg_check_keys(&c, g, gp, known)) goto out;
 
     double v;
     int r;
     if ((r = get_num(&c, g, gp, "seed", &v)) < 0) goto out;
     if (r) {
-        if (v < 0) { fail(&c, config_setting_get_member(g, "seed"), "simulation.seed", "must be >= 0"); goto out; }
+        if (v < 0) {
+            vibid_cfg_fail(&c, config_setting_get_member(g, "seed"), "simulation.seed", "must be >= 0");
+            goto out;
+        }
         cfg->seed = (uint64_t)v;
     }
     if (seed) cfg->seed = *seed;
     if ((r = get_num(&c, g, gp, "duration", &v)) < 0) goto out;
     if (r) {
-        if (!(v > 0)) { fail(&c, config_setting_get_member(g, "duration"), "simulation.duration", "%g must be > 0 s", v); goto out; }
+        if (!(v > 0)) {
+            vibid_cfg_fail(&c, config_setting_get_member(g, "duration"), "simulation.duration",
+                           "%g must be > 0 s", v);
+            goto out;
+        }
         cfg->duration = v;
     }
-    const char *hold = NULL;
-    if (get_str(&c, g, gp, "hold", &hold) < 0) goto out;
-    if (hold) {
-        if (strcmp(hold, "zoh") == 0) cfg->smooth = 0;
-        else if (strcmp(hold, "smooth") == 0) cfg->smooth = 1;
-        else { fail(&c, config_setting_get_member(g, "hold"), "simulation.hold", "'%s': use \"zoh\" or \"smooth\"", hold); goto out; }
+    static const char *const holds[] = {"zoh", "smooth", NULL}; /* index = cfg->smooth */
+    if ((r = vibid_cfg_enum(&c, g, gp, "hold", holds, false, &cfg->smooth)) < 0) goto out;
+    if (r) {
         resolve_holds(cfg, model, d.n_inputs);
         unsigned bm = base_rate_measured(model, &d);
         if (!cfg->smooth && bm) {
-            fail(&c, config_setting_get_member(g, "hold"), "simulation.hold",
-                 "\"zoh\" holds the base, whose %s is measured: a held displacement's derivative is a train of "
-                 "impulses that no sensor reports (measure only the base displacement, or use \"smooth\")",
-                 bm & VIBID_MEASURE_VELOCITY ? "velocity" : "acceleration");
+            vibid_cfg_fail(
+                &c, config_setting_get_member(g, "hold"), "simulation.hold",
+                "\"zoh\" holds the base, whose %s is measured: a held displacement's derivative is a train "
+                "of "
+                "impulses that no sensor reports (measure only the base displacement, or use \"smooth\")",
+                bm & VIBID_MEASURE_VELOCITY ? "velocity" : "acceleration");
             goto out;
         }
     }
@@ -276,19 +206,24 @@ int sim_config_load(const char *path, const vibid_stand *stand, const uint64_t *
     const config_setting_t *ig = config_setting_get_member(g, "integrator");
     if (ig) {
         static const char *const ik[] = {"rtol", "atol", "method", NULL};
-        if (!config_setting_is_group(ig)) { fail(&c, ig, "simulation.integrator", "must be a group"); goto out; }
-        if (check_members(&c, ig, "simulation.integrator", ik)) goto out;
+        if (!config_setting_is_group(ig)) {
+            vibid_cfg_fail(&c, ig, "simulation.integrator", "must be a group");
+            goto out;
+        }
+        if (vibid_cfg_check_keys(&c, ig, "simulation.integrator", ik)) goto out;
         if (get_num(&c, ig, "simulation.integrator", "rtol", &cfg->rtol) < 0) goto out;
         if (get_num(&c, ig, "simulation.integrator", "atol", &cfg->atol) < 0) goto out;
-        const char *meth = NULL;
-        if (get_str(&c, ig, "simulation.integrator", "method", &meth) < 0) goto out;
-        if (meth) {
-            if (strcmp(meth, "fehlberg8") == 0) cfg->method = 0;
-            else if (strcmp(meth, "dormand_prince5") == 0) cfg->method = 1;
-            else { fail(&c, config_setting_get_member(ig, "method"), "simulation.integrator.method", "'%s': use \"fehlberg8\" or \"dormand_prince5\"", meth); goto out; }
+        static const char *const methods[] = {"fehlberg8", "dormand_prince5", NULL}; /* index = cfg->method */
+        if (vibid_cfg_enum(&c, ig, "simulation.integrator", "method", methods, false, &cfg->method) < 0)
+            goto out;
+        if (!(cfg->rtol >= 1e-14 && cfg->rtol <= 1e-2)) {
+            vibid_cfg_fail(&c, ig, "simulation.integrator.rtol", "%g outside [1e-14, 1e-2]", cfg->rtol);
+            goto out;
         }
-        if (!(cfg->rtol >= 1e-14 && cfg->rtol <= 1e-2)) { fail(&c, ig, "simulation.integrator.rtol", "%g outside [1e-14, 1e-2]", cfg->rtol); goto out; }
-        if (!(cfg->atol > 0)) { fail(&c, ig, "simulation.integrator.atol", "%g must be > 0", cfg->atol); goto out; }
+        if (!(cfg->atol > 0)) {
+            vibid_cfg_fail(&c, ig, "simulation.integrator.atol", "%g must be > 0", cfg->atol);
+            goto out;
+        }
     }
 
     int lerr;
@@ -298,13 +233,23 @@ int sim_config_load(const char *path, const vibid_stand *stand, const uint64_t *
         const config_setting_t *e = config_setting_get_elem(ex, (unsigned)i);
         char p[128];
         snprintf(p, sizeof p, "simulation.excitation.[%d]", i);
-        if (!config_setting_is_group(e)) { fail(&c, e, p, "must be a group { ... }"); goto out; }
+        if (!config_setting_is_group(e)) {
+            vibid_cfg_fail(&c, e, p, "must be a group { ... }");
+            goto out;
+        }
         const char *tg = NULL;
-        if (get_str(&c, e, p, "target", &tg) < 0) goto out;
-        if (!tg) { fail(&c, e, p, "target missing: \"base\", the name of a force input or of a disturbance"); goto out; }
+        if (vibid_cfg_string_ref(&c, e, p, "target", &tg) < 0) goto out;
+        if (!tg) {
+            vibid_cfg_fail(&c, e, p,
+                           "target missing: \"base\", the name of a force input or of a disturbance");
+            goto out;
+        }
         int is_base = strcmp(tg, "base") == 0, is_dist = 0;
         size_t input = 0;
-        if (is_base && !d.has_base) { fail(&c, e, p, "target \"base\": no element of the stand connects to the base"); goto out; }
+        if (is_base && !d.has_base) {
+            vibid_cfg_fail(&c, e, p, "target \"base\": no element of the stand connects to the base");
+            goto out;
+        }
         if (!is_base) {
             int found = 0;
             char names[512] = "", dnames[512] = "";
@@ -324,8 +269,9 @@ int sim_config_load(const char *path, const vibid_stand *stand, const uint64_t *
                 vibid_model_disturbance_info(model, k, &wi);
                 if (strcmp(wi.name, tg) == 0) {
                     if (found) {
-                        fail(&c, config_setting_get_member(e, "target"), p,
-                             "target '%s' names both a force input's channel and a disturbance", tg);
+                        vibid_cfg_fail(&c, config_setting_get_member(e, "target"), p,
+                                       "target '%s' names both a force input's channel and a disturbance",
+                                       tg);
                         goto out;
                     }
                     found = is_dist = 1;
@@ -335,10 +281,11 @@ int sim_config_load(const char *path, const vibid_stand *stand, const uint64_t *
                 strncat(dnames, wi.name, sizeof dnames - strlen(dnames) - 1);
             }
             if (!found) {
-                fail(&c, config_setting_get_member(e, "target"), p,
-                     "target '%s' is neither \"base\" nor a force input nor a disturbance of the stand (inputs: %s; "
-                     "disturbances: %s)",
-                     tg, names[0] ? names : "none", dnames[0] ? dnames : "none");
+                vibid_cfg_fail(&c, config_setting_get_member(e, "target"), p,
+                               "target '%s' is neither \"base\" nor a force input nor a disturbance of the "
+                               "stand (inputs: %s; "
+                               "disturbances: %s)",
+                               tg, names[0] ? names : "none", dnames[0] ? dnames : "none");
                 goto out;
             }
         }
@@ -349,7 +296,10 @@ int sim_config_load(const char *path, const vibid_stand *stand, const uint64_t *
                 t = &cfg->targets[k];
         if (!t) {
             sim_exc_target *nt = realloc(cfg->targets, (cfg->n_targets + 1) * sizeof *nt);
-            if (!nt) { fail(&c, e, p, "out of memory"); goto out; }
+            if (!nt) {
+                vibid_cfg_fail(&c, e, p, "out of memory");
+                goto out;
+            }
             cfg->targets = nt;
             t = &cfg->targets[cfg->n_targets++];
             memset(t, 0, sizeof *t);
@@ -358,7 +308,10 @@ int sim_config_load(const char *path, const vibid_stand *stand, const uint64_t *
             t->input = input;
         }
         sim_exc_spec *ns = realloc(t->specs, (t->n + 1) * sizeof *ns);
-        if (!ns) { fail(&c, e, p, "out of memory"); goto out; }
+        if (!ns) {
+            vibid_cfg_fail(&c, e, p, "out of memory");
+            goto out;
+        }
         t->specs = ns;
         if (parse_exc(&c, e, p, cfg->seed, (size_t)i, &t->specs[t->n])) goto out;
         t->n++;
@@ -371,16 +324,23 @@ int sim_config_load(const char *path, const vibid_stand *stand, const uint64_t *
         char p[128];
         snprintf(p, sizeof p, "simulation.noise.[%d]", i);
         static const char *const nk[] = {"channel", "std", "snr_db", "resolution", NULL};
-        if (!config_setting_is_group(e)) { fail(&c, e, p, "must be a group { ... }"); goto out; }
-        if (check_members(&c, e, p, nk)) goto out;
+        if (!config_setting_is_group(e)) {
+            vibid_cfg_fail(&c, e, p, "must be a group { ... }");
+            goto out;
+        }
+        if (vibid_cfg_check_keys(&c, e, p, nk)) goto out;
         const char *ch = NULL;
-        if (get_str(&c, e, p, "channel", &ch) < 0) goto out;
-        if (!ch) { fail(&c, e, p, "channel missing"); goto out; }
+        if (vibid_cfg_string_ref(&c, e, p, "channel", &ch) < 0) goto out;
+        if (!ch) {
+            vibid_cfg_fail(&c, e, p, "channel missing");
+            goto out;
+        }
         size_t idx = find_channel(stand, ch);
         if (idx == (size_t)-1) {
             char names[512];
             channel_list(stand, names, sizeof names);
-            fail(&c, config_setting_get_member(e, "channel"), p, "unknown channel '%s' (channels: %s)", ch, names);
+            vibid_cfg_fail(&c, config_setting_get_member(e, "channel"), p,
+                           "unknown channel '%s' (channels: %s)", ch, names);
             goto out;
         }
         sim_noise_spec ns = {idx, NAN, NAN, 0.0}; /* std NaN: not given (the stand's noise may apply) */
@@ -388,11 +348,23 @@ int sim_config_load(const char *path, const vibid_stand *stand, const uint64_t *
         if ((hs = get_num(&c, e, p, "std", &ns.std)) < 0 || (hn = get_num(&c, e, p, "snr_db", &ns.snr_db)) < 0 ||
             get_num(&c, e, p, "resolution", &ns.resolution) < 0)
             goto out;
-        if (hs && hn) { fail(&c, e, p, "give either std or snr_db, not both"); goto out; }
-        if (hs && ns.std < 0) { fail(&c, e, p, "std = %g must be >= 0", ns.std); goto out; }
-        if (ns.resolution < 0) { fail(&c, e, p, "resolution = %g must be >= 0", ns.resolution); goto out; }
+        if (hs && hn) {
+            vibid_cfg_fail(&c, e, p, "give either std or snr_db, not both");
+            goto out;
+        }
+        if (hs && ns.std < 0) {
+            vibid_cfg_fail(&c, e, p, "std = %g must be >= 0", ns.std);
+            goto out;
+        }
+        if (ns.resolution < 0) {
+            vibid_cfg_fail(&c, e, p, "resolution = %g must be >= 0", ns.resolution);
+            goto out;
+        }
         sim_noise_spec *nn = realloc(cfg->noise, (cfg->n_noise + 1) * sizeof *nn);
-        if (!nn) { fail(&c, e, p, "out of memory"); goto out; }
+        if (!nn) {
+            vibid_cfg_fail(&c, e, p, "out of memory");
+            goto out;
+        }
         cfg->noise = nn;
         cfg->noise[cfg->n_noise++] = ns;
     }
@@ -404,11 +376,17 @@ int sim_config_load(const char *path, const vibid_stand *stand, const uint64_t *
         char p[128];
         snprintf(p, sizeof p, "simulation.changes.[%d]", i);
         static const char *const ck[] = {"parameter", "at", "ramp", "factor", "value", NULL};
-        if (!config_setting_is_group(e)) { fail(&c, e, p, "must be a group { ... }"); goto out; }
-        if (check_members(&c, e, p, ck)) goto out;
+        if (!config_setting_is_group(e)) {
+            vibid_cfg_fail(&c, e, p, "must be a group { ... }");
+            goto out;
+        }
+        if (vibid_cfg_check_keys(&c, e, p, ck)) goto out;
         const char *pn = NULL;
-        if (get_str(&c, e, p, "parameter", &pn) < 0) goto out;
-        if (!pn) { fail(&c, e, p, "parameter missing"); goto out; }
+        if (vibid_cfg_string_ref(&c, e, p, "parameter", &pn) < 0) goto out;
+        if (!pn) {
+            vibid_cfg_fail(&c, e, p, "parameter missing");
+            goto out;
+        }
         size_t pi = (size_t)-1;
         char names[512] = "";
         for (size_t k = 0; k < d.n_params; k++) {
@@ -419,9 +397,10 @@ int sim_config_load(const char *path, const vibid_stand *stand, const uint64_t *
             strncat(names, " ", sizeof names - strlen(names) - 1);
         }
         if (pi == (size_t)-1) {
-            fail(&c, config_setting_get_member(e, "parameter"), p,
-                 "'%s' is not an unknown parameter of the stand (changeable: %s); only parameters marked unknown = true can change",
-                 pn, names[0] ? names : "none");
+            vibid_cfg_fail(&c, config_setting_get_member(e, "parameter"), p,
+                           "'%s' is not an unknown parameter of the stand (changeable: %s); only parameters "
+                           "marked unknown = true can change",
+                           pn, names[0] ? names : "none");
             goto out;
         }
         sim_change ch = {pi, 0.0, 0.0, 0.0};
@@ -430,17 +409,29 @@ int sim_config_load(const char *path, const vibid_stand *stand, const uint64_t *
         if ((ha = get_num(&c, e, p, "at", &ch.at)) < 0 || get_num(&c, e, p, "ramp", &ch.ramp) < 0 ||
             (hf = get_num(&c, e, p, "factor", &factor)) < 0 || (hv = get_num(&c, e, p, "value", &ch.value)) < 0)
             goto out;
-        if (!ha || ch.at < 0) { fail(&c, e, p, "at (s, >= 0) missing or negative"); goto out; }
-        if (ch.ramp < 0) { fail(&c, e, p, "ramp = %g must be >= 0 s", ch.ramp); goto out; }
-        if (hf == hv) { fail(&c, e, p, "give exactly one of factor (times the true value) or value"); goto out; }
+        if (!ha || ch.at < 0) {
+            vibid_cfg_fail(&c, e, p, "at (s, >= 0) missing or negative");
+            goto out;
+        }
+        if (ch.ramp < 0) {
+            vibid_cfg_fail(&c, e, p, "ramp = %g must be >= 0 s", ch.ramp);
+            goto out;
+        }
+        if (hf == hv) {
+            vibid_cfg_fail(&c, e, p, "give exactly one of factor (times the true value) or value");
+            goto out;
+        }
         if (hf) ch.value = factor * vibid_stand_true_values(stand)[pi];
         for (size_t k = 0; k < cfg->n_changes; k++)
             if (cfg->changes[k].param == pi && !(ch.at >= cfg->changes[k].at + cfg->changes[k].ramp)) {
-                fail(&c, e, p, "changes of '%s' must be given in time order without overlap", pn);
+                vibid_cfg_fail(&c, e, p, "changes of '%s' must be given in time order without overlap", pn);
                 goto out;
             }
         sim_change *nc = realloc(cfg->changes, (cfg->n_changes + 1) * sizeof *nc);
-        if (!nc) { fail(&c, e, p, "out of memory"); goto out; }
+        if (!nc) {
+            vibid_cfg_fail(&c, e, p, "out of memory");
+            goto out;
+        }
         cfg->changes = nc;
         cfg->changes[cfg->n_changes++] = ch;
     }
@@ -449,13 +440,21 @@ int sim_config_load(const char *path, const vibid_stand *stand, const uint64_t *
     if (cg) {
         const char *cp = "simulation.can";
         static const char *const kk[] = {"id", "fd", "extended", "signals", NULL};
-        if (!config_setting_is_group(cg)) { fail(&c, cg, cp, "must be a group"); goto out; }
-        if (check_members(&c, cg, cp, kk)) goto out;
-        if (get_bool(&c, cg, cp, "fd", &cfg->can_fd) < 0 || get_bool(&c, cg, cp, "extended", &cfg->can_extended) < 0) goto out;
+        if (!config_setting_is_group(cg)) {
+            vibid_cfg_fail(&c, cg, cp, "must be a group");
+            goto out;
+        }
+        if (vibid_cfg_check_keys(&c, cg, cp, kk)) goto out;
+        bool fd = false, ext = false;
+        if (vibid_cfg_bool(&c, cg, cp, "fd", &fd) < 0 || vibid_cfg_bool(&c, cg, cp, "extended", &ext) < 0)
+            goto out;
+        cfg->can_fd = fd;
+        cfg->can_extended = ext;
         if ((r = get_num(&c, cg, cp, "id", &v)) < 0) goto out;
         if (r) cfg->can_id = (uint32_t)v;
         if (r && (v < 0 || v > (cfg->can_extended ? 0x1FFFFFFF : 0x7FF))) {
-            fail(&c, config_setting_get_member(cg, "id"), "simulation.can.id", "%g outside 0..0x%X", v, cfg->can_extended ? 0x1FFFFFFF : 0x7FF);
+            vibid_cfg_fail(&c, config_setting_get_member(cg, "id"), "simulation.can.id", "%g outside 0..0x%X",
+                           v, cfg->can_extended ? 0x1FFFFFFF : 0x7FF);
             goto out;
         }
         const config_setting_t *sl = get_list(&c, cg, cp, "signals", &lerr);
@@ -465,28 +464,40 @@ int sim_config_load(const char *path, const vibid_stand *stand, const uint64_t *
             char p[128];
             snprintf(p, sizeof p, "simulation.can.signals.[%d]", i);
             static const char *const sk[] = {"channel", "type", "scale", NULL};
-            if (!config_setting_is_group(e)) { fail(&c, e, p, "must be a group"); goto out; }
-            if (check_members(&c, e, p, sk)) goto out;
-            const char *ch = NULL, *ty = NULL;
-            if (get_str(&c, e, p, "channel", &ch) < 0 || get_str(&c, e, p, "type", &ty) < 0) goto out;
-            if (!ch) { fail(&c, e, p, "channel missing"); goto out; }
+            if (!config_setting_is_group(e)) {
+                vibid_cfg_fail(&c, e, p, "must be a group");
+                goto out;
+            }
+            if (vibid_cfg_check_keys(&c, e, p, sk)) goto out;
+            const char *ch = NULL;
+            static const char *const types[] = {"int16", "int32", "float32", NULL};
+            static const sim_can_type type_values[] = {SIM_CAN_INT16, SIM_CAN_INT32, SIM_CAN_FLOAT32};
+            int ty = 2;
+            if (vibid_cfg_string_ref(&c, e, p, "channel", &ch) < 0 ||
+                vibid_cfg_enum(&c, e, p, "type", types, false, &ty) < 0)
+                goto out;
+            if (!ch) {
+                vibid_cfg_fail(&c, e, p, "channel missing");
+                goto out;
+            }
             size_t idx = find_channel(stand, ch);
             if (idx == (size_t)-1) {
                 char names[512];
                 channel_list(stand, names, sizeof names);
-                fail(&c, config_setting_get_member(e, "channel"), p, "unknown channel '%s' (channels: %s)", ch, names);
+                vibid_cfg_fail(&c, config_setting_get_member(e, "channel"), p,
+                               "unknown channel '%s' (channels: %s)", ch, names);
                 goto out;
             }
-            sim_can_signal sg = {SIM_CAN_FLOAT32, 1.0};
-            if (ty) {
-                if (strcmp(ty, "int16") == 0) sg.type = SIM_CAN_INT16;
-                else if (strcmp(ty, "int32") == 0) sg.type = SIM_CAN_INT32;
-                else if (strcmp(ty, "float32") == 0) sg.type = SIM_CAN_FLOAT32;
-                else { fail(&c, config_setting_get_member(e, "type"), p, "type '%s': use int16, int32 or float32", ty); goto out; }
-            }
+            sim_can_signal sg = {type_values[ty], 1.0};
             if (get_num(&c, e, p, "scale", &sg.scale) < 0) goto out;
-            if (!(sg.scale > 0)) { fail(&c, e, p, "scale = %g must be > 0", sg.scale); goto out; }
-            if (sg.type == SIM_CAN_FLOAT32 && sg.scale != 1.0) { fail(&c, e, p, "float32 signals are not scaled (scale must be 1)"); goto out; }
+            if (!(sg.scale > 0)) {
+                vibid_cfg_fail(&c, e, p, "scale = %g must be > 0", sg.scale);
+                goto out;
+            }
+            if (sg.type == SIM_CAN_FLOAT32 && sg.scale != 1.0) {
+                vibid_cfg_fail(&c, e, p, "float32 signals are not scaled (scale must be 1)");
+                goto out;
+            }
             cfg->can_sig[idx] = sg;
         }
     }
@@ -495,23 +506,35 @@ int sim_config_load(const char *path, const vibid_stand *stand, const uint64_t *
     if (mg) {
         const char *mp = "simulation.modbus";
         static const char *const mk[] = {"fifo_base", "capacity", NULL};
-        if (!config_setting_is_group(mg)) { fail(&c, mg, mp, "must be a group"); goto out; }
-        if (check_members(&c, mg, mp, mk)) goto out;
+        if (!config_setting_is_group(mg)) {
+            vibid_cfg_fail(&c, mg, mp, "must be a group");
+            goto out;
+        }
+        if (vibid_cfg_check_keys(&c, mg, mp, mk)) goto out;
         if ((r = get_num(&c, mg, mp, "fifo_base", &v)) < 0) goto out;
         if (r) {
-            if (v < 0 || v > 65535) { fail(&c, mg, "simulation.modbus.fifo_base", "%g outside 0..65535", v); goto out; }
+            if (v < 0 || v > 65535) {
+                vibid_cfg_fail(&c, mg, "simulation.modbus.fifo_base", "%g outside 0..65535", v);
+                goto out;
+            }
             cfg->fifo_base = (unsigned)v;
         }
         if ((r = get_num(&c, mg, mp, "capacity", &v)) < 0) goto out;
         if (r) {
-            if (v < 2 || v > 32767) { fail(&c, mg, "simulation.modbus.capacity", "%g outside 2..32767", v); goto out; }
+            if (v < 2 || v > 32767) {
+                vibid_cfg_fail(&c, mg, "simulation.modbus.capacity", "%g outside 2..32767", v);
+                goto out;
+            }
             cfg->fifo_capacity = (unsigned)v;
         }
     }
     rc = 0;
 out:
     config_destroy(&lc);
-    if (rc) sim_config_free(cfg);
+    if (rc) {
+        sim_config_free(cfg);
+        if (err && errlen) snprintf(err, errlen, "%s", cerr.text);
+    }
     return rc;
 }
 

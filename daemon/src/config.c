@@ -21,168 +21,45 @@
 #include <vibid_drivers/source_replay.h>
 
 typedef struct ctx {
-    const char *file;
-    vd_config_error *err;
+    vibid_cfg_reader r; /* r.file: the configuration file; r.err: the caller's error */
     vd_config *cfg;
 } ctx;
 
-static int fail_at(ctx *c, const config_setting_t *s, const char *field, const char *fmt, ...)
-    __attribute__((format(printf, 4, 5)));
-
-static int fail_line(ctx *c, const char *file, int line, const char *field, const char *fmt, ...)
-    __attribute__((format(printf, 5, 6)));
-
-static int vfail_line(ctx *c, const char *file, int line, const char *field, const char *fmt, va_list ap)
-{
-    vd_config_error *e = c->err;
-    snprintf(e->file, sizeof e->file, "%s", file);
-    e->line = line;
-    snprintf(e->field, sizeof e->field, "%s", field ? field : "");
-    char msg[1400];
-    vsnprintf(msg, sizeof msg, fmt, ap);
-    if (line > 0)
-        snprintf(e->text, sizeof e->text, "%s:%d: %s: %s", file, line, e->field, msg);
-    else
-        snprintf(e->text, sizeof e->text, "%s: %s: %s", file, e->field, msg);
-    return -1;
-}
-
-/* An error at file:line (a place libconfig's settings do not carry, e.g. a channel of a
- * separate channel-map file). */
-static int fail_line(ctx *c, const char *file, int line, const char *field, const char *fmt, ...)
-{
-    va_list ap;
-    va_start(ap, fmt);
-    vfail_line(c, file, line, field, fmt, ap);
-    va_end(ap);
-    return -1;
-}
-
-static int fail_at(ctx *c, const config_setting_t *s, const char *field, const char *fmt, ...)
-{
-    const char *file = c->file;
-    int line = 0;
-    if (s) {
-        line = config_setting_source_line(s);
-        const char *sf = config_setting_source_file(s);
-        if (sf && *sf)
-            file = sf;
-    }
-    va_list ap;
-    va_start(ap, fmt);
-    vfail_line(c, file, line, field, fmt, ap);
-    va_end(ap);
-    return -1;
-}
-
-/* ---- typed getters with ranges ---- */
-
-static void field_name(char *buf, size_t cap, const char *section, const char *name)
-{
-    snprintf(buf, cap, "%s%s%s", section, *section ? "." : "", name);
-}
+/* Thin adapters over the configuration reader (vibid/cfgread.h): each getter fills in the
+ * directive's default first, so that an absent directive reads as its default, and
+ * returns 0 or -1 (the reader's message in c->r.err). */
 
 static int check_known(ctx *c, const config_setting_t *group, const char *section, const char *const *known)
 {
-    if (!group)
-        return 0;
-    int n = config_setting_length(group);
-    for (int i = 0; i < n; i++) {
-        const config_setting_t *m = config_setting_get_elem(group, (unsigned)i);
-        const char *name = config_setting_name(m);
-        if (!name)
-            continue;
-        bool ok = false;
-        for (const char *const *k = known; *k; k++)
-            if (strcmp(*k, name) == 0)
-                ok = true;
-        if (!ok) {
-            char f[160], list[600] = "";
-            field_name(f, sizeof f, section, name);
-            for (const char *const *k = known; *k; k++) {
-                strncat(list, *k, sizeof list - strlen(list) - 1);
-                if (k[1])
-                    strncat(list, ", ", sizeof list - strlen(list) - 1);
-            }
-            return fail_at(c, m, f, "unknown directive '%s' (known here: %s)", name, list);
-        }
-    }
-    return 0;
+    return vibid_cfg_check_keys(&c->r, group, section, known);
 }
 
 static int get_double(ctx *c, const config_setting_t *g, const char *section, const char *name, double def, double lo,
                       double hi, double *out)
 {
     *out = def;
-    const config_setting_t *s = g ? config_setting_get_member(g, name) : NULL;
-    if (!s)
-        return 0;
-    char f[160];
-    field_name(f, sizeof f, section, name);
-    int t = config_setting_type(s);
-    double v;
-    if (t == CONFIG_TYPE_FLOAT)
-        v = config_setting_get_float(s);
-    else if (t == CONFIG_TYPE_INT || t == CONFIG_TYPE_INT64)
-        v = (double)config_setting_get_int64(s);
-    else
-        return fail_at(c, s, f, "must be a number");
-    if (!isfinite(v) || v < lo || v > hi)
-        return fail_at(c, s, f, "%g outside [%g, %g]", v, lo, hi);
-    *out = v;
-    return 0;
+    return vibid_cfg_number(&c->r, g, section, name, lo, hi, out) < 0 ? -1 : 0;
 }
 
 static int get_int(ctx *c, const config_setting_t *g, const char *section, const char *name, long long def,
                    long long lo, long long hi, long long *out)
 {
     *out = def;
-    const config_setting_t *s = g ? config_setting_get_member(g, name) : NULL;
-    if (!s)
-        return 0;
-    char f[160];
-    field_name(f, sizeof f, section, name);
-    int t = config_setting_type(s);
-    if (t != CONFIG_TYPE_INT && t != CONFIG_TYPE_INT64)
-        return fail_at(c, s, f, "must be an integer");
-    long long v = config_setting_get_int64(s);
-    if (v < lo || v > hi)
-        return fail_at(c, s, f, "%lld outside [%lld, %lld]", v, lo, hi);
-    *out = v;
-    return 0;
+    return vibid_cfg_int(&c->r, g, section, name, lo, hi, out) < 0 ? -1 : 0;
 }
 
 static int get_bool(ctx *c, const config_setting_t *g, const char *section, const char *name, bool def, bool *out)
 {
     *out = def;
-    const config_setting_t *s = g ? config_setting_get_member(g, name) : NULL;
-    if (!s)
-        return 0;
-    char f[160];
-    field_name(f, sizeof f, section, name);
-    if (config_setting_type(s) != CONFIG_TYPE_BOOL)
-        return fail_at(c, s, f, "must be true or false");
-    *out = config_setting_get_bool(s) != 0;
-    return 0;
+    return vibid_cfg_bool(&c->r, g, section, name, out) < 0 ? -1 : 0;
 }
 
-/* String of at most cap-1 characters. */
+/* String of at most cap-1 characters ("" allowed: it means "not set" for the outputs). */
 static int get_string(ctx *c, const config_setting_t *g, const char *section, const char *name, const char *def,
                       char *out, size_t cap)
 {
     snprintf(out, cap, "%s", def);
-    const config_setting_t *s = g ? config_setting_get_member(g, name) : NULL;
-    if (!s)
-        return 0;
-    char f[160];
-    field_name(f, sizeof f, section, name);
-    if (config_setting_type(s) != CONFIG_TYPE_STRING)
-        return fail_at(c, s, f, "must be a string");
-    const char *v = config_setting_get_string(s);
-    if (strlen(v) >= cap)
-        return fail_at(c, s, f, "longer than %zu characters", cap - 1);
-    snprintf(out, cap, "%s", v);
-    return 0;
+    return vibid_cfg_string(&c->r, g, section, name, true, out, cap) < 0 ? -1 : 0;
 }
 
 /* One of `names` (NULL-terminated); *out = its index. */
@@ -190,48 +67,16 @@ static int get_enum(ctx *c, const config_setting_t *g, const char *section, cons
                     const char *const *names, int *out)
 {
     *out = def;
-    const config_setting_t *s = g ? config_setting_get_member(g, name) : NULL;
-    if (!s)
-        return 0;
-    char f[160], list[300] = "";
-    field_name(f, sizeof f, section, name);
-    for (const char *const *k = names; *k; k++) {
-        strncat(list, *k, sizeof list - strlen(list) - 1);
-        if (k[1])
-            strncat(list, ", ", sizeof list - strlen(list) - 1);
-    }
-    if (config_setting_type(s) != CONFIG_TYPE_STRING)
-        return fail_at(c, s, f, "must be one of the strings %s", list);
-    const char *v = config_setting_get_string(s);
-    for (int i = 0; names[i]; i++)
-        if (strcmp(names[i], v) == 0) {
-            *out = i;
-            return 0;
-        }
-    return fail_at(c, s, f, "'%s' is not one of %s", v, list);
+    return vibid_cfg_enum(&c->r, g, section, name, names, false, out) < 0 ? -1 : 0;
 }
 
-/* Path relative to the configuration file's directory unless absolute. "" stays "". */
-static int resolve_path(ctx *c, const config_setting_t *s, const char *field, const char *in, char *out, size_t cap)
-{
-    int n;
-    if (!*in || in[0] == '/')
-        n = snprintf(out, cap, "%s", in);
-    else
-        n = snprintf(out, cap, "%s/%s", c->cfg->dir, in);
-    if (n < 0 || (size_t)n >= cap)
-        return fail_at(c, s, field, "path too long");
-    return 0;
-}
-
+/* A file name relative to the file that names it; absent or "" leaves "" (not set). */
 static int get_path(ctx *c, const config_setting_t *g, const char *section, const char *name, char *out, size_t cap)
 {
-    char raw[VD_PATH_MAX];
-    if (get_string(c, g, section, name, "", raw, sizeof raw))
-        return -1;
-    char f[160];
-    field_name(f, sizeof f, section, name);
-    return resolve_path(c, g ? config_setting_get_member(g, name) : NULL, f, raw, out, cap);
+    out[0] = '\0';
+    const config_setting_t *s = g ? config_setting_get_member(g, name) : NULL;
+    if (s && config_setting_type(s) == CONFIG_TYPE_STRING && !*config_setting_get_string(s)) return 0;
+    return vibid_cfg_path(&c->r, g, section, name, out, cap) < 0 ? -1 : 0;
 }
 
 /* ---- sections ---- */
@@ -241,32 +86,29 @@ static int load_stand(ctx *c, config_t *cf)
     vd_config *cfg = c->cfg;
     config_setting_t *s = config_lookup(cf, "stand");
     if (!s)
-        return fail_at(c, config_root_setting(cf), "stand",
-                       "missing: give the stand file (stand = \"stand.cfg\";) or the stand group inline");
-    vibid_stand_error se;
-    memset(&se, 0, sizeof se);
+        return vibid_cfg_fail(
+            &c->r, config_root_setting(cf), "stand",
+            "missing: give the stand file (stand = \"stand.cfg\";) or the stand group inline");
     if (config_setting_type(s) == CONFIG_TYPE_STRING) {
-        if (resolve_path(c, s, "stand", config_setting_get_string(s), cfg->stand_file, sizeof cfg->stand_file))
+        if (vibid_cfg_path_of(&c->r, s, "stand", config_setting_get_string(s), cfg->stand_file,
+                              sizeof cfg->stand_file))
             return -1;
+        vibid_stand_error se;
         cfg->stand = vibid_stand_load(cfg->stand_file, &se);
         if (!cfg->stand) {
-            /* The loader's text names the stand file's own file:line:field. */
-            fail_at(c, s, "stand", "cannot load the stand file");
-            snprintf(c->err->text, sizeof c->err->text, "%s (stand file referenced at %s:%d)", se.text, c->file,
-                     config_setting_source_line(s));
+            /* The loader's error names the stand file's own file:line:field; say where it
+             * was referenced from as well. */
+            *c->r.err = se;
+            /* precisions keep the sum within text's 2304 bytes (a cut path still names the place) */
+            snprintf(c->r.err->text, sizeof c->r.err->text, "%.1250s (stand file referenced at %.1000s:%d)",
+                     se.text, c->r.file, config_setting_source_line(s));
             return -1;
         }
     } else if (config_setting_is_group(s)) {
-        cfg->stand = vibid_stand_from_setting(s, c->file, &se);
-        if (!cfg->stand) {
-            snprintf(c->err->file, sizeof c->err->file, "%s", se.file[0] ? se.file : c->file);
-            c->err->line = se.line;
-            snprintf(c->err->field, sizeof c->err->field, "%s", se.field);
-            snprintf(c->err->text, sizeof c->err->text, "%s", se.text);
-            return -1;
-        }
+        cfg->stand = vibid_stand_from_setting(s, c->r.file, c->r.err);
+        if (!cfg->stand) return -1;
     } else {
-        return fail_at(c, s, "stand", "must be a file name (string) or a group");
+        return vibid_cfg_fail(&c->r, s, "stand", "must be a file name (string) or a group");
     }
     const vibid_model *m = vibid_stand_model(cfg->stand);
     vibid_model_dims d;
@@ -276,12 +118,13 @@ static int load_stand(ctx *c, config_t *cf)
     cfg->n_channels = d.n_channels;
     cfg->n_modes = d.n_dof;
     if (d.n_params == 0)
-        return fail_at(c, s, "stand", "the stand has no unknown parameter: nothing to identify");
+        return vibid_cfg_fail(&c->r, s, "stand", "the stand has no unknown parameter: nothing to identify");
     if (d.n_params > VD_MAX_PARAMS)
-        return fail_at(c, s, "stand", "%zu unknowns, vibidd handles at most %d", d.n_params, VD_MAX_PARAMS);
+        return vibid_cfg_fail(&c->r, s, "stand", "%zu unknowns, vibidd handles at most %d", d.n_params,
+                              VD_MAX_PARAMS);
     if (d.n_channels > VIBID_DRV_MAX_CHANNELS)
-        return fail_at(c, s, "stand", "%zu channels, the sources carry at most %d", d.n_channels,
-                       VIBID_DRV_MAX_CHANNELS);
+        return vibid_cfg_fail(&c->r, s, "stand", "%zu channels, the sources carry at most %d", d.n_channels,
+                              VIBID_DRV_MAX_CHANNELS);
     return 0;
 }
 
@@ -304,7 +147,7 @@ static int parse_url(ctx *c, const config_setting_t *src)
         const char *colon = strrchr(hp, ':');
         size_t hl = colon ? (size_t)(colon - hp) : strlen(hp);
         if (hl == 0 || hl >= sizeof cfg->host)
-            return fail_at(c, s, "source.url", "'%s': no host (tcp://HOST:PORT)", u);
+            return vibid_cfg_fail(&c->r, s, "source.url", "'%s': no host (tcp://HOST:PORT)", u);
         memcpy(cfg->host, hp, hl);
         cfg->host[hl] = '\0';
         cfg->port = 502;
@@ -313,7 +156,8 @@ static int parse_url(ctx *c, const config_setting_t *src)
             errno = 0;
             long p = strtol(colon + 1, &end, 10);
             if (*end || p < 1 || p > 65535 || errno)
-                return fail_at(c, s, "source.url", "'%s': port '%s' outside 1..65535", u, colon + 1);
+                return vibid_cfg_fail(&c->r, s, "source.url", "'%s': port '%s' outside 1..65535", u,
+                                      colon + 1);
             cfg->port = (int)p;
         }
         return 0;
@@ -321,11 +165,11 @@ static int parse_url(ctx *c, const config_setting_t *src)
     if (strncmp(u, "rtu://", 6) == 0) {
         cfg->transport = VIBID_MODBUS_RTU;
         if (u[6] != '/' || strlen(u + 6) >= sizeof cfg->device)
-            return fail_at(c, s, "source.url", "'%s': expected rtu:///dev/DEVICE", u);
+            return vibid_cfg_fail(&c->r, s, "source.url", "'%s': expected rtu:///dev/DEVICE", u);
         snprintf(cfg->device, sizeof cfg->device, "%s", u + 6);
         return 0;
     }
-    return fail_at(c, s, "source.url", "'%s': expected tcp://HOST[:PORT] or rtu:///dev/DEVICE", u);
+    return vibid_cfg_fail(&c->r, s, "source.url", "'%s': expected tcp://HOST[:PORT] or rtu:///dev/DEVICE", u);
 }
 
 static int load_dbc(ctx *c, const config_setting_t *src)
@@ -334,11 +178,11 @@ static int load_dbc(ctx *c, const config_setting_t *src)
     if (get_path(c, src, "source", "dbc", cfg->dbc_file, sizeof cfg->dbc_file))
         return -1;
     if (!cfg->dbc_file[0])
-        return fail_at(c, src, "source.dbc", "missing: CAN signals need a DBC file");
+        return vibid_cfg_fail(&c->r, src, "source.dbc", "missing: CAN signals need a DBC file");
     vibid_drv_error de = {0};
     cfg->dbc = vibid_dbc_load(cfg->dbc_file, &de);
     if (!cfg->dbc) {
-        fail_at(c, config_setting_get_member(src, "dbc"), "source.dbc", "%s", de.text);
+        vibid_cfg_fail(&c->r, config_setting_get_member(src, "dbc"), "source.dbc", "%s", de.text);
         return -1;
     }
     return 0;
@@ -347,32 +191,23 @@ static int load_dbc(ctx *c, const config_setting_t *src)
 static int load_chanmap(ctx *c, const config_setting_t *src)
 {
     vd_config *cfg = c->cfg;
-    vibid_drv_error de = {0};
     const config_setting_t *inl = config_setting_get_member(src, "channels");
     if (get_path(c, src, "source", "channel_map", cfg->chanmap_file, sizeof cfg->chanmap_file))
         return -1;
     if (inl && cfg->chanmap_file[0])
-        return fail_at(c, inl, "source.channels", "give either channels (inline) or channel_map (a file), not both");
+        return vibid_cfg_fail(&c->r, inl, "source.channels",
+                              "give either channels (inline) or channel_map (a file), not both");
     vibid_drv_status st;
     if (cfg->chanmap_file[0])
-        st = vibid_chanmap_load(cfg->chanmap_file, &cfg->chanmap, &de);
+        st = vibid_chanmap_read_file(cfg->chanmap_file, &cfg->chanmap, c->r.err);
     else if (inl)
-        st = vibid_chanmap_from_setting(src, c->file, &cfg->chanmap, &de);
+        st = vibid_chanmap_read(&c->r, src, "source", &cfg->chanmap);
     else
-        return fail_at(c, src, "source.channels",
-                       "missing: map the stand's channels to signals/registers/columns (channels = (...); or "
-                       "channel_map = \"file\";)");
-    if (st != VIBID_DRV_OK) {
-        /* The channel map's own "file:line: reason" is the place to point at. */
-        const char *file = cfg->chanmap_file[0] ? cfg->chanmap_file : c->file;
-        size_t fl = strlen(file);
-        char *end = NULL;
-        long line = strncmp(de.text, file, fl) == 0 && de.text[fl] == ':' ? strtol(de.text + fl + 1, &end, 10) : 0;
-        if (line > 0 && end && strncmp(end, ": ", 2) == 0)
-            return fail_line(c, file, (int)line, "source.channels", "%s", end + 2);
-        return fail_at(c, inl ? inl : config_setting_get_member(src, "channel_map"), "source.channels", "%s",
-                       de.text);
-    }
+        return vibid_cfg_fail(
+            &c->r, src, "source.channels",
+            "missing: map the stand's channels to signals/registers/columns (channels = (...); or "
+            "channel_map = \"file\";)");
+    if (st != VIBID_DRV_OK) return -1;
     /* Embedded counter/trigger/time_column beside an external channel map override it. */
     char tmp[VIBID_CHAN_NAME_LEN];
     const char *const keys[] = {"counter", "trigger", "time_column"};
@@ -395,9 +230,10 @@ static int load_chanmap(ctx *c, const config_setting_t *src)
         if (k == cfg->chanmap.n) {
             vibid_channel_info ci;
             vibid_model_channel_info(m, i, &ci);
-            return fail_at(c, inl ? inl : src, "source.channels",
-                           "the stand needs channel '%s' (%s) but the channel map has no channel of that name", want,
-                           ci.name);
+            return vibid_cfg_fail(
+                &c->r, inl ? inl : src, "source.channels",
+                "the stand needs channel '%s' (%s) but the channel map has no channel of that name", want,
+                ci.name);
         }
         cfg->model_to_chan[i] = k;
     }
@@ -442,20 +278,23 @@ static int channel_scale(ctx *c, const char *map_file, size_t k)
     double si, dbc_si;
     if (vibid_unit_si_factor((vibid_unit_dim)dim, unit, &si)) {
         if (unit == dbc_unit)
-            return fail_line(c, map_file, (int)ch->line, f,
-                             "channel '%s' (%s) takes the unit '%s' of DBC signal '%s' (%s:%u), which is not a %s "
-                             "unit (%s): declare the channel's unit, or map a signal of the right quantity",
-                             ch->name, vibid_quantity_name(ch->quantity), unit, sig->name, cfg->dbc_file, sig->line,
-                             vibid_unit_dim_name((vibid_unit_dim)dim), vibid_unit_names((vibid_unit_dim)dim));
-        return fail_line(c, map_file, (int)ch->line, f, "'%s' is not a %s unit for a %s channel (%s)", unit,
-                         vibid_unit_dim_name((vibid_unit_dim)dim), vibid_quantity_name(ch->quantity),
-                         vibid_unit_names((vibid_unit_dim)dim));
+            return vibid_cfg_fail_at(
+                &c->r, map_file, (int)ch->line, f,
+                "channel '%s' (%s) takes the unit '%s' of DBC signal '%s' (%s:%u), which is not a %s "
+                "unit (%s): declare the channel's unit, or map a signal of the right quantity",
+                ch->name, vibid_quantity_name(ch->quantity), unit, sig->name, cfg->dbc_file, sig->line,
+                vibid_unit_dim_name((vibid_unit_dim)dim), vibid_unit_names((vibid_unit_dim)dim));
+        return vibid_cfg_fail_at(&c->r, map_file, (int)ch->line, f,
+                                 "'%s' is not a %s unit for a %s channel (%s)", unit,
+                                 vibid_unit_dim_name((vibid_unit_dim)dim), vibid_quantity_name(ch->quantity),
+                                 vibid_unit_names((vibid_unit_dim)dim));
     }
     if (dbc_unit && unit != dbc_unit &&
         (vibid_unit_si_factor((vibid_unit_dim)dim, dbc_unit, &dbc_si) || fabs(dbc_si - si) > 1e-12 * si))
-        return fail_line(c, map_file, (int)ch->line, f,
-                         "channel '%s' says '%s' but DBC signal '%s' (%s:%u) is in '%s': one of them is wrong",
-                         ch->name, unit, sig->name, cfg->dbc_file, sig->line, dbc_unit);
+        return vibid_cfg_fail_at(
+            &c->r, map_file, (int)ch->line, f,
+            "channel '%s' says '%s' but DBC signal '%s' (%s:%u) is in '%s': one of them is wrong", ch->name,
+            unit, sig->name, cfg->dbc_file, sig->line, dbc_unit);
     double stand_si = dim == VIBID_DIM_FORCE ? 1.0 : vibid_stand_length_si(cfg->stand);
     cfg->chan_scale[k] = si / stand_si;
     return 0;
@@ -467,7 +306,7 @@ static int channel_scale(ctx *c, const char *map_file, size_t k)
 static int check_channels(ctx *c)
 {
     vd_config *cfg = c->cfg;
-    const char *map_file = cfg->chanmap_file[0] ? cfg->chanmap_file : c->file;
+    const char *map_file = cfg->chanmap_file[0] ? cfg->chanmap_file : c->r.file;
     for (size_t k = 0; k < cfg->chanmap.n; k++)
         if (channel_scale(c, map_file, k))
             return -1;
@@ -506,10 +345,11 @@ static int check_channels(ctx *c)
                 snprintf(have, sizeof have, "%s", vibid_quantity_name(ch->quantity));
             else
                 snprintf(have, sizeof have, "%s on node %d", vibid_quantity_name(ch->quantity), ch->node);
-            return fail_line(c, map_file, (int)ch->line, f,
-                             "declared as %s, but the stand reads channel '%s' as %s (%s): the channel map and the "
-                             "stand disagree",
-                             have, ch->name, ci.name, want);
+            return vibid_cfg_fail_at(
+                &c->r, map_file, (int)ch->line, f,
+                "declared as %s, but the stand reads channel '%s' as %s (%s): the channel map and the "
+                "stand disagree",
+                have, ch->name, ci.name, want);
         }
         cfg->model_scale[i] = cfg->chan_scale[cfg->model_to_chan[i]];
     }
@@ -521,13 +361,14 @@ static int load_source(ctx *c, config_t *cf)
     vd_config *cfg = c->cfg;
     config_setting_t *src = config_lookup(cf, "source");
     if (!src || !config_setting_is_group(src))
-        return fail_at(c, src ? src : config_root_setting(cf), "source", "missing: a group source = { kind = ...; }");
+        return vibid_cfg_fail(&c->r, src ? src : config_root_setting(cf), "source",
+                              "missing: a group source = { kind = ...; }");
     cfg->source_line = config_setting_source_line(src);
     if (check_known(c, src, "source", src_known))
         return -1;
     int kind;
     if (!config_setting_get_member(src, "kind"))
-        return fail_at(c, src, "source.kind", "missing: socketcan, modbus or replay");
+        return vibid_cfg_fail(&c->r, src, "source.kind", "missing: socketcan, modbus or replay");
     if (get_enum(c, src, "source", "kind", 0, src_kinds, &kind))
         return -1;
     cfg->source_kind = (vd_source_kind)kind;
@@ -539,7 +380,8 @@ static int load_source(ctx *c, config_t *cf)
         if (get_string(c, src, "source", "interface", "", cfg->iface, 16))
             return -1;
         if (!cfg->iface[0])
-            return fail_at(c, src, "source.interface", "missing: the CAN interface, e.g. \"can0\"");
+            return vibid_cfg_fail(&c->r, src, "source.interface",
+                                  "missing: the CAN interface, e.g. \"can0\"");
         if (load_dbc(c, src))
             return -1;
         if (get_int(c, src, "source", "rcvbuf", 0, 0, 64LL << 20, &v))
@@ -551,13 +393,14 @@ static int load_source(ctx *c, config_t *cf)
             return -1;
         cfg->can_batch = (unsigned)v;
         if (!cfg->chanmap.counter[0] && !cfg->chanmap.trigger[0])
-            return fail_at(c, src, "source.counter", "CAN samples need a counter signal or a trigger message");
+            return vibid_cfg_fail(&c->r, src, "source.counter",
+                                  "CAN samples need a counter signal or a trigger message");
         break;
     case VD_SRC_MODBUS: {
         if (get_string(c, src, "source", "url", "", cfg->url, sizeof cfg->url))
             return -1;
         if (!cfg->url[0])
-            return fail_at(c, src, "source.url", "missing: tcp://HOST:PORT or rtu:///dev/DEVICE");
+            return vibid_cfg_fail(&c->r, src, "source.url", "missing: tcp://HOST:PORT or rtu:///dev/DEVICE");
         if (parse_url(c, src))
             return -1;
         if (get_int(c, src, "source", "baud", 19200, 1200, 4000000, &v))
@@ -577,28 +420,27 @@ static int load_source(ctx *c, config_t *cf)
             return -1;
         cfg->modbus_mode = (vibid_modbus_mode)mi;
         const config_setting_t *inl = config_setting_get_member(src, "registers");
-        if (get_path(c, src, "source", "register_map", cfg->regmap_file, sizeof cfg->regmap_file))
-            return -1;
-        vibid_drv_error de = {0};
+        if (get_path(c, src, "source", "register_map", cfg->regmap_file, sizeof cfg->regmap_file)) return -1;
         if (inl && cfg->regmap_file[0])
-            return fail_at(c, inl, "source.registers", "give either registers (inline) or register_map, not both");
+            return vibid_cfg_fail(&c->r, inl, "source.registers",
+                                  "give either registers (inline) or register_map, not both");
         if (cfg->regmap_file[0])
-            cfg->regmap = vibid_regmap_load(cfg->regmap_file, &de);
+            cfg->regmap = vibid_regmap_read_file(cfg->regmap_file, c->r.err);
         else if (inl)
-            cfg->regmap = vibid_regmap_from_setting(inl, c->file, &de);
+            cfg->regmap = vibid_regmap_read(&c->r, inl, "source.registers");
         else
-            return fail_at(c, src, "source.registers",
-                           "missing: the register map (registers = (...); or register_map = \"file\";)");
-        if (!cfg->regmap)
-            return fail_at(c, inl ? inl : config_setting_get_member(src, "register_map"), "source.registers", "%s",
-                           de.text);
+            return vibid_cfg_fail(
+                &c->r, src, "source.registers",
+                "missing: the register map (registers = (...); or register_map = \"file\";)");
+        if (!cfg->regmap) return -1;
         for (size_t i = 0; i < cfg->chanmap.n; i++)
             if (cfg->chanmap.ch[i].source != VIBID_CHAN_REGISTER ||
                 !vibid_regmap_find(cfg->regmap, cfg->chanmap.ch[i].ref)) {
                 char f[64];
                 snprintf(f, sizeof f, "source.channels");
-                return fail_at(c, src, f, "channel '%s' (line %u) must name a register of the register map",
-                               cfg->chanmap.ch[i].name, cfg->chanmap.ch[i].line);
+                return vibid_cfg_fail(&c->r, src, f,
+                                      "channel '%s' (line %u) must name a register of the register map",
+                                      cfg->chanmap.ch[i].name, cfg->chanmap.ch[i].line);
             }
         if (get_double(c, src, "source", "poll_period", 0.0, 0.0, 10.0, &cfg->poll_period_s) ||
             get_int(c, src, "source", "fifo_base", 1000, 0, 65535, &v))
@@ -611,15 +453,17 @@ static int load_source(ctx *c, config_t *cf)
             return -1;
         cfg->max_timeouts = (unsigned)v;
         if (cfg->backoff_max_s < cfg->backoff_initial_s)
-            return fail_at(c, config_setting_get_member(src, "backoff_max"), "source.backoff_max",
-                           "%g s is below backoff_initial %g s", cfg->backoff_max_s, cfg->backoff_initial_s);
+            return vibid_cfg_fail(&c->r, config_setting_get_member(src, "backoff_max"), "source.backoff_max",
+                                  "%g s is below backoff_initial %g s", cfg->backoff_max_s,
+                                  cfg->backoff_initial_s);
         break;
     }
     case VD_SRC_REPLAY: {
         if (get_path(c, src, "source", "file", cfg->replay_file, sizeof cfg->replay_file))
             return -1;
         if (!cfg->replay_file[0])
-            return fail_at(c, src, "source.file", "missing: the capture file (candump .log or .csv)");
+            return vibid_cfg_fail(&c->r, src, "source.file",
+                                  "missing: the capture file (candump .log or .csv)");
         static const char *const fmts[] = {"auto", "candump", "csv", NULL};
         int fi;
         if (get_enum(c, src, "source", "format", 0, fmts, &fi))
@@ -668,8 +512,8 @@ static int load_acquisition(ctx *c, config_t *cf)
     if (get_int(c, g, "acquisition", "ring_size", 65536, 16, 1LL << 20, &v))
         return -1;
     if ((v & (v - 1)) != 0)
-        return fail_at(c, config_setting_get_member(g, "ring_size"), "acquisition.ring_size",
-                       "%lld is not a power of two", v);
+        return vibid_cfg_fail(&c->r, config_setting_get_member(g, "ring_size"), "acquisition.ring_size",
+                              "%lld is not a power of two", v);
     cfg->ring_size = (unsigned)v;
     if (get_int(c, g, "acquisition", "read_batch", 64, 1, 1024, &v))
         return -1;
@@ -707,13 +551,15 @@ static int load_start_values(ctx *c, const config_setting_t *sv)
         return 0;
     if (cfg->method != VIBID_ESTIMATOR_RLS && cfg->method != VIBID_ESTIMATOR_EKF &&
         cfg->method != VIBID_ESTIMATOR_KF_RLS)
-        return fail_at(c, sv, "estimator.start_values",
-                       "only the rls, ekf and kf_rls methods have start values (method is %s)",
-                       vd_estimator_name(cfg->method));
+        return vibid_cfg_fail(&c->r, sv, "estimator.start_values",
+                              "only the rls, ekf and kf_rls methods have start values (method is %s)",
+                              vd_estimator_name(cfg->method));
     if (!config_setting_is_list(sv))
-        return fail_at(c, sv, "estimator.start_values", "must be a list ( { name = \"c1\"; value = ...; }, ... )");
+        return vibid_cfg_fail(&c->r, sv, "estimator.start_values",
+                              "must be a list ( { name = \"c1\"; value = ...; }, ... )");
     if (vibid_model_nominal(vibid_stand_model(cfg->stand), cfg->start_theta) != VIBID_OK)
-        return fail_at(c, sv, "estimator.start_values", "the stand's nominal values: %s", vibid_last_error());
+        return vibid_cfg_fail(&c->r, sv, "estimator.start_values", "the stand's nominal values: %s",
+                              vibid_last_error());
     int n = config_setting_length(sv);
     for (int i = 0; i < n; i++) {
         const config_setting_t *e = config_setting_get_elem(sv, (unsigned)i);
@@ -721,17 +567,16 @@ static int load_start_values(ctx *c, const config_setting_t *sv)
         snprintf(sec, sizeof sec, "estimator.start_values.[%d]", i);
         static const char *const sk[] = {"name", "value", NULL};
         if (!config_setting_is_group(e))
-            return fail_at(c, e, sec, "must be a group { name = \"...\"; value = ...; }");
+            return vibid_cfg_fail(&c->r, e, sec, "must be a group { name = \"...\"; value = ...; }");
         char name[64];
         if (check_known(c, e, sec, sk) || get_string(c, e, sec, "name", "", name, sizeof name))
             return -1;
         size_t k = param_index(cfg, name);
         snprintf(f, sizeof f, "%s.name", sec);
         if (k == cfg->n_params)
-            return fail_at(c, e, f, "'%s' is not an unknown parameter of the stand", name);
+            return vibid_cfg_fail(&c->r, e, f, "'%s' is not an unknown parameter of the stand", name);
         snprintf(f, sizeof f, "%s.value", sec);
-        if (!config_setting_get_member(e, "value"))
-            return fail_at(c, e, f, "missing");
+        if (!config_setting_get_member(e, "value")) return vibid_cfg_fail(&c->r, e, f, "missing");
         if (get_double(c, e, sec, "value", 0.0, -1e300, 1e300, &cfg->start_theta[k]))
             return -1;
     }
@@ -764,13 +609,14 @@ static int load_estimator(ctx *c, config_t *cf)
     if (get_int(c, g, "estimator", "difference_order", 0, 2, 4, &v))
         return -1;
     if (v == 3)
-        return fail_at(c, config_setting_get_member(g, "difference_order"), "estimator.difference_order",
-                       "3: use 2 (central differences (1.17)) or 4 (five-point stencils)");
+        return vibid_cfg_fail(&c->r, config_setting_get_member(g, "difference_order"),
+                              "estimator.difference_order",
+                              "3: use 2 (central differences (1.17)) or 4 (five-point stencils)");
     cfg->difference_order = (unsigned)v;
     if (cfg->prefilter_hz > 0 && cfg->prefilter_hz < 1e-3 * fa)
-        return fail_at(c, config_setting_get_member(g, "prefilter_hz"), "estimator.prefilter_hz",
-                       "%g Hz is below f_a / 1000 = %g Hz (0 turns the pre-filter off)", cfg->prefilter_hz,
-                       1e-3 * fa);
+        return vibid_cfg_fail(&c->r, config_setting_get_member(g, "prefilter_hz"), "estimator.prefilter_hz",
+                              "%g Hz is below f_a / 1000 = %g Hz (0 turns the pre-filter off)",
+                              cfg->prefilter_hz, 1e-3 * fa);
     if (get_int(c, g, "estimator", "decimation", (long long)fmax(1.0, round(fa / 10.0)), 1, 10000000, &v))
         return -1;
     cfg->decimation = (unsigned)v;
@@ -806,13 +652,15 @@ static int load_outputs(ctx *c, config_t *cf)
         char *end = NULL;
         long p = colon ? strtol(colon + 1, &end, 10) : 0;
         if (!colon || colon == cfg->influx_udp || !end || *end || p < 1 || p > 65535)
-            return fail_at(c, config_setting_get_member(i, "udp"), "outputs.influx.udp",
-                           "'%s': expected HOST:PORT, e.g. \"127.0.0.1:8089\" or \"localhost:8089\"", cfg->influx_udp);
+            return vibid_cfg_fail(&c->r, config_setting_get_member(i, "udp"), "outputs.influx.udp",
+                                  "'%s': expected HOST:PORT, e.g. \"127.0.0.1:8089\" or \"localhost:8089\"",
+                                  cfg->influx_udp);
     }
     for (const char *p = cfg->influx_measurement; *p; p++)
         if (*p == ',' || *p == ' ' || *p == '"' || *p == '\\')
-            return fail_at(c, config_setting_get_member(i, "measurement"), "outputs.influx.measurement",
-                           "must not contain comma, space, quote or backslash");
+            return vibid_cfg_fail(&c->r, config_setting_get_member(i, "measurement"),
+                                  "outputs.influx.measurement",
+                                  "must not contain comma, space, quote or backslash");
     config_setting_t *r = g ? config_setting_get_member(g, "record") : NULL;
     static const char *const rk[] = {"path", "format", NULL};
     static const char *const rf[] = {"csv", "candump", NULL};
@@ -823,9 +671,10 @@ static int load_outputs(ctx *c, config_t *cf)
         return -1;
     cfg->record_format = (vd_record_format)fi;
     if (cfg->record_format == VD_REC_CANDUMP && !cfg->dbc)
-        return fail_at(c, config_setting_get_member(r, "format"), "outputs.record.format",
-                       "a candump recording encodes the samples with the source's DBC: it needs a CAN source "
-                       "(socketcan, or a candump replay) with source.dbc; use \"csv\" for this source");
+        return vibid_cfg_fail(
+            &c->r, config_setting_get_member(r, "format"), "outputs.record.format",
+            "a candump recording encodes the samples with the source's DBC: it needs a CAN source "
+            "(socketcan, or a candump replay) with source.dbc; use \"csv\" for this source");
     config_setting_t *s = g ? config_setting_get_member(g, "status") : NULL;
     static const char *const sk[] = {"path", "interval", NULL};
     return check_known(c, s, "outputs.status", sk) ||
@@ -859,7 +708,8 @@ static int load_alarms(ctx *c, config_t *cf)
     if (!plist)
         return 0;
     if (!config_setting_is_list(plist))
-        return fail_at(c, plist, "alarms.parameters", "must be a list ( { name = \"c1\"; baseline = ...; }, ... )");
+        return vibid_cfg_fail(&c->r, plist, "alarms.parameters",
+                              "must be a list ( { name = \"c1\"; baseline = ...; }, ... )");
     int n = config_setting_length(plist);
     for (int i = 0; i < n; i++) {
         const config_setting_t *e = config_setting_get_elem(plist, (unsigned)i);
@@ -867,7 +717,7 @@ static int load_alarms(ctx *c, config_t *cf)
         snprintf(sec, sizeof sec, "alarms.parameters.[%d]", i);
         static const char *const pk[] = {"name", "baseline", NULL};
         if (!config_setting_is_group(e))
-            return fail_at(c, e, sec, "must be a group { name = \"...\"; }");
+            return vibid_cfg_fail(&c->r, e, sec, "must be a group { name = \"...\"; }");
         if (check_known(c, e, sec, pk))
             return -1;
         char name[64];
@@ -877,7 +727,7 @@ static int load_alarms(ctx *c, config_t *cf)
         if (k == cfg->n_params) {
             char f[96];
             snprintf(f, sizeof f, "%s.name", sec);
-            return fail_at(c, e, f, "'%s' is not an unknown parameter of the stand", name);
+            return vibid_cfg_fail(&c->r, e, f, "'%s' is not an unknown parameter of the stand", name);
         }
         cfg->alarm_param[k].enabled = true;
         if (config_setting_get_member(e, "baseline")) {
@@ -916,21 +766,11 @@ int vd_config_load(const char *path, vd_config *cfg, vd_config_error *err)
 {
     memset(cfg, 0, sizeof *cfg);
     memset(err, 0, sizeof *err);
-    ctx c = {path, err, cfg};
+    ctx c = {{path, err}, cfg};
     snprintf(cfg->path, sizeof cfg->path, "%s", path);
     vd_path_dir(path, cfg->dir, sizeof cfg->dir);
     config_t cf;
-    config_init(&cf);
-    config_set_include_dir(&cf, cfg->dir);
-    if (!config_read_file(&cf, path)) {
-        const char *ef = config_error_file(&cf);
-        snprintf(err->file, sizeof err->file, "%s", ef ? ef : path);
-        err->line = config_error_line(&cf);
-        if (config_error_type(&cf) == CONFIG_ERR_FILE_IO)
-            snprintf(err->text, sizeof err->text, "%s: cannot read: %s", path, strerror(errno ? errno : ENOENT));
-        else
-            snprintf(err->text, sizeof err->text, "%s:%d: syntax error: %s", err->file, err->line,
-                     config_error_text(&cf));
+    if (vibid_cfg_read_file(&cf, path, err)) {
         config_destroy(&cf);
         return -1;
     }

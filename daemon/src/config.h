@@ -15,6 +15,7 @@
 #include <stddef.h>
 #include <stdio.h>
 
+#include <vibid/cfgread.h>
 #include <vibid/identify.h>
 #include <vibid/stand_file.h>
 #include <vibid_drivers/channel_map.h>
@@ -25,12 +26,10 @@
 #define VD_PATH_MAX 1024
 #define VD_MAX_PARAMS 64
 
-typedef struct vd_config_error {
-    char file[VD_PATH_MAX];
-    int line;            /* 0 if not known */
-    char field[160];     /* setting path, "" for syntax errors */
-    char text[2048];     /* "file:line: field: message", ready to print */
-} vd_config_error;
+/* The configuration reader's error (vibid/cfgread.h): file, line (0 if not known), field
+ * (setting path, "" for syntax errors), message, and text "file:line: field: message",
+ * ready to print. */
+typedef vibid_cfg_error vd_config_error;
 
 typedef enum vd_source_kind { VD_SRC_SOCKETCAN = 0, VD_SRC_MODBUS = 1, VD_SRC_REPLAY = 2 } vd_source_kind;
 typedef enum vd_record_format { VD_REC_CSV = 0, VD_REC_CANDUMP = 1 } vd_record_format;

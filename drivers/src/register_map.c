@@ -6,7 +6,6 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <strings.h>
 
 unsigned vibid_reg_type_words(vibid_reg_type type)
 {
@@ -21,24 +20,13 @@ unsigned vibid_reg_type_words(vibid_reg_type type)
     return 0;
 }
 
-static const char *const type_names[] = {"INT16", "UINT16", "INT32", "UINT32", "FLOAT32", "FLOAT64"};
-static const char *const order_names[] = {"ABCD", "DCBA", "BADC", "CDAB"};
+static const char *const type_names[] = {"INT16", "UINT16", "INT32", "UINT32", "FLOAT32", "FLOAT64", NULL};
+static const char *const order_names[] = {"ABCD", "DCBA", "BADC", "CDAB", NULL};
 
-static vibid_drv_status bad(vibid_drv_error *err, const char *file, const config_setting_t *s,
-                            const char *what, const char *name)
-{
-    return vibid_drv_fail(err, VIBID_DRV_E_SYNTAX, "%s:%d: register '%s': %s", file,
-                          s ? config_setting_source_line(s) : 0, name, what);
-}
-
-vibid_regmap *vibid_regmap_from_setting(const config_setting_t *list, const char *file,
-                                        vibid_drv_error *err)
-{
-    if (!file)
-        file = "<config>";
+vibid_regmap *vibid_regmap_read(const vibid_cfg_reader *r, const config_setting_t *list, const char *path) {
+    if (!r || !r->err) return NULL;
     if (!list || !(config_setting_is_list(list) || config_setting_is_array(list))) {
-        vibid_drv_fail(err, VIBID_DRV_E_SYNTAX, "%s:%d: 'registers' must be a list ( {...}, ... )", file,
-                       list ? config_setting_source_line(list) : 0);
+        vibid_cfg_fail(r, list, path, "must be a list ( { name = ...; address = ...; type = ...; }, ... )");
         return NULL;
     }
     int n = config_setting_length(list);
@@ -47,103 +35,98 @@ vibid_regmap *vibid_regmap_from_setting(const config_setting_t *list, const char
         map->entries = calloc((size_t)n, sizeof *map->entries);
     if (!map || (n > 0 && !map->entries)) {
         vibid_regmap_destroy(map);
-        vibid_drv_fail(err, VIBID_DRV_E_NOMEM, "%s: out of memory", file);
+        vibid_cfg_fail(r, list, path, "out of memory");
         return NULL;
     }
+    static const char *const known[] = {"name",       "address", "register", "kind", "type",
+                                        "byte_order", "scale",   "offset",   NULL};
+    /* "register" as Telegraf spells it; "kind" accepted too. */
+    static const char *const kinds[] = {"holding", "input", NULL};
     for (int i = 0; i < n; i++) {
-        config_setting_t *g = config_setting_get_elem(list, (unsigned)i);
+        const config_setting_t *g = config_setting_get_elem(list, (unsigned)i);
         vibid_reg_entry *e = &map->entries[i];
-        const char *name = NULL, *kind = "holding", *type = NULL, *order = "ABCD";
-        int addr;
-        char label[16];
-        snprintf(label, sizeof label, "#%d", i + 1);
-        vibid_drv_status st = VIBID_DRV_OK;
-        if (!config_setting_is_group(g))
-            st = bad(err, file, g, "each entry must be a group { ... }", label);
-        else if (!config_setting_lookup_string(g, "name", &name) || !name[0] ||
-                 strlen(name) >= VIBID_REG_NAME_LEN)
-            st = bad(err, file, g, "needs name = \"...\" (1..63 characters)", label);
-        else if (!config_setting_lookup_int(g, "address", &addr) || addr < 0 || addr > 65535)
-            st = bad(err, file, config_setting_get_member(g, "address") ? config_setting_get_member(g, "address") : g,
-                     "needs address = 0..65535 (0-based, integer)", name);
-        else if (!config_setting_lookup_string(g, "type", &type))
-            st = bad(err, file, g, "needs type = INT16|UINT16|INT32|UINT32|FLOAT32|FLOAT64", name);
-        if (st != VIBID_DRV_OK) {
-            vibid_regmap_destroy(map);
-            return NULL;
-        }
-        /* "register" as Telegraf spells it; "kind" accepted too. */
-        if (!config_setting_lookup_string(g, "register", &kind))
-            config_setting_lookup_string(g, "kind", &kind);
-        config_setting_lookup_string(g, "byte_order", &order);
-        snprintf(e->name, sizeof e->name, "%s", name);
-        e->address = (uint16_t)addr;
-        e->line = (unsigned)config_setting_source_line(g);
-        int t = -1, o = -1;
-        for (int k = 0; k < 6; k++)
-            if (strcasecmp(type, type_names[k]) == 0)
-                t = k;
-        for (int k = 0; k < 4; k++)
-            if (strcasecmp(order, order_names[k]) == 0)
-                o = k;
+        char p[192], f[224];
+        snprintf(p, sizeof p, "%s.[%d]", path, i);
+        long long addr = 0;
+        int t = 0, o = 0, k = 0;
         e->scale = 1.0;
         e->offset = 0.0;
-        double d;
-        int iv;
-        if (config_setting_lookup_float(g, "scale", &d))
-            e->scale = d;
-        else if (config_setting_lookup_int(g, "scale", &iv))
-            e->scale = iv;
-        if (config_setting_lookup_float(g, "offset", &d))
-            e->offset = d;
-        else if (config_setting_lookup_int(g, "offset", &iv))
-            e->offset = iv;
-        if (t < 0)
-            st = bad(err, file, g, "type must be INT16, UINT16, INT32, UINT32, FLOAT32 or FLOAT64", name);
-        else if (o < 0)
-            st = bad(err, file, g, "byte_order must be ABCD, DCBA, BADC or CDAB", name);
-        else if (strcasecmp(kind, "holding") != 0 && strcasecmp(kind, "input") != 0)
-            st = bad(err, file, g, "register must be \"holding\" or \"input\"", name);
-        else if (!isfinite(e->scale) || e->scale == 0.0 || !isfinite(e->offset))
-            st = bad(err, file, g, "scale must be finite and non-zero, offset finite", name);
-        else if (addr + (int)vibid_reg_type_words((vibid_reg_type)t) - 1 > 65535)
-            st = bad(err, file, g, "address + size runs past register 65535", name);
-        for (int k = 0; st == VIBID_DRV_OK && k < i; k++)
-            if (strcmp(map->entries[k].name, name) == 0)
-                st = bad(err, file, g, "name used twice", name);
-        if (st != VIBID_DRV_OK) {
-            vibid_regmap_destroy(map);
-            return NULL;
+        e->line = (unsigned)config_setting_source_line(g);
+        if (!config_setting_is_group(g)) {
+            vibid_cfg_fail(r, g, p, "must be a group { name = ...; address = ...; type = ...; }");
+            goto fail;
         }
+        if (vibid_cfg_check_keys(r, g, p, known) || vibid_cfg_require(r, g, p, "name", "a string") ||
+            vibid_cfg_string(r, g, p, "name", false, e->name, sizeof e->name) < 0 ||
+            vibid_cfg_require(r, g, p, "address", "0..65535, 0-based") ||
+            vibid_cfg_int(r, g, p, "address", 0, 65535, &addr) < 0 ||
+            vibid_cfg_require(r, g, p, "type", "INT16, UINT16, INT32, UINT32, FLOAT32 or FLOAT64") ||
+            vibid_cfg_enum(r, g, p, "type", type_names, true, &t) < 0 ||
+            vibid_cfg_enum(r, g, p, "byte_order", order_names, true, &o) < 0 ||
+            vibid_cfg_enum(r, g, p, "register", kinds, true, &k) < 0 ||
+            vibid_cfg_enum(r, g, p, "kind", kinds, true, &k) < 0 ||
+            vibid_cfg_number(r, g, p, "scale", -HUGE_VAL, HUGE_VAL, &e->scale) < 0 ||
+            vibid_cfg_number(r, g, p, "offset", -HUGE_VAL, HUGE_VAL, &e->offset) < 0)
+            goto fail;
+        if (config_setting_get_member(g, "register") && config_setting_get_member(g, "kind")) {
+            vibid_cfg_field(f, sizeof f, p, "kind");
+            vibid_cfg_fail(r, config_setting_get_member(g, "kind"), f, "give register or kind, not both");
+            goto fail;
+        }
+        if (e->scale == 0.0) {
+            vibid_cfg_field(f, sizeof f, p, "scale");
+            vibid_cfg_fail(r, config_setting_get_member(g, "scale"), f, "must not be 0");
+            goto fail;
+        }
+        if (addr + (long long)vibid_reg_type_words((vibid_reg_type)t) - 1 > 65535) {
+            vibid_cfg_field(f, sizeof f, p, "address");
+            vibid_cfg_fail(r, config_setting_get_member(g, "address"), f,
+                           "%lld + %u registers of %s runs past register 65535", addr,
+                           vibid_reg_type_words((vibid_reg_type)t), type_names[t]);
+            goto fail;
+        }
+        for (size_t j = 0; j < map->n; j++)
+            if (strcmp(map->entries[j].name, e->name) == 0) {
+                vibid_cfg_field(f, sizeof f, p, "name");
+                vibid_cfg_fail(r, config_setting_get_member(g, "name"), f, "'%s' used twice (line %u)",
+                               e->name, map->entries[j].line);
+                goto fail;
+            }
+        e->address = (uint16_t)addr;
         e->type = (vibid_reg_type)t;
         e->order = (vibid_reg_order)o;
-        e->kind = strcasecmp(kind, "input") == 0 ? VIBID_REG_INPUT : VIBID_REG_HOLDING;
+        e->kind = k == 1 ? VIBID_REG_INPUT : VIBID_REG_HOLDING;
         map->n++;
     }
     return map;
+fail:
+    vibid_regmap_destroy(map);
+    return NULL;
 }
 
-vibid_regmap *vibid_regmap_load(const char *path, vibid_drv_error *err)
-{
+vibid_regmap *vibid_regmap_read_file(const char *path, vibid_cfg_error *err) {
     config_t cfg;
-    config_init(&cfg);
-    if (!config_read_file(&cfg, path)) {
-        if (config_error_type(&cfg) == CONFIG_ERR_FILE_IO)
-            vibid_drv_fail(err, VIBID_DRV_E_IO, "%s: cannot read", path);
-        else
-            vibid_drv_fail(err, VIBID_DRV_E_SYNTAX, "%s:%d: %s",
-                           config_error_file(&cfg) ? config_error_file(&cfg) : path,
-                           config_error_line(&cfg), config_error_text(&cfg));
-        config_destroy(&cfg);
-        return NULL;
-    }
-    config_setting_t *list = config_lookup(&cfg, "registers");
     vibid_regmap *map = NULL;
-    if (!list)
-        vibid_drv_fail(err, VIBID_DRV_E_SYNTAX, "%s: no 'registers' list", path);
-    else
-        map = vibid_regmap_from_setting(list, path, err);
+    if (!vibid_cfg_read_file(&cfg, path, err)) {
+        static const char *const root_known[] = {"registers", NULL};
+        vibid_cfg_reader r = {path, err};
+        const config_setting_t *list = config_lookup(&cfg, "registers");
+        if (vibid_cfg_check_keys(&r, config_root_setting(&cfg), "", root_known))
+            ;
+        else if (!list)
+            vibid_cfg_fail(&r, config_root_setting(&cfg), "registers",
+                           "missing (a list registers = ( ... );)");
+        else
+            map = vibid_regmap_read(&r, list, "registers");
+    }
     config_destroy(&cfg);
+    return map;
+}
+
+vibid_regmap *vibid_regmap_load(const char *path, vibid_drv_error *err) {
+    vibid_cfg_error ce;
+    vibid_regmap *map = vibid_regmap_read_file(path, &ce);
+    if (!map) vibid_drv_fail(err, ce.line > 0 ? VIBID_DRV_E_SYNTAX : VIBID_DRV_E_IO, "%s", ce.text);
     return map;
 }
 

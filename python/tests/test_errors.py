@@ -100,7 +100,7 @@ def test_stand_file_error_names_file_and_line(tmp_path):
     with pytest.raises(vibid.VibidError) as ei:
         vibid.Stand.load(path)
     # the loader's "file:line: field: reason"; line 7 is the element with kind "sprung"
-    assert re.search(re.escape(str(path)) + r":7: stand\.elements\.\[1\]\.kind: unknown element kind 'sprung'",
+    assert re.search(re.escape(str(path)) + r":7: stand\.elements\.\[1\]\.kind: 'sprung' is not one of spring, damper, cubic_spring",
                      str(ei.value)), str(ei.value)
 
 
@@ -112,8 +112,9 @@ def test_stand_file_syntax_error(tmp_path):
 
 
 def test_missing_stand_file(tmp_path):
-    with pytest.raises(vibid.VibidError, match="cannot read the file"):
-        vibid.Stand.load(tmp_path / "nope.cfg")
+    path = tmp_path / "nope.cfg"
+    with pytest.raises(vibid.VibidError, match=re.escape(str(path)) + ": cannot read: No such file or directory"):
+        vibid.Stand.load(path)
 
 
 def test_from_dict_error_names_field():

@@ -92,8 +92,8 @@ static void test_unknown_directive(void **state)
 {
     (void)state;
     expect_error("unknown.cfg", STAND SOURCE "estimator = { forgeting = 0.99; };\n", ":12: estimator.forgeting:",
-                 "unknown directive");
-    expect_error("unknown2.cfg", STAND SOURCE "output = { };\n", ":12: output:", "unknown directive");
+                 "unknown setting 'forgeting' (known: method, forgetting, ");
+    expect_error("unknown2.cfg", STAND SOURCE "output = { };\n", ":12: output:", "unknown setting 'output' (known: stand, ");
 }
 
 static void test_ring_power_of_two(void **state)
@@ -192,14 +192,14 @@ static void test_channel_units(void **state)
     /* a misspelt key is not "not given" */
     expect_error("unit_key.cfg",
                  STAND SOURCE_X2("{ name = \"x2\"; quantity = \"displacement\"; node = 1; units = \"mm\"; column = \"x2\"; }"),
-                 ":8: source.channels:", "unknown setting 'units'");
+                 ":8: source.channels.[1].units:", "unknown setting 'units' (known: name, quantity, ");
     /* the base has no node */
     expect_error("base_node.cfg",
                  STAND "source = {\n  kind = \"replay\";\n  file = \"cap.csv\";\n  channels = (\n"
                        "    { name = \"x1\"; quantity = \"displacement\"; node = 0; column = \"x1\"; },\n"
                        "    { name = \"x2\"; quantity = \"displacement\"; node = 1; column = \"x2\"; },\n"
                        "    { name = \"s\"; quantity = \"base_displacement\"; node = 2; column = \"s\"; }\n  );\n};\n",
-                 ":8: source.channels:", "a base_displacement belongs to the base, not to a node: omit node");
+                 ":8: source.channels.[2].node:", "a base_displacement belongs to the base, not to a node: omit node");
     /* conversion factors to the stand's SI units: mm (x1), none (x2: the stand's), um (s).
      * Exact binary values of the table's factors (1e-3, 1e-6), compared exactly. */
     const char *ok = STAND SOURCE_X2("{ name = \"x2\"; quantity = \"displacement\"; node = 1; column = \"x2\"; }");

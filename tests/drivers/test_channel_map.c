@@ -75,34 +75,40 @@ static void test_errors(void **state)
         vibid_drv_status status;
         const char *expect;
     } cases[] = {
-        {"counter = \"c\";\n", VIBID_DRV_E_SYNTAX, "needs channels = ("},
+        {"counter = \"c\";\n", VIBID_DRV_E_SYNTAX, "chanmap.cfg: channels: missing (a list"},
         /* issue 12, item 9: unknown keys are errors, not "not given" */
-        {"foo = 1;\n", VIBID_DRV_E_SYNTAX, ":1: unknown setting 'foo' (channels, counter, trigger, time_column)"},
-        {"channels = (\n { name = \"x\"; quantity = \"displacement\"; node = 0;\n   units = \"mm\"; column = \"x\"; }\n);\n",
-         VIBID_DRV_E_SYNTAX, ":3: channel 'x': unknown setting 'units' (name, quantity, node, unit, signal"},
+        {"foo = 1;\n", VIBID_DRV_E_SYNTAX,
+         ":1: foo: unknown setting 'foo' (known: channels, counter, trigger, time_column)"},
+        {"channels = (\n { name = \"x\"; quantity = \"displacement\"; node = 0;\n   units = \"mm\"; column = "
+         "\"x\"; }\n);\n",
+         VIBID_DRV_E_SYNTAX,
+         ":3: channels.[0].units: unknown setting 'units' (known: name, quantity, node, unit, signal"},
         {"channels = (\n { name = \"s\"; quantity = \"base_velocity\"; node = 3; column = \"s\"; }\n);\n",
-         VIBID_DRV_E_SYNTAX, ":2: channel 's': a base_velocity belongs to the base, not to a node: omit node"},
-        {"channels = ();\n", VIBID_DRV_E_RANGE, ":1: 0 channels, allowed 1..32"},
+         VIBID_DRV_E_SYNTAX,
+         ":2: channels.[0].node: a base_velocity belongs to the base, not to a node: omit node"},
+        {"channels = ();\n", VIBID_DRV_E_RANGE, ":1: channels: 0 channels, allowed 1..32"},
         {"channels = (\n { quantity = \"force\"; node = 0; signal = \"F\"; }\n);\n", VIBID_DRV_E_SYNTAX,
-         ":2: channel #1 needs name"},
+         ":2: channels.[0].name: missing (the stand's channel name"},
         {"channels = (\n { name = \"F\"; node = 0; signal = \"F\"; }\n);\n", VIBID_DRV_E_SYNTAX,
-         ":2: channel 'F' needs quantity"},
+         ":2: channels.[0].quantity: missing ("},
         {"channels = (\n { name = \"F\"; quantity = \"torque\"; node = 0; signal = \"F\"; }\n);\n",
-         VIBID_DRV_E_SYNTAX, ":2: channel 'F': quantity 'torque' is not"},
+         VIBID_DRV_E_SYNTAX, ":2: channels.[0].quantity: 'torque' is not one of displacement, velocity"},
         {"channels = (\n { name = \"F\"; quantity = \"force\"; node = -1; signal = \"F\"; }\n);\n",
-         VIBID_DRV_E_SYNTAX, ":2: channel 'F' needs node = <integer >= 0>"},
+         VIBID_DRV_E_SYNTAX, ":2: channels.[0].node: -1 outside [0, "},
         {"channels = (\n { name = \"F\"; quantity = \"force\"; signal = \"F\"; }\n);\n", VIBID_DRV_E_SYNTAX,
-         ":2: channel 'F' needs node"},
-        {"channels = (\n { name = \"F\"; quantity = \"force\"; node = 0; signal = \"F\"; column = \"F\"; }\n);\n",
-         VIBID_DRV_E_SYNTAX, ":2: channel 'F' needs exactly one of signal, register, column"},
+         ":2: channels.[0].node: missing (the 0-based index"},
+        {"channels = (\n { name = \"F\"; quantity = \"force\"; node = 0; signal = \"F\"; column = \"F\"; "
+         "}\n);\n",
+         VIBID_DRV_E_SYNTAX,
+         ":2: channels.[0]: channel 'F' needs exactly one of signal, register, column (has 2)"},
         {"channels = (\n { name = \"F\"; quantity = \"force\"; node = 0; }\n);\n", VIBID_DRV_E_SYNTAX,
-         ":2: channel 'F' needs exactly one of"},
-        {"channels = (\n { name = \"F\"; quantity = \"force\"; node = 0; signal = \"\"; }\n);\n", VIBID_DRV_E_SYNTAX,
-         ":2: channel 'F' needs exactly one of"},
+         ":2: channels.[0]: channel 'F' needs exactly one of signal, register, column (has 0)"},
+        {"channels = (\n { name = \"F\"; quantity = \"force\"; node = 0; signal = \"\"; }\n);\n",
+         VIBID_DRV_E_SYNTAX, ":2: channels.[0].signal: must not be empty"},
         {"channels = (\n { name = \"F\"; quantity = \"force\"; node = 0; signal = \"A\"; },\n"
          " { name = \"F\"; quantity = \"displacement\"; node = 0; signal = \"B\"; }\n);\n",
-         VIBID_DRV_E_SYNTAX, ":3: channel name 'F' used twice (line 2)"},
-        {"channels = ( 1, 2 );\n", VIBID_DRV_E_SYNTAX, "channel #1 needs name"},
+         VIBID_DRV_E_SYNTAX, ":3: channels.[1].name: channel name 'F' used twice (line 2)"},
+        {"channels = ( 1, 2 );\n", VIBID_DRV_E_SYNTAX, ":1: channels.[0]: must be a group { name = "},
         {"channels = (\n { name = \"F\"; quantity = ; }\n);\n", VIBID_DRV_E_SYNTAX, ":2: syntax error"},
     };
     for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
@@ -118,7 +124,10 @@ static void test_errors(void **state)
     vibid_drv_error err = {0};
     assert_int_equal(vibid_chanmap_load("/nonexistent/dir/map.cfg", &map, &err), VIBID_DRV_E_IO);
     assert_non_null(strstr(err.text, "/nonexistent/dir/map.cfg: cannot read"));
-    assert_int_equal(vibid_chanmap_from_setting(NULL, "x.cfg", &map, &err), VIBID_DRV_E_ARG);
+    vibid_cfg_error ce = {0};
+    vibid_cfg_reader r = {"x.cfg", &ce};
+    assert_int_equal(vibid_chanmap_read(&r, NULL, "", &map), VIBID_DRV_E_ARG);
+    assert_non_null(strstr(ce.text, "x.cfg: "));
 }
 
 /* 33 channels: one more than the fixed-size map holds. */
@@ -136,7 +145,7 @@ static void test_too_many_and_too_long(void **state)
     vibid_drv_error err = {0};
     char path[512];
     assert_int_equal(load_text(text, &map, &err, path), VIBID_DRV_E_RANGE);
-    assert_non_null(strstr(err.text, "33 channels, allowed 1..32"));
+    assert_non_null(strstr(err.text, ":1: channels: 33 channels, allowed 1..32"));
     /* A name longer than the map keeps is an error naming the field, not a silent cut. */
     char longname[300];
     memset(longname, 'n', 200);
@@ -144,19 +153,18 @@ static void test_too_many_and_too_long(void **state)
     snprintf(text, sizeof text, "channels = (\n { name = \"F\"; quantity = \"force\"; node = 0; signal = \"%s\"; }\n);\n",
              longname);
     assert_int_equal(load_text(text, &map, &err, path), VIBID_DRV_E_SYNTAX);
-    if (!strstr(err.text, ":2: channel 'F': signal is longer than"))
+    if (!strstr(err.text, ":2: channels.[0].signal: longer than 127 characters"))
         fail_msg("got '%s'", err.text);
     snprintf(text, sizeof text, "channels = (\n { name = \"%s\"; quantity = \"force\"; node = 0; signal = \"F\"; }\n);\n",
              longname);
     assert_int_equal(load_text(text, &map, &err, path), VIBID_DRV_E_SYNTAX);
-    if (!strstr(err.text, ":2: channel #1: name is longer than"))
+    if (!strstr(err.text, ":2: channels.[0].name: longer than 127 characters"))
         fail_msg("got '%s'", err.text);
     snprintf(text, sizeof text,
              "channels = (\n { name = \"F\"; quantity = \"force\"; node = 0; unit = \"%.40s\"; signal = \"F\"; }\n);\n",
              longname);
     assert_int_equal(load_text(text, &map, &err, path), VIBID_DRV_E_SYNTAX);
-    if (!strstr(err.text, ":2: channel 'F': unit is longer than"))
-        fail_msg("got '%s'", err.text);
+    if (!strstr(err.text, ":2: channels.[0].unit: longer than 31 characters")) fail_msg("got '%s'", err.text);
 }
 
 int main(void)

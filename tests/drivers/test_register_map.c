@@ -20,7 +20,10 @@ static vibid_regmap *from_text(const char *text, vibid_drv_error *err)
     if (!config_read_string(&cfg, text)) {
         fail_msg("libconfig: %s at line %d", config_error_text(&cfg), config_error_line(&cfg));
     }
-    vibid_regmap *m = vibid_regmap_from_setting(config_lookup(&cfg, "registers"), "map.cfg", err);
+    vibid_cfg_error ce = {0};
+    vibid_cfg_reader r = {"map.cfg", &ce};
+    vibid_regmap *m = vibid_regmap_read(&r, config_lookup(&cfg, "registers"), "registers");
+    if (!m) vibid_drv_fail(err, VIBID_DRV_E_SYNTAX, "%s", ce.text);
     config_destroy(&cfg);
     return m;
 }
@@ -84,15 +87,37 @@ static void test_orders(void **state)
 static void test_errors(void **state)
 {
     (void)state;
+    /* Each error names the file, the entry's line and field (the configuration reader's
+     * "file:line: field: reason"). */
     static const char *cases[][2] = {
-        {"registers = (\n{ name = \"a\"; address = 70000; type = \"INT16\"; });", "map.cfg:2: register 'a': needs address"},
-        {"registers = (\n{ name = \"a\"; address = 1; type = \"INT64\"; });", "map.cfg:2: register 'a': type must be"},
-        {"registers = (\n{ name = \"a\"; address = 1; type = \"INT16\"; byte_order = \"AB\"; });", "byte_order must be"},
-        {"registers = (\n{ name = \"a\"; address = 1; type = \"INT16\"; register = \"coil\"; });", "register must be"},
-        {"registers = (\n{ name = \"a\"; address = 65535; type = \"FLOAT32\"; });", "runs past register 65535"},
-        {"registers = (\n{ name = \"a\"; address = 1; type = \"INT16\"; },\n{ name = \"a\"; address = 2; type = \"INT16\"; });", "map.cfg:3: register 'a': name used twice"},
-        {"registers = (\n{ address = 1; type = \"INT16\"; });", "map.cfg:2: register '#1': needs name"},
-        {"registers = (\n{ name = \"a\"; address = 1; type = \"INT16\"; scale = 0.0; });", "scale must be finite and non-zero"},
+        {"registers = (\n{ name = \"a\"; address = 70000; type = \"INT16\"; });",
+         "map.cfg:2: registers.[0].address: 70000 outside [0, 65535]"},
+        {"registers = (\n{ name = \"a\"; address = 1; type = \"INT64\"; });",
+         "map.cfg:2: registers.[0].type: 'INT64' is not one of INT16, UINT16, INT32, UINT32, FLOAT32, "
+         "FLOAT64"},
+        {"registers = (\n{ name = \"a\"; address = 1; type = \"INT16\"; byte_order = \"AB\"; });",
+         "registers.[0].byte_order: 'AB' is not one of ABCD, DCBA, BADC, CDAB"},
+        {"registers = (\n{ name = \"a\"; address = 1; type = \"INT16\"; register = \"coil\"; });",
+         "registers.[0].register: 'coil' is not one of holding, input"},
+        {"registers = (\n{ name = \"a\"; address = 65535; type = \"FLOAT32\"; });",
+         "registers.[0].address: 65535 + 2 registers of FLOAT32 runs past register 65535"},
+        {"registers = (\n{ name = \"a\"; address = 1; type = \"INT16\"; },\n{ name = \"a\"; address = 2; "
+         "type = \"INT16\"; });",
+         "map.cfg:3: registers.[1].name: 'a' used twice (line 2)"},
+        {"registers = (\n{ address = 1; type = \"INT16\"; });",
+         "map.cfg:2: registers.[0].name: missing (a string)"},
+        {"registers = (\n{ name = \"a\"; address = 1; type = \"INT16\"; scale = 0.0; });",
+         "registers.[0].scale: must not be 0"},
+        /* a misspelt key is an error, not "not given" (issue 12: one configuration reader) */
+        {"registers = (\n{ name = \"a\"; address = 1; type = \"INT16\"; byteorder = \"DCBA\"; });",
+         "map.cfg:2: registers.[0].byteorder: unknown setting 'byteorder' (known: name, address, register, "
+         "kind, "
+         "type, byte_order, scale, offset)"},
+        {"registers = (\n{ name = \"a\"; address = 1.5; type = \"INT16\"; });",
+         "registers.[0].address: must be an integer"},
+        {"registers = (\n{ name = \"a\"; address = 1; type = \"INT16\"; register = \"input\"; kind = "
+         "\"input\"; });",
+         "registers.[0].kind: give register or kind, not both"},
     };
     for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
         vibid_drv_error err;

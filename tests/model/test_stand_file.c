@@ -137,7 +137,7 @@ static void test_disturbance_errors(void **state) {
                  CFG ":5: stand.disturbances.[0].true_std: -2 must be >= 0 (N, the standard deviation vibid-sim "
                      "simulates)");
     expect_error(HEAD "  disturbances = ( { name = \"w1\"; node = \"m1\";\n    stdev = 1.0; } );\n};\n",
-                 CFG ":6: stand.disturbances.[0].stdev: unknown setting (name, node, std, true_std)");
+                 CFG ":6: stand.disturbances.[0].stdev: unknown setting 'stdev' (known: name, node, std, true_std)");
     expect_error(HEAD "  disturbances = ( { name = \"k\"; node = \"m1\"; std = 1.0; } );\n};\n",
                  CFG ":5: stand.disturbances.[0].name: vibid_model_add_disturbance: disturbance name 'k' is already "
                      "used by an element");
@@ -183,23 +183,24 @@ static void test_unknown_keys(void **state) {
                     "    measure = { displacement = \"x1\"; };" node " } );\n" \
                     "  elements = ( { name = \"k\"; kind = \"spring\"; between = [\"m1\", \"base\"]; value = 1.0; } );\n" extra
     expect_error(STAND("\n    mass_unknown = true;", "};\n"),
-                 CFG ":5: stand.nodes.[0].mass_unknown: unknown setting (name, mass, unknown, true_value, measure, "
-                 "noise)");
-    expect_error(STAND("", "  samplerate = 100.0;\n};\n"), CFG ":6: stand.samplerate: unknown setting (name, ");
+                 CFG ":5: stand.nodes.[0].mass_unknown: unknown setting 'mass_unknown' (known: name, mass, unknown, "
+                 "true_value, measure, noise)");
+    expect_error(STAND("", "  samplerate = 100.0;\n};\n"), CFG ":6: stand.samplerate: unknown setting 'samplerate' (known: name, ");
     expect_error(STAND("", "  base = { measure = { displacement = \"s\"; };\n    held = \"zoh\"; };\n};\n"),
-                 CFG ":7: stand.base.held: unknown setting (measure, noise, hold)");
+                 CFG ":7: stand.base.held: unknown setting 'held' (known: measure, noise, hold)");
     expect_error(STAND("", "  elements2 = ( );\n};\n"), CFG ":6: stand.elements2: unknown setting");
     expect_error("stand = {\n  sample_rate = 100.0;\n  nodes = ( { name = \"m1\"; mass = 1.0; } );\n"
                  "  elements = ( { name = \"k\"; kind = \"spring\"; between = [\"m1\", \"ground\"];\n"
                  "    valeu = 1.0; } );\n};\n",
-                 CFG ":5: stand.elements.[0].valeu: unknown setting (name, kind, between, value, unknown, "
-                 "true_value)");
+                 CFG ":5: stand.elements.[0].valeu: unknown setting 'valeu' (known: name, kind, between, value, "
+                 "unknown, true_value)");
     expect_error(STAND("", "  inputs = ( { name = \"f\"; node = \"m1\"; channel = \"F\";\n    hld = \"zoh\"; } );\n};\n"),
-                 CFG ":7: stand.inputs.[0].hld: unknown setting (name, node, gain, unknown, true_value, channel, "
-                 "hold)");
+                 CFG ":7: stand.inputs.[0].hld: unknown setting 'hld' (known: name, node, gain, unknown, true_value, "
+                 "channel, hold)");
     expect_error("stand = {\n  sample_rate = 100.0;\n  matrices = { n_dof = 1; M = [1.0]; C = [1.0];\n"
                  "    unknowns = [\"C\"]; };\n};\n",
-                 CFG ":4: stand.matrices.unknowns: unknown setting (n_dof, n_inputs, M, D, C, B, unknown, channels)");
+                 CFG ":4: stand.matrices.unknowns: unknown setting 'unknowns' (known: n_dof, n_inputs, M, D, C, B, unknown, "
+                 "channels)");
     /* n_inputs < 0 is refused before it is converted to a count ((size_t)-1.0 was
      * undefined: UBSan float-cast-overflow, found by drivers.fuzz_stand) */
     expect_error("stand = { sample_rate = 100.0; matrices = { n_dof = 1; n_inputs = -1; M = [1.0]; C = [1.0]; }; };\n",

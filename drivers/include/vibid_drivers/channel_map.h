@@ -30,6 +30,7 @@
 #include <stddef.h>
 
 #include <libconfig.h>
+#include <vibid/cfgread.h>
 #include <vibid_drivers/status.h>
 
 #ifdef __cplusplus
@@ -72,10 +73,18 @@ typedef struct vibid_chanmap {
     char time_column[VIBID_CHAN_NAME_LEN]; /* "" when not given */
 } vibid_chanmap;
 
-/* Fills *map from a group setting holding `channels`. err = "file:line: ...". */
-vibid_drv_status vibid_chanmap_from_setting(const config_setting_t *group, const char *file,
-                                            vibid_chanmap *map, vibid_drv_error *err);
-/* Reads a libconfig file whose root holds `channels` (and optional counter, ...). */
+/* Reads the channel map held by `group` (its members channels, counter, trigger,
+ * time_column; the group's other members are the caller's to check) with the
+ * configuration reader r (vibid/cfgread.h); path is the group's setting path ("" for a
+ * file's root, "source" for vibidd's section) and prefixes the fields in messages, e.g.
+ * "map.cfg:7: channels.[1].quantity: 'forse' is not one of ...". On failure the map is
+ * partly filled and r->err holds the reason. */
+vibid_drv_status vibid_chanmap_read(const vibid_cfg_reader *r, const config_setting_t *group,
+                                    const char *path, vibid_chanmap *map);
+/* Reads a channel-map file: a root holding `channels` and optionally counter, trigger,
+ * time_column (any other key is an error). err gets file, line, field and reason. */
+vibid_drv_status vibid_chanmap_read_file(const char *path, vibid_chanmap *map, vibid_cfg_error *err);
+/* The same with the drivers' error holder (err->text = the reader's text). */
 vibid_drv_status vibid_chanmap_load(const char *path, vibid_chanmap *map, vibid_drv_error *err);
 const char *vibid_quantity_name(vibid_quantity q);
 /* base_displacement, base_velocity, base_acceleration */

@@ -15,7 +15,8 @@
  *   ABCD  big endian (AB CD [EF GH])          CDAB  word-swapped (CD AB; 64-bit GH EF CD AB)
  *   BADC  byte-swapped in each word (BA DC)   DCBA  little endian (DC BA; 64-bit HG FE DC BA)
  * For 16-bit types ABCD/CDAB read AB and BADC/DCBA read BA.
- * value = raw * scale + offset (offset optional, default 0). Names are unique.
+ * value = raw * scale + offset (offset optional, default 0). Names are unique. Any other
+ * key is an error (vibid/cfgread.h: a misspelt byte_order must not read as ABCD).
  */
 #ifndef VIBID_DRIVERS_REGISTER_MAP_H
 #define VIBID_DRIVERS_REGISTER_MAP_H
@@ -24,6 +25,7 @@
 #include <stdint.h>
 
 #include <libconfig.h>
+#include <vibid/cfgread.h>
 #include <vibid_drivers/status.h>
 
 #ifdef __cplusplus
@@ -56,12 +58,14 @@ typedef struct vibid_regmap {
     vibid_reg_entry *entries; /* owned by the map */
 } vibid_regmap;
 
-/* Reads the `registers` list of a libconfig file. NULL on failure, err = "file:line: ...". */
+/* Reads the register list `list` (e.g. vibidd's source.registers) with the configuration
+ * reader r (vibid/cfgread.h); path is the list's setting path ("registers",
+ * "source.registers") for the fields in messages. NULL on failure (reason in r->err). */
+vibid_regmap *vibid_regmap_read(const vibid_cfg_reader *r, const config_setting_t *list, const char *path);
+/* Reads a register-map file: a root holding only the list `registers`. */
+vibid_regmap *vibid_regmap_read_file(const char *path, vibid_cfg_error *err);
+/* The same with the drivers' error holder (err->text = the reader's text). */
 vibid_regmap *vibid_regmap_load(const char *path, vibid_drv_error *err);
-/* Reads a list setting (e.g. embedded in the daemon's configuration); file names the
- * source in messages. */
-vibid_regmap *vibid_regmap_from_setting(const config_setting_t *list, const char *file,
-                                        vibid_drv_error *err);
 void vibid_regmap_destroy(vibid_regmap *map);
 const vibid_reg_entry *vibid_regmap_find(const vibid_regmap *map, const char *name);
 

@@ -39,7 +39,7 @@ const char *vibid_drv_strerror(vibid_drv_status status);
 
 /* Caller-provided holder for a failure's detail. Fixed size so that filling it never
  * allocates; texts longer than the buffer are truncated. */
-#define VIBID_DRV_ERROR_LEN 320
+#define VIBID_DRV_ERROR_LEN 1024
 typedef struct vibid_drv_error {
     vibid_drv_status status;
     char text[VIBID_DRV_ERROR_LEN];

@@ -26,104 +26,34 @@ struct vibid_stand {
     size_t n_inputs;
 };
 
-/* Loader context: where we are, for messages. */
-typedef struct ctx {
-    const char *file;
-    vibid_stand_error *err;
-} ctx;
-
-static int fail(const ctx *c, const config_setting_t *s, const char *field, const char *fmt, ...)
-    __attribute__((format(printf, 4, 5)));
-
-static int fail(const ctx *c, const config_setting_t *s, const char *field, const char *fmt, ...) {
-    if (!c->err) return -1;
-    vibid_stand_error *e = c->err;
-    const char *file = s && config_setting_source_file(s) ? config_setting_source_file(s) : c->file;
-    snprintf(e->file, sizeof e->file, "%s", file ? file : "");
-    e->line = s ? (int)config_setting_source_line(s) : 0;
-    snprintf(e->field, sizeof e->field, "%s", field ? field : "");
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(e->message, sizeof e->message, fmt, ap);
-    va_end(ap);
-    snprintf(e->text, sizeof e->text, "%s:%d: %s%s%s", e->file, e->line, e->field, e->field[0] ? ": " : "",
-             e->message);
-    return -1;
+/* A number that must be there ("missing (a number is required)" otherwise). */
+static int require_number(const vibid_cfg_reader *c, const config_setting_t *g, const char *path,
+                          const char *name, double *out) {
+    return vibid_cfg_require(c, g, path, name, "a number is required") ||
+                   vibid_cfg_number(c, g, path, name, -HUGE_VAL, HUGE_VAL, out) < 0
+               ? -1
+               : 0;
 }
 
-/* Field path of a child: parent path + "." + name or "[i]". */
-static void child_path(char *out, size_t size, const char *parent, const char *name, int index) {
-    if (name)
-        snprintf(out, size, "%s.%s", parent, name);
-    else
-        snprintf(out, size, "%s.[%d]", parent, index);
+/* A non-empty string that must be there. */
+static int require_string(const vibid_cfg_reader *c, const config_setting_t *g, const char *path,
+                          const char *name, const char **out) {
+    return vibid_cfg_require(c, g, path, name, "a string is required") ||
+                   vibid_cfg_string_ref(c, g, path, name, out) < 0
+               ? -1
+               : 0;
 }
 
-/* Optional number (int or float). Returns 1 found, 0 absent, -1 wrong type. */
-static int get_number(const ctx *c, const config_setting_t *g, const char *path, const char *name, double *out) {
-    const config_setting_t *s = config_setting_get_member(g, name);
-    char f[160];
-    child_path(f, sizeof f, path, name, 0);
-    if (!s) return 0;
-    int t = config_setting_type(s);
-    if (t == CONFIG_TYPE_FLOAT)
-        *out = config_setting_get_float(s);
-    else if (t == CONFIG_TYPE_INT)
-        *out = (double)config_setting_get_int(s);
-    else if (t == CONFIG_TYPE_INT64)
-        *out = (double)config_setting_get_int64(s);
-    else
-        return fail(c, s, f, "must be a number");
-    if (!isfinite(*out)) return fail(c, s, f, "must be finite");
-    return 1;
-}
-
-static int get_bool(const ctx *c, const config_setting_t *g, const char *path, const char *name, int *out) {
-    const config_setting_t *s = config_setting_get_member(g, name);
-    char f[160];
-    child_path(f, sizeof f, path, name, 0);
-    if (!s) return 0;
-    if (config_setting_type(s) != CONFIG_TYPE_BOOL) return fail(c, s, f, "must be true or false");
-    *out = config_setting_get_bool(s);
-    return 1;
-}
-
-static int get_string(const ctx *c, const config_setting_t *g, const char *path, const char *name,
-                      const char **out) {
-    const config_setting_t *s = config_setting_get_member(g, name);
-    char f[160];
-    child_path(f, sizeof f, path, name, 0);
-    if (!s) return 0;
-    if (config_setting_type(s) != CONFIG_TYPE_STRING) return fail(c, s, f, "must be a string");
-    *out = config_setting_get_string(s);
-    if (!*out || !**out) return fail(c, s, f, "must not be empty");
-    return 1;
-}
-
-static int require_number(const ctx *c, const config_setting_t *g, const char *path, const char *name, double *out) {
-    int r = get_number(c, g, path, name, out);
-    if (r == 0) {
-        char f[160];
-        child_path(f, sizeof f, path, name, 0);
-        return fail(c, g, f, "missing (a number is required)");
-    }
-    return r < 0 ? -1 : 0;
-}
-
-static int require_string(const ctx *c, const config_setting_t *g, const char *path, const char *name,
-                          const char **out) {
-    int r = get_string(c, g, path, name, out);
-    if (r == 0) {
-        char f[160];
-        child_path(f, sizeof f, path, name, 0);
-        return fail(c, g, f, "missing (a string is required)");
-    }
-    return r < 0 ? -1 : 0;
+/* An optional finite number of any size: 1 given, 0 absent, -1 error. */
+static int get_number(const vibid_cfg_reader *c, const config_setting_t *g, const char *path,
+                      const char *name, double *out) {
+    return vibid_cfg_number(c, g, path, name, -HUGE_VAL, HUGE_VAL, out);
 }
 
 /* Reports a library failure against the setting that caused it. */
-static int lib_fail(const ctx *c, const config_setting_t *s, const char *field, vibid_status st) {
-    return fail(c, s, field, "%s (%s)", vibid_last_error(), vibid_strerror(st));
+static int lib_fail(const vibid_cfg_reader *c, const config_setting_t *s, const char *field,
+                    vibid_status st) {
+    return vibid_cfg_fail(c, s, field, "%s (%s)", vibid_last_error(), vibid_strerror(st));
 }
 
 /* Index 0..2 of a measured quantity's name (bit 1 << index is its VIBID_MEASURE_*), -1 if
@@ -137,13 +67,14 @@ static int quantity_index(const char *name) {
 
 /* Group `name` of g keyed by measured quantity (`measure`, `noise`): NULL when absent or
  * after an error (then *bad = -1). gpath receives its field path. */
-static const config_setting_t *quantity_group(const ctx *c, const config_setting_t *g, const char *path,
-                                              const char *name, const char *shape, char gpath[160], int *bad) {
+static const config_setting_t *quantity_group(const vibid_cfg_reader *c, const config_setting_t *g,
+                                              const char *path, const char *name, const char *shape,
+                                              char gpath[160], int *bad) {
     const config_setting_t *q = config_setting_get_member(g, name);
     *bad = 0;
-    child_path(gpath, 160, path, name, 0);
+    vibid_cfg_field(gpath, 160, path, name);
     if (q && !config_setting_is_group(q)) {
-        *bad = fail(c, q, gpath, "must be a group %s", shape);
+        *bad = vibid_cfg_fail(c, q, gpath, "must be a group %s", shape);
         return NULL;
     }
     return q;
@@ -151,19 +82,19 @@ static const config_setting_t *quantity_group(const ctx *c, const config_setting
 
 /* Member i of a quantity group: its setting *e, field path f and quantity index 0..2, or
  * -1 after an error (a key that is no quantity). */
-static int quantity_member(const ctx *c, const config_setting_t *q, const char *gpath, int i,
+static int quantity_member(const vibid_cfg_reader *c, const config_setting_t *q, const char *gpath, int i,
                            const config_setting_t **e, char f[200]) {
     *e = config_setting_get_elem(q, (unsigned)i);
     const char *nm = config_setting_name(*e);
     snprintf(f, 200, "%s.%s", gpath, nm ? nm : "?");
     int k = quantity_index(nm);
-    return k >= 0 ? k : fail(c, *e, f, "unknown quantity (displacement, velocity, acceleration)");
+    return k >= 0 ? k : vibid_cfg_fail(c, *e, f, "unknown quantity (displacement, velocity, acceleration)");
 }
 
 /* Per node or base: `measure = { displacement = "x1"; velocity = "v1"; acceleration = "a1"; }`.
  * Fills mask and the channel names in quantity order. */
-static int read_measure(const ctx *c, const config_setting_t *g, const char *path, unsigned *mask,
-                        const char *names[3]) {
+static int read_measure(const vibid_cfg_reader *c, const config_setting_t *g, const char *path,
+                        unsigned *mask, const char *names[3]) {
     *mask = 0;
     names[0] = names[1] = names[2] = NULL;
     char mp[160], f[200];
@@ -174,7 +105,8 @@ static int read_measure(const ctx *c, const config_setting_t *g, const char *pat
         int k = quantity_member(c, m, mp, i, &e, f);
         if (k < 0) return -1;
         if (config_setting_type(e) != CONFIG_TYPE_STRING || !config_setting_get_string(e)[0])
-            return fail(c, e, f, "channel name missing: a measured quantity needs the name of its channel");
+            return vibid_cfg_fail(c, e, f,
+                                  "channel name missing: a measured quantity needs the name of its channel");
         *mask |= 1u << k;
         names[k] = config_setting_get_string(e);
     }
@@ -185,8 +117,8 @@ static int read_measure(const ctx *c, const config_setting_t *g, const char *pat
  * the declared white measurement-noise std of measured quantities (channel units, >= 0;
  * vibid_model_set_noise). Only quantities that `measure` names (mask) may have one: noise
  * of an unmeasured quantity is a mistake, not something to ignore. 0, or -1 after an error. */
-static int read_noise(const ctx *c, vibid_model *m, const config_setting_t *g, const char *path, size_t node,
-                      unsigned mask) {
+static int read_noise(const vibid_cfg_reader *c, vibid_model *m, const config_setting_t *g, const char *path,
+                      size_t node, unsigned mask) {
     static const unsigned bits[3] = {VIBID_MEASURE_DISPLACEMENT, VIBID_MEASURE_VELOCITY, VIBID_MEASURE_ACCELERATION};
     char np[160], f[200];
     int bad;
@@ -199,10 +131,11 @@ static int read_noise(const ctx *c, vibid_model *m, const config_setting_t *g, c
         const char *nm = config_setting_name(e);
         double v;
         if (get_number(c, ng, np, nm, &v) < 0) return -1;
-        if (v < 0) return fail(c, e, f, "%g must be >= 0 (standard deviation in channel units)", v);
+        if (v < 0) return vibid_cfg_fail(c, e, f, "%g must be >= 0 (standard deviation in channel units)", v);
         if (!(mask & bits[k]))
-            return fail(c, e, f, "the %s is not measured (no measure.%s): noise applies to a measured quantity", nm,
-                        nm);
+            return vibid_cfg_fail(
+                c, e, f, "the %s is not measured (no measure.%s): noise applies to a measured quantity", nm,
+                nm);
         vibid_status st = vibid_model_set_noise(m, node, bits[k], v);
         if (st != VIBID_OK) return lib_fail(c, e, f, st);
     }
@@ -213,20 +146,16 @@ static int read_noise(const ctx *c, vibid_model *m, const config_setting_t *g, c
  * behaves between samples; the simulator produces it, the identification accounts for
  * it). Sets it on the model; absent = the model's default (smooth). 0, or -1 after an
  * error. */
-static int read_hold(const ctx *c, vibid_model *m, const config_setting_t *g, const char *path, size_t input) {
-    const char *hs = NULL;
-    int r = get_string(c, g, path, "hold", &hs);
+static int read_hold(const vibid_cfg_reader *c, vibid_model *m, const config_setting_t *g, const char *path,
+                     size_t input) {
+    static const char *const holds[] = {"zoh", "smooth", NULL};
+    int h;
+    int r = vibid_cfg_enum(c, g, path, "hold", holds, false, &h);
     if (r <= 0) return r;
     char f[160];
-    child_path(f, sizeof f, path, "hold", 0);
+    vibid_cfg_field(f, sizeof f, path, "hold");
     const config_setting_t *s = config_setting_get_member(g, "hold");
-    vibid_hold hold;
-    if (!strcmp(hs, "zoh"))
-        hold = VIBID_HOLD_ZOH;
-    else if (!strcmp(hs, "smooth"))
-        hold = VIBID_HOLD_SMOOTH;
-    else
-        return fail(c, s, f, "'%s': use \"zoh\" or \"smooth\"", hs);
+    vibid_hold hold = h == 0 ? VIBID_HOLD_ZOH : VIBID_HOLD_SMOOTH;
     vibid_status st = vibid_model_set_hold(m, input, hold);
     return st == VIBID_OK ? 0 : lib_fail(c, s, f, st);
 }
@@ -253,8 +182,8 @@ void vibid_stand_destroy(vibid_stand *stand) {
 }
 
 /* Resolves an end name: a node, "ground" or "base". */
-static int resolve_end(const ctx *c, const vibid_model *m, const config_setting_t *s, const char *f, const char *name,
-                       size_t *out) {
+static int resolve_end(const vibid_cfg_reader *c, const vibid_model *m, const config_setting_t *s,
+                       const char *f, const char *name, size_t *out) {
     if (!strcmp(name, "ground")) {
         *out = VIBID_GROUND;
         return 0;
@@ -264,7 +193,7 @@ static int resolve_end(const ctx *c, const vibid_model *m, const config_setting_
         return 0;
     }
     if (vibid_model_find_node(m, name, out) != VIBID_OK)
-        return fail(c, s, f, "'%s' is not a declared node (nor ground or base)", name);
+        return vibid_cfg_fail(c, s, f, "'%s' is not a declared node (nor ground or base)", name);
     return 0;
 }
 
@@ -283,31 +212,16 @@ typedef struct pending {
 
 /* For an unknown parameter: its optional true_value (else the nominal value) appended to
  * pd's list. 0, or -1 after an error. */
-static int note_true_value(const ctx *c, const config_setting_t *e, const char *path, double nominal, pending *pd) {
+static int note_true_value(const vibid_cfg_reader *c, const config_setting_t *e, const char *path,
+                           double nominal, pending *pd) {
     double tv;
     int r = get_number(c, e, path, "true_value", &tv);
     if (r < 0) return -1;
     if (pd->n_unknown >= sizeof pd->true_values / sizeof pd->true_values[0])
-        return fail(c, e, path, "more than %zu unknowns", sizeof pd->true_values / sizeof pd->true_values[0]);
+        return vibid_cfg_fail(c, e, path, "more than %zu unknowns",
+                              sizeof pd->true_values / sizeof pd->true_values[0]);
     pd->has_true[pd->n_unknown] = r;
     pd->true_values[pd->n_unknown++] = r ? tv : nominal;
-    return 0;
-}
-
-/* Rejects a member of group g that is not in known (NULL-terminated): in a group whose
- * fields all have defaults, a misspelt name would otherwise pass as "not given". */
-static int reject_unknown_members(const ctx *c, const config_setting_t *g, const char *path,
-                                  const char *const *known, const char *known_list) {
-    for (int i = 0; i < config_setting_length(g); ++i) {
-        const config_setting_t *e = config_setting_get_elem(g, (unsigned)i);
-        const char *nm = config_setting_name(e);
-        int ok = 0;
-        for (const char *const *k = known; *k && nm; ++k) ok |= !strcmp(*k, nm);
-        if (ok) continue;
-        char f[200];
-        snprintf(f, sizeof f, "%s.%s", path, nm ? nm : "?");
-        return fail(c, e, f, "unknown setting (%s)", known_list);
-    }
     return 0;
 }
 
@@ -317,21 +231,24 @@ static int reject_unknown_members(const ctx *c, const config_setting_t *g, const
  * unknown only vibid-sim needs it, so it is optional here (stored as 0: the simulator
  * names the field if it lacks it); if given, > 0 then (0 would read as "missing"), else
  * >= 0 (0: the stand has no such force, the estimator's model does). Fills st->true_std. */
-static int read_disturbances(const ctx *c, vibid_model *m, const config_setting_t *list, vibid_stand *st) {
+static int read_disturbances(const vibid_cfg_reader *c, vibid_model *m, const config_setting_t *list,
+                             vibid_stand *st) {
     static const char *const known[] = {"name", "node", "std", "true_std", NULL};
     const char *path = "stand.disturbances";
     if (!config_setting_is_list(list))
-        return fail(c, list, path, "must be a list ( { name = ...; node = ...; std = ...; }, ... )");
+        return vibid_cfg_fail(c, list, path,
+                              "must be a list ( { name = ...; node = ...; std = ...; }, ... )");
     int n = config_setting_length(list);
     free(st->true_std);
-    if (!(st->true_std = calloc(n ? (size_t)n : 1, sizeof(double)))) return fail(c, list, path, "out of memory");
+    if (!(st->true_std = calloc(n ? (size_t)n : 1, sizeof(double))))
+        return vibid_cfg_fail(c, list, path, "out of memory");
     for (int i = 0; i < n; ++i) {
         const config_setting_t *e = config_setting_get_elem(list, (unsigned)i);
         char p[64], f[160];
         snprintf(p, sizeof p, "%s.[%d]", path, i);
         if (!config_setting_is_group(e))
-            return fail(c, e, p, "must be a group { name = \"w1\"; node = \"m1\"; std = 1.0; }");
-        if (reject_unknown_members(c, e, p, known, "name, node, std, true_std")) return -1;
+            return vibid_cfg_fail(c, e, p, "must be a group { name = \"w1\"; node = \"m1\"; std = 1.0; }");
+        if (vibid_cfg_check_keys(c, e, p, known)) return -1;
         const char *nm, *node;
         double sd = 0.0, tsd = 0.0;
         int has_true;
@@ -339,23 +256,23 @@ static int read_disturbances(const ctx *c, vibid_model *m, const config_setting_
         if (get_number(c, e, p, "std", &sd) < 0 || (has_true = get_number(c, e, p, "true_std", &tsd)) < 0) return -1;
         size_t idx;
         if (vibid_model_find_node(m, node, &idx) != VIBID_OK) {
-            child_path(f, sizeof f, p, "node", 0);
-            return fail(c, config_setting_get_member(e, "node"), f, "unknown node '%s'", node);
+            vibid_cfg_field(f, sizeof f, p, "node");
+            return vibid_cfg_fail(c, config_setting_get_member(e, "node"), f, "unknown node '%s'", node);
         }
         if (sd < 0) {
-            child_path(f, sizeof f, p, "std", 0);
-            return fail(c, config_setting_get_member(e, "std"), f,
-                        "%g must be >= 0 N (omitted or 0: unknown, estimated)", sd);
+            vibid_cfg_field(f, sizeof f, p, "std");
+            return vibid_cfg_fail(c, config_setting_get_member(e, "std"), f,
+                                  "%g must be >= 0 N (omitted or 0: unknown, estimated)", sd);
         }
         if (has_true && (tsd < 0 || (tsd == 0 && sd == 0))) {
-            child_path(f, sizeof f, p, "true_std", 0);
-            return fail(c, config_setting_get_member(e, "true_std"), f,
-                        "%g must be %s (N, the standard deviation vibid-sim simulates)", tsd,
-                        sd == 0 ? "> 0 when std is unknown" : ">= 0");
+            vibid_cfg_field(f, sizeof f, p, "true_std");
+            return vibid_cfg_fail(c, config_setting_get_member(e, "true_std"), f,
+                                  "%g must be %s (N, the standard deviation vibid-sim simulates)", tsd,
+                                  sd == 0 ? "> 0 when std is unknown" : ">= 0");
         }
         vibid_status s = vibid_model_add_disturbance(m, nm, idx, sd, NULL);
         if (s != VIBID_OK) {
-            child_path(f, sizeof f, p, "name", 0);
+            vibid_cfg_field(f, sizeof f, p, "name");
             return lib_fail(c, e, strstr(vibid_last_error(), "name") ? f : p, s);
         }
         st->true_std[i] = has_true ? tsd : sd;
@@ -363,17 +280,18 @@ static int read_disturbances(const ctx *c, vibid_model *m, const config_setting_
     return 0;
 }
 
-static int read_matrices(const ctx *c, vibid_model *m, const config_setting_t *g, const char *path, pending *pd) {
+static int read_matrices(const vibid_cfg_reader *c, vibid_model *m, const config_setting_t *g,
+                         const char *path, pending *pd) {
     double nd = 0, nr = 0;
     static const char *const known[] = {"n_dof", "n_inputs", "M", "D", "C", "B", "unknown", "channels", NULL};
-    if (reject_unknown_members(c, g, path, known, "n_dof, n_inputs, M, D, C, B, unknown, channels")) return -1;
+    if (vibid_cfg_check_keys(c, g, path, known)) return -1;
     if (require_number(c, g, path, "n_dof", &nd) || (get_number(c, g, path, "n_inputs", &nr) < 0)) return -1;
     char f[160];
-    child_path(f, sizeof f, path, "n_dof", 0);
-    if (nd < 1 || nd > 256 || nd != floor(nd)) return fail(c, g, f, "must be an integer in 1..256");
+    vibid_cfg_field(f, sizeof f, path, "n_dof");
+    if (nd < 1 || nd > 256 || nd != floor(nd)) return vibid_cfg_fail(c, g, f, "must be an integer in 1..256");
     if (nr < 0 || nr > 256 || nr != floor(nr)) {
-        child_path(f, sizeof f, path, "n_inputs", 0);
-        return fail(c, g, f, "must be an integer in 0..256");
+        vibid_cfg_field(f, sizeof f, path, "n_inputs");
+        return vibid_cfg_fail(c, g, f, "must be an integer in 0..256");
     }
     /* cast only after the range checks: (size_t)-1.0 is undefined (found by fuzz_stand) */
     size_t n = (size_t)nd, r = (size_t)nr;
@@ -387,20 +305,20 @@ static int read_matrices(const ctx *c, vibid_model *m, const config_setting_t *g
     for (int k = 0; k < 4; ++k) {
         size_t cols = k == 3 ? r : n;
         const config_setting_t *a = config_setting_get_member(g, names[k]);
-        child_path(f, sizeof f, path, names[k], 0);
+        vibid_cfg_field(f, sizeof f, path, names[k]);
         if (!a) {
             if (k == 3 && r == 0) continue;
             if (k == 1) continue; /* D may be omitted: undamped */
-            fail(c, g, f, "missing (matrix given row by row as a list of numbers)");
+            vibid_cfg_fail(c, g, f, "missing (matrix given row by row as a list of numbers)");
             goto out;
         }
         if (!config_setting_is_array(a) && !config_setting_is_list(a)) {
-            fail(c, a, f, "must be an array of %zu numbers (row by row)", n * cols);
+            vibid_cfg_fail(c, a, f, "must be an array of %zu numbers (row by row)", n * cols);
             goto out;
         }
         if ((size_t)config_setting_length(a) != n * cols) {
-            fail(c, a, f, "has %d numbers, expected %zu (%zu x %zu, row by row)", config_setting_length(a), n * cols,
-                 n, cols);
+            vibid_cfg_fail(c, a, f, "has %d numbers, expected %zu (%zu x %zu, row by row)",
+                           config_setting_length(a), n * cols, n, cols);
             goto out;
         }
         for (size_t i = 0; i < n; ++i)
@@ -408,7 +326,7 @@ static int read_matrices(const ctx *c, vibid_model *m, const config_setting_t *g
                 const config_setting_t *e = config_setting_get_elem(a, (unsigned)(i * cols + j));
                 int t = config_setting_type(e);
                 if (t != CONFIG_TYPE_FLOAT && t != CONFIG_TYPE_INT && t != CONFIG_TYPE_INT64) {
-                    fail(c, e, f, "element %zu is not a number", i * cols + j);
+                    vibid_cfg_fail(c, e, f, "element %zu is not a number", i * cols + j);
                     goto out;
                 }
                 mats[k][i + j * n] = t == CONFIG_TYPE_FLOAT ? config_setting_get_float(e)
@@ -417,9 +335,9 @@ static int read_matrices(const ctx *c, vibid_model *m, const config_setting_t *g
     }
     const config_setting_t *u = config_setting_get_member(g, "unknown");
     if (u) {
-        child_path(f, sizeof f, path, "unknown", 0);
+        vibid_cfg_field(f, sizeof f, path, "unknown");
         if (!config_setting_is_array(u) && !config_setting_is_list(u)) {
-            fail(c, u, f, "must be a list of matrix names, e.g. [\"D\", \"C\"]");
+            vibid_cfg_fail(c, u, f, "must be a list of matrix names, e.g. [\"D\", \"C\"]");
             goto out;
         }
         for (int i = 0; i < config_setting_length(u); ++i) {
@@ -428,7 +346,7 @@ static int read_matrices(const ctx *c, vibid_model *m, const config_setting_t *g
             for (int j = 0; j < 4; ++j)
                 if (s && !strcmp(s, names[j])) k = j;
             if (k < 0) {
-                fail(c, u, f, "'%s' is not one of M, D, C, B", s ? s : "?");
+                vibid_cfg_fail(c, u, f, "'%s' is not one of M, D, C, B", s ? s : "?");
                 goto out;
             }
             unknown |= 1u << k;
@@ -446,15 +364,15 @@ static int read_matrices(const ctx *c, vibid_model *m, const config_setting_t *g
     }
     const config_setting_t *ch = config_setting_get_member(g, "channels");
     if (ch) {
-        child_path(f, sizeof f, path, "channels", 0);
+        vibid_cfg_field(f, sizeof f, path, "channels");
         if ((size_t)config_setting_length(ch) != n + r) {
-            fail(c, ch, f, "must name %zu channels: the n displacements, then the inputs", n + r);
+            vibid_cfg_fail(c, ch, f, "must name %zu channels: the n displacements, then the inputs", n + r);
             goto out;
         }
         for (size_t i = 0; i < n + r; ++i) {
             const char *s = config_setting_get_string_elem(ch, (unsigned)i);
             if (!s || !*s) {
-                fail(c, ch, f, "element %zu is not a channel name", i);
+                vibid_cfg_fail(c, ch, f, "element %zu is not a channel name", i);
                 goto out;
             }
             if (i < n)
@@ -470,19 +388,19 @@ out:
     return rc;
 }
 
-vibid_stand *vibid_stand_from_setting(const void *setting_v, const char *file, vibid_stand_error *err) {
-    const config_setting_t *g = setting_v;
-    ctx c = {file, err};
-    if (err) memset(err, 0, sizeof *err);
+vibid_stand *vibid_stand_from_setting(const config_setting_t *g, const char *file, vibid_stand_error *err) {
+    vibid_stand_error local; /* err may be NULL: the reader always needs somewhere to write */
+    vibid_cfg_reader c = {file, err ? err : &local};
+    memset(c.err, 0, sizeof *c.err);
     if (!g || !config_setting_is_group(g)) {
-        fail(&c, g, "stand", "must be a group { ... }");
+        vibid_cfg_fail(&c, g, "stand", "must be a group { ... }");
         return NULL;
     }
     const char *path = "stand";
     vibid_stand *st = calloc(1, sizeof *st);
     pending *pd = calloc(1, sizeof *pd);
     if (!st || !pd) {
-        fail(&c, g, path, "out of memory");
+        vibid_cfg_fail(&c, g, path, "out of memory");
         free(st);
         free(pd);
         return NULL;
@@ -495,61 +413,54 @@ vibid_stand *vibid_stand_from_setting(const void *setting_v, const char *file, v
     {
         static const char *const known[] = {"name",   "sample_rate", "discretization", "length_unit",  "matrices",
                                             "nodes",  "base",        "elements",       "inputs", "disturbances", NULL};
-        if (reject_unknown_members(&c, g, path, known,
-                                   "name, sample_rate, discretization, length_unit, nodes, base, elements, inputs, "
-                                   "disturbances, matrices"))
-            goto fail;
+        if (vibid_cfg_check_keys(&c, g, path, known)) goto fail;
     }
     {
         const char *lu = "m";
-        if (get_string(&c, g, path, "length_unit", &lu) < 0) goto fail;
+        if (vibid_cfg_string_ref(&c, g, path, "length_unit", &lu) < 0) goto fail;
         if (vibid_unit_si_factor(VIBID_DIM_LENGTH, lu, &st->length_si) || strlen(lu) >= sizeof st->length_unit) {
-            fail(&c, config_setting_get_member(g, "length_unit"), "stand.length_unit", "'%s' is not a length unit (%s)",
-                 lu, vibid_unit_names(VIBID_DIM_LENGTH));
+            vibid_cfg_fail(&c, config_setting_get_member(g, "length_unit"), "stand.length_unit",
+                           "'%s' is not a length unit (%s)", lu, vibid_unit_names(VIBID_DIM_LENGTH));
             goto fail;
         }
         snprintf(st->length_unit, sizeof st->length_unit, "%s", lu);
     }
-    if (get_string(&c, g, path, "name", &name) < 0) goto fail;
+    if (vibid_cfg_string_ref(&c, g, path, "name", &name) < 0) goto fail;
     if (require_number(&c, g, path, "sample_rate", &st->sample_rate)) goto fail;
     if (!(st->sample_rate > 0)) {
-        fail(&c, config_setting_get_member(g, "sample_rate"), "stand.sample_rate", "must be > 0 (Hz)");
+        vibid_cfg_fail(&c, config_setting_get_member(g, "sample_rate"), "stand.sample_rate",
+                       "must be > 0 (Hz)");
         goto fail;
     }
-    const char *disc = NULL;
-    if (get_string(&c, g, path, "discretization", &disc) < 0) goto fail;
-    if (disc) {
-        vibid_discretization d;
-        if (!strcmp(disc, "central_difference"))
-            d = VIBID_DISC_CENTRAL_DIFFERENCE;
-        else if (!strcmp(disc, "zoh"))
-            d = VIBID_DISC_ZOH;
-        else {
-            fail(&c, config_setting_get_member(g, "discretization"), "stand.discretization",
-                 "'%s' is not central_difference or zoh", disc);
-            goto fail;
-        }
-        vibid_model_set_discretization(m, d);
+    {
+        static const char *const discs[] = {"central_difference", "zoh", NULL};
+        static const vibid_discretization disc_values[] = {VIBID_DISC_CENTRAL_DIFFERENCE, VIBID_DISC_ZOH};
+        int d;
+        int r = vibid_cfg_enum(&c, g, path, "discretization", discs, false, &d);
+        if (r < 0) goto fail;
+        if (r) vibid_model_set_discretization(m, disc_values[d]);
     }
 
     const config_setting_t *mats = config_setting_get_member(g, "matrices");
     const config_setting_t *nodes = config_setting_get_member(g, "nodes");
     if (mats && nodes) {
-        fail(&c, mats, "stand.matrices", "give either nodes/elements or matrices, not both");
+        vibid_cfg_fail(&c, mats, "stand.matrices", "give either nodes/elements or matrices, not both");
         goto fail;
     }
     const config_setting_t *dist = config_setting_get_member(g, "disturbances");
     if (mats && dist) {
         /* vibid_model_add_disturbance needs a node: a full-matrix model has only coordinates */
-        fail(&c, dist, "stand.disturbances", "a full-matrix stand (matrices) has no disturbances: describe it by "
-                                             "nodes and elements to declare one");
+        vibid_cfg_fail(&c, dist, "stand.disturbances",
+                       "a full-matrix stand (matrices) has no disturbances: describe it by "
+                       "nodes and elements to declare one");
         goto fail;
     }
     if (mats) {
         if (read_matrices(&c, m, mats, "stand.matrices", pd)) goto fail;
     } else {
         if (!nodes || !config_setting_is_list(nodes) || config_setting_length(nodes) == 0) {
-            fail(&c, nodes ? nodes : g, "stand.nodes", "must be a non-empty list ( { name = ...; mass = ...; }, ... )");
+            vibid_cfg_fail(&c, nodes ? nodes : g, "stand.nodes",
+                           "must be a non-empty list ( { name = ...; mass = ...; }, ... )");
             goto fail;
         }
         for (int i = 0; i < config_setting_length(nodes); ++i) {
@@ -558,21 +469,21 @@ vibid_stand *vibid_stand_from_setting(const void *setting_v, const char *file, v
             snprintf(p, sizeof p, "stand.nodes.[%d]", i);
             const char *nm;
             double mass = 0;
-            int unknown = 0;
+            bool unknown = false;
             static const char *const node_keys[] = {"name", "mass", "unknown", "true_value", "measure", "noise", NULL};
-            if (reject_unknown_members(&c, e, p, node_keys, "name, mass, unknown, true_value, measure, noise") ||
-                require_string(&c, e, p, "name", &nm) || get_bool(&c, e, p, "unknown", &unknown) < 0)
+            if (vibid_cfg_check_keys(&c, e, p, node_keys) || require_string(&c, e, p, "name", &nm) ||
+                vibid_cfg_bool(&c, e, p, "unknown", &unknown) < 0)
                 goto fail;
             int has_mass = get_number(&c, e, p, "mass", &mass);
             if (has_mass < 0) goto fail;
             if (!has_mass && !unknown) {
-                child_path(f, sizeof f, p, "mass", 0);
-                fail(&c, e, f, "missing: a known mass needs its value in kg");
+                vibid_cfg_field(f, sizeof f, p, "mass");
+                vibid_cfg_fail(&c, e, f, "missing: a known mass needs its value in kg");
                 goto fail;
             }
             size_t idx;
             if ((s = vibid_model_add_node(m, nm, mass, unknown, &idx)) != VIBID_OK) {
-                child_path(f, sizeof f, p, "mass", 0);
+                vibid_cfg_field(f, sizeof f, p, "mass");
                 lib_fail(&c, config_setting_get_member(e, "mass") ? config_setting_get_member(e, "mass") : e,
                          strstr(vibid_last_error(), "name") ? p : f, s);
                 goto fail;
@@ -588,7 +499,7 @@ vibid_stand *vibid_stand_from_setting(const void *setting_v, const char *file, v
         if (base) {
             static const char *const base_keys[] = {"measure", "noise", "hold", NULL};
             unsigned mask;
-            if (reject_unknown_members(&c, base, "stand.base", base_keys, "measure, noise, hold")) goto fail;
+            if (vibid_cfg_check_keys(&c, base, "stand.base", base_keys)) goto fail;
             if (read_measure(&c, base, "stand.base", &mask, pd->base_names)) goto fail;
             vibid_model_set_measured(m, VIBID_BASE, mask);
             if (read_noise(&c, m, base, "stand.base", VIBID_BASE, mask)) goto fail;
@@ -599,40 +510,34 @@ vibid_stand *vibid_stand_from_setting(const void *setting_v, const char *file, v
             const config_setting_t *e = config_setting_get_elem(els, (unsigned)i);
             char p[64];
             snprintf(p, sizeof p, "stand.elements.[%d]", i);
-            const char *nm, *kind;
+            const char *nm;
             double value = 0;
-            int unknown = 0;
+            bool unknown = false;
             static const char *const element_keys[] = {"name", "kind", "between", "value", "unknown", "true_value",
                                                        NULL};
-            if (reject_unknown_members(&c, e, p, element_keys, "name, kind, between, value, unknown, true_value") ||
-                require_string(&c, e, p, "name", &nm) || require_string(&c, e, p, "kind", &kind) ||
-                get_bool(&c, e, p, "unknown", &unknown) < 0)
+            if (vibid_cfg_check_keys(&c, e, p, element_keys) || require_string(&c, e, p, "name", &nm) ||
+                vibid_cfg_bool(&c, e, p, "unknown", &unknown) < 0)
                 goto fail;
-            vibid_element_kind k;
-            child_path(f, sizeof f, p, "kind", 0);
-            if (!strcmp(kind, "spring"))
-                k = VIBID_ELEMENT_SPRING;
-            else if (!strcmp(kind, "damper"))
-                k = VIBID_ELEMENT_DAMPER;
-            else if (!strcmp(kind, "cubic_spring"))
-                k = VIBID_ELEMENT_CUBIC_SPRING;
-            else {
-                fail(&c, config_setting_get_member(e, "kind"), f,
-                     "unknown element kind '%s' (spring, damper, cubic_spring)", kind);
+            static const char *const kinds[] = {"spring", "damper", "cubic_spring", NULL};
+            static const vibid_element_kind kind_values[] = {VIBID_ELEMENT_SPRING, VIBID_ELEMENT_DAMPER,
+                                                             VIBID_ELEMENT_CUBIC_SPRING};
+            int ki;
+            if (vibid_cfg_require(&c, e, p, "kind", "a string is required: spring, damper, cubic_spring") ||
+                vibid_cfg_enum(&c, e, p, "kind", kinds, false, &ki) < 0)
                 goto fail;
-            }
+            vibid_element_kind k = kind_values[ki];
             int hv = get_number(&c, e, p, "value", &value);
             if (hv < 0) goto fail;
             if (!hv && !unknown) {
-                child_path(f, sizeof f, p, "value", 0);
-                fail(&c, e, f, "missing: a known element needs its value");
+                vibid_cfg_field(f, sizeof f, p, "value");
+                vibid_cfg_fail(&c, e, f, "missing: a known element needs its value");
                 goto fail;
             }
             const config_setting_t *btw = config_setting_get_member(e, "between");
-            child_path(f, sizeof f, p, "between", 0);
+            vibid_cfg_field(f, sizeof f, p, "between");
             if (!btw || config_setting_length(btw) != 2 || !config_setting_get_string_elem(btw, 0) ||
                 !config_setting_get_string_elem(btw, 1)) {
-                fail(&c, btw ? btw : e, f, "must be two names [\"node\", \"node|ground|base\"]");
+                vibid_cfg_fail(&c, btw ? btw : e, f, "must be two names [\"node\", \"node|ground|base\"]");
                 goto fail;
             }
             size_t a, b;
@@ -657,18 +562,19 @@ vibid_stand *vibid_stand_from_setting(const void *setting_v, const char *file, v
             snprintf(p, sizeof p, "stand.inputs.[%d]", i);
             const char *nm, *node, *chan;
             double gain = 1.0;
-            int unknown = 0;
+            bool unknown = false;
             static const char *const input_keys[] = {"name", "node", "gain", "unknown", "true_value", "channel",
                                                      "hold", NULL};
-            if (reject_unknown_members(&c, e, p, input_keys, "name, node, gain, unknown, true_value, channel, hold") ||
-                require_string(&c, e, p, "name", &nm) || require_string(&c, e, p, "node", &node) ||
-                get_bool(&c, e, p, "unknown", &unknown) < 0 || get_number(&c, e, p, "gain", &gain) < 0)
+            if (vibid_cfg_check_keys(&c, e, p, input_keys) || require_string(&c, e, p, "name", &nm) ||
+                require_string(&c, e, p, "node", &node) ||
+                vibid_cfg_bool(&c, e, p, "unknown", &unknown) < 0 || get_number(&c, e, p, "gain", &gain) < 0)
                 goto fail;
             if (require_string(&c, e, p, "channel", &chan)) goto fail;
             size_t idx;
-            child_path(f, sizeof f, p, "node", 0);
+            vibid_cfg_field(f, sizeof f, p, "node");
             if (vibid_model_find_node(m, node, &idx) != VIBID_OK) {
-                fail(&c, config_setting_get_member(e, "node"), f, "'%s' is not a declared node", node);
+                vibid_cfg_fail(&c, config_setting_get_member(e, "node"), f, "'%s' is not a declared node",
+                               node);
                 goto fail;
             }
             size_t in_idx;
@@ -727,7 +633,7 @@ vibid_stand *vibid_stand_from_setting(const void *setting_v, const char *file, v
     free(pd);
     return st;
 fail_oom:
-    fail(&c, g, path, "out of memory");
+    vibid_cfg_fail(&c, g, path, "out of memory");
 fail:
     free(pd);
     vibid_stand_destroy(st);
@@ -735,31 +641,21 @@ fail:
 }
 
 vibid_stand *vibid_stand_load(const char *path, vibid_stand_error *err) {
-    ctx c = {path, err};
-    if (err) memset(err, 0, sizeof *err);
-    if (!path) {
-        fail(&c, NULL, "", "no file name");
-        return NULL;
-    }
+    vibid_stand_error local;
+    vibid_cfg_reader c = {path, err ? err : &local};
+    memset(c.err, 0, sizeof *c.err);
     config_t cfg;
-    config_init(&cfg);
-    if (!config_read_file(&cfg, path)) {
-        if (err) {
-            snprintf(err->file, sizeof err->file, "%s", config_error_file(&cfg) ? config_error_file(&cfg) : path);
-            err->line = config_error_line(&cfg);
-            snprintf(err->message, sizeof err->message, "%s",
-                     config_error_type(&cfg) == CONFIG_ERR_FILE_IO ? "cannot read the file" : config_error_text(&cfg));
-            snprintf(err->text, sizeof err->text, "%s:%d: %s", err->file, err->line, err->message);
-        }
+    if (vibid_cfg_read_file(&cfg, path, c.err)) {
         config_destroy(&cfg);
         return NULL;
     }
     const config_setting_t *g = config_lookup(&cfg, "stand");
     vibid_stand *st = NULL;
     if (!g)
-        fail(&c, config_root_setting(&cfg), "stand", "missing: the file must contain a group stand = { ... };");
+        vibid_cfg_fail(&c, config_root_setting(&cfg), "stand",
+                       "missing: the file must contain a group stand = { ... };");
     else
-        st = vibid_stand_from_setting(g, path, err);
+        st = vibid_stand_from_setting(g, path, c.err);
     config_destroy(&cfg);
     return st;
 }

@@ -8,13 +8,15 @@
  * libvibid itself does no file I/O; this is the static library vibid_stand (C11,
  * links libconfig and libvibid).
  *
- * Errors name file, line and field: "stand.cfg:14: stand.elements.[1].kind: unknown
- * element kind 'sprung' (spring, damper, cubic_spring)".
+ * Errors name file, line and field (the configuration reader, vibid/cfgread.h):
+ * "stand.cfg:14: stand.elements.[1].kind: 'sprung' is not one of spring, damper,
+ * cubic_spring".
  */
 #ifndef VIBID_STAND_FILE_H
 #define VIBID_STAND_FILE_H
 
 #include <stddef.h>
+#include <vibid/cfgread.h>
 #include <vibid/model.h>
 
 #ifdef __cplusplus
@@ -23,22 +25,18 @@ extern "C" {
 
 typedef struct vibid_stand vibid_stand;
 
-/* Where and why loading failed. */
-typedef struct vibid_stand_error {
-    char file[256];    /* file name as given ("" if not known) */
-    int line;          /* 1-based line, 0 if not known */
-    char field[128];   /* setting path, e.g. "stand.nodes.[0].mass" ("" for syntax errors) */
-    char message[512]; /* what is wrong */
-    char text[1024];   /* "file:line: field: message", ready to print */
-} vibid_stand_error;
+/* Where and why loading failed: the configuration reader's error (vibid/cfgread.h):
+ * file, line, field (setting path, e.g. "stand.nodes.[0].mass"), message and the text
+ * "file:line: field: message", ready to print. */
+typedef vibid_cfg_error vibid_stand_error;
 
 /* Loads the group `stand` of the file at path. err may be NULL. NULL on failure. */
 vibid_stand *vibid_stand_load(const char *path, vibid_stand_error *err);
 
 /* Same, from a libconfig setting (the stand group of a bigger configuration, e.g. the
- * daemon's); setting is a `const config_setting_t *` (void here so that this header
- * does not need libconfig.h). file is used in messages when libconfig does not know it. */
-vibid_stand *vibid_stand_from_setting(const void *setting, const char *file, vibid_stand_error *err);
+ * daemon's). file is used in messages when libconfig does not know it. */
+vibid_stand *vibid_stand_from_setting(const config_setting_t *setting, const char *file,
+                                      vibid_stand_error *err);
 
 void vibid_stand_destroy(vibid_stand *stand);
 
