@@ -3,7 +3,7 @@ natural frequencies, damping ratios) by least squares, over the C library libvib
 
     import vibid
     stand = vibid.Stand.load("examples/stands/paper_example1.cfg")
-    result = vibid.identify(stand, "capture.csv")
+    result = vibid.identify(stand, "capture.csv")     # or .mf4 (MDF4), .tdms (TDMS)
     result.parameters, result.modes, result.covariance, result.tracks
 
 Documentation: docs/python.md in the repository.
@@ -11,8 +11,9 @@ Documentation: docs/python.md in the repository.
 
 from ._core import VibidError
 from ._core import version as _lib_version
+from ._captures import read_capture
 from ._identify import METHODS, Result, identify
 from ._stand import Stand
 
 __version__ = _lib_version()
-__all__ = ["Stand", "identify", "Result", "VibidError", "METHODS", "__version__"]
+__all__ = ["Stand", "identify", "read_capture", "Result", "VibidError", "METHODS", "__version__"]

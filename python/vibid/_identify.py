@@ -57,8 +57,10 @@ def _columns(stand: Stand, data: Any) -> tuple[np.ndarray, Optional[np.ndarray]]
     channels = stand.channels
     t = None
     if isinstance(data, (str, os.PathLike)):
-        # The daemon's tracks and vibid-sim's captures head their files with '#' lines.
-        data = pd.read_csv(data, comment="#", skipinitialspace=True)
+        # A file (CSV, MDF4, TDMS by its extension): read_capture gives the stand's channels,
+        # converted to the stand's units, and time_s (checked below as any time column).
+        from ._captures import read_capture
+        data = read_capture(data, stand)
     if isinstance(data, np.ndarray):
         arr = np.asarray(data, dtype=np.float64)
         if arr.ndim != 2 or arr.shape[1] != len(channels):
@@ -205,6 +207,15 @@ class Result:
             parts.append(f"<p>implausible: {html.escape(self.why)}</p>")
         parts.append(f"<details><summary>estimator</summary><pre>{html.escape(self.description)}</pre></details>")
         return "\n".join(parts)
+
+    def plot(self, parameters=None, figsize=None):
+        """The tracks with value +- 2 se bands, one axis per parameter, the true value dashed
+        (else the nominal start value dash-dotted); for a result without tracks one point
+        with its 2-se error bar per axis. Returns a ``matplotlib.figure.Figure`` (no pyplot,
+        draws headless). Needs matplotlib (the extra ``plot``); docs/python.md."""
+        from ._plot import plot_result  # matplotlib only when asked for a figure
+
+        return plot_result(self, parameters, figsize)
 
 
 def identify(stand: Stand | str | os.PathLike, data: Any, method: str = "auto",

@@ -120,6 +120,30 @@ class Stand:
         return list(self._core.channels)
 
     @property
+    def channel_quantities(self) -> list[str]:
+        """What each channel of :attr:`channels` measures: ``"displacement"``,
+        ``"velocity"``, ``"acceleration"`` (of a node or the base) or ``"input"`` (a force
+        input, in the input's own units; the stand's ``gain`` is N per input unit)."""
+        return [q for q, _, _ in _core.stand_channel_info(self._core)]
+
+    @property
+    def channel_models(self) -> list[str]:
+        """The model's name of each channel: ``"m2.displacement"``, ``"base.velocity"``,
+        or the input's name."""
+        return [n for _, _, n in _core.stand_channel_info(self._core)]
+
+    @property
+    def length_unit(self) -> str:
+        """The stand's length unit (``length_unit``, default ``"m"``): displacements,
+        velocities and accelerations are in it, forces in N, time in s."""
+        return self._core.length_unit
+
+    @property
+    def length_si(self) -> float:
+        """Metres per :attr:`length_unit` (1 for m, 1e-3 for mm)."""
+        return self._core.length_si
+
+    @property
     def parameters(self) -> list[str]:
         """Names of the unknowns, in the model's parameter order."""
         return [p[0] for p in self._core.params]

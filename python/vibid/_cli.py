@@ -1,0 +1,520 @@
+"""The `vibid` command: identify a capture, check a stand, simulate one (docs/python.md).
+
+    vibid identify STAND CAPTURE [--method M] [--forgetting G] [--prefilter-hz F]
+                   [--iv-lag L] [--track-every N] [--tracks OUT.csv] [--report OUT.html]
+    vibid check STAND
+    vibid simulate STAND OUT.csv [--sim SIM.cfg] [--duration S] [--seed N]
+
+Exit status: 0 success (check: identifiable); 1 what the library refuses, bad input, a
+stand that cannot be identified, a file that cannot be read or written (the message on
+stderr, no traceback); 2 a bad command line (argparse)."""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import html
+import math
+import os
+import shutil
+import subprocess
+import sys
+from typing import Optional, Sequence
+
+import numpy as np
+import pandas as pd
+
+from . import _core
+from ._identify import METHODS, Result, _columns, identify
+from ._stand import Stand
+
+PROG = "vibid"
+
+# The letters of vibidd's tracks (docs/vibidd.md, "Outputs") that identify reports.
+FLAG_MEANING = {
+    "E": "no estimate (too few samples, or the estimate failed)",
+    "P": "physically impossible (plausibility.h: a mass, damper or spring <= 0, a mode at <= 0 Hz or at/above "
+         "Nyquist, a negative damping ratio, or an overdamped mode the nominal model has underdamped)",
+    "U": "the standard errors do not hold (ls/rls always; auto/iv: the older and newer halves of the blocks "
+         "disagree, or too few blocks)",
+    "I": "hardly informed by the data (its se is inf)",
+}
+
+
+class CliError(Exception):
+    """A refusal to report on stderr with exit status 1 (no traceback)."""
+
+
+def _fmt(v: float, digits: int = 10) -> str:
+    # %.10g as vibidd's tracks: the printed digits are the estimate's to 1e-10.
+    return "nan" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{v:.{digits}g}"
+
+
+def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
+    """Columns separated by at least two spaces (units such as 'N s/m' hold single ones),
+    numbers right-aligned, text left-aligned."""
+    widths = [max(len(h), *(len(r[i]) for r in rows)) if rows else len(h) for i, h in enumerate(header)]
+
+    def line(cells, align):
+        return "  ".join(c.rjust(w) if a == "r" else c.ljust(w) for c, w, a in zip(cells, widths, align)).rstrip()
+
+    align = ["l"] + ["r" if h not in ("unit", "flags", "kind") else "l" for h in header[1:]]
+    return "\n".join([line(header, align)] + [line(r, align) for r in rows])
+
+
+def parameter_table(result: Result) -> str:
+    p = result.parameters
+    truth = p["true_value"].notna().any()
+    header = ["parameter", "value", "se", "unit", "flags"] + (["true_value", "z"] if truth else [])
+    rows = []
+    for name, r in p.iterrows():
+        row = [str(name), _fmt(r["value"]), _fmt(r["se"]), r["unit"], r["flags"] or "-"]
+        if truth:
+            row += [_fmt(r["true_value"]), _fmt(r["z"], 3)]
+        rows.append(row)
+    return _table(header, rows)
+
+
+def mode_table(result: Result) -> str:
+    rows = [[str(i), _fmt(r["freq_hz"]), _fmt(r["freq_hz_se"]), _fmt(r["zeta"]), _fmt(r["zeta_se"]), r["flags"] or "-"]
+            for i, r in result.modes.iterrows()]
+    return _table(["mode", "f_hz", "f_se", "zeta", "zeta_se", "flags"], rows)
+
+
+def warnings_of(result: Result) -> list[str]:
+    """Every flag and warning of the estimate, in words: the whole estimate's letters, each
+    parameter's and mode's, the plausibility findings, the consistency check, the
+    state-space estimators' restarts and the track rows without estimate."""
+    out = []
+    for letter in result.flags:
+        out.append(f"estimate flagged {letter}: {FLAG_MEANING[letter]}")
+    for name, f in result.parameters["flags"].items():
+        for letter in f:
+            out.append(f"parameter {name} flagged {letter}: {FLAG_MEANING[letter]}")
+    for i, f in result.modes["flags"].items():
+        if f:
+            out.append(f"mode {i} flagged P: {FLAG_MEANING['P']}")
+    if result.why:
+        out.append("implausible: " + result.why)
+    if math.isfinite(result.z_consistency):
+        out.append(f"consistency of the older and newer halves of the blocks: largest |z| = "
+                   f"{result.z_consistency:.3g} (U above 4)")
+    if result.diverged_samples:
+        out.append(f"the state-space filter diverged at {result.diverged_samples} samples and restarted")
+    if len(result.tracks):
+        fl = result.tracks["flags"].astype(str)
+        for letter in "EPUI":
+            k = int(fl.str.contains(letter).sum())
+            if k:
+                out.append(f"{k} of {len(fl)} track rows flagged {letter}")
+    return out
+
+
+def config_line(result: Result) -> str:
+    c = result.config
+    return (f"settings in force: method {c['method']}, prefilter_hz {c['prefilter_hz']:g}, iv_lag {c['iv_lag']}, "
+            f"forgetting {c['forgetting']:g}, difference_order {c['difference_order']}")
+
+
+def write_tracks(result: Result, path: str) -> None:
+    """The tracks as vibidd writes them (docs/vibidd.md, "Outputs"): '#' lines saying what
+    the estimator chose, then the columns of Result.tracks. Overwritten, not appended (one
+    capture, one file). %.17g: read back, the values are the Result's exactly."""
+    with open(path, "w", newline="") as f:
+        f.write(f"# vibid identify: stand '{result.stand.name}' ({result.stand.source}), "
+                f"{result.n_samples} samples, {config_line(result)}\n")
+        for line in result.description.splitlines():
+            f.write(f"# {line}\n")
+        result.tracks.to_csv(f, index=False, float_format="%.17g", lineterminator="\n")
+
+
+# ---- the report ----
+
+def _html_table(df: pd.DataFrame) -> str:
+    return df.to_html(float_format=lambda v: f"{v:.10g}", na_rep="nan", border=0, classes="t")
+
+
+def channel_roles(stand: Stand) -> list[tuple[str, str, int, str]]:
+    """(acquisition channel, quantity, node index / -2 base / input index, model name) in the
+    model's channel order."""
+    return [(ch, kind, idx, name) for ch, (kind, idx, name) in zip(stand.channels, _core.stand_channel_info(stand._core))]
+
+
+def _excitation_channels(stand: Stand) -> list[str]:
+    return [ch for ch, kind, idx, _ in channel_roles(stand) if kind == "input" or idx == -2]
+
+
+def _settle_samples(result: Result, n: int) -> int:
+    """Samples after which a start transient of the simulation has decayed to e^-5: five
+    time constants 1 / (zeta 2 pi f) of the slowest-decaying identified mode, at most half
+    the capture (for a stand whose every node is measured the start is the measured state
+    and there is hardly a transient to wait for)."""
+    m = result.modes
+    tau = [1.0 / (z * 2 * math.pi * f) for f, z in zip(m["freq_hz"], m["zeta"])
+           if math.isfinite(f) and math.isfinite(z) and z > 0 and f > 0]
+    if not tau:
+        return n // 2
+    return int(min(n // 2, math.ceil(5 * max(tau) * result.stand.sample_rate)))
+
+
+def model_response(result: Result, block: np.ndarray, theta: Optional[np.ndarray] = None) -> tuple[np.ndarray, int]:
+    """The stand's model at theta (default: the estimate) driven by the capture's measured
+    inputs (_core.stand_simulate: RK4 over vibid_model_forces), channels in stand order, and
+    the first sample after the start transient (see _settle_samples)."""
+    th = result.parameters["value"].to_numpy(float) if theta is None else np.asarray(theta, float)
+    sim = _core.stand_simulate(result.stand._core, list(th), block)
+    return sim, max(2, _settle_samples(result, block.shape[0]))
+
+
+def response_fit(result: Result, block: np.ndarray, sim: np.ndarray, start: int) -> pd.DataFrame:
+    """Per simulated (node) channel: RMS of the measured signal and of measured - model
+    from `start` on, and NRMSE = their ratio."""
+    rows = []
+    for i, (ch, kind, idx, _) in enumerate(channel_roles(result.stand)):
+        if kind == "input" or idx == -2:
+            continue
+        meas, model = block[start:, i], sim[start:, i]
+        rms = float(np.sqrt(np.mean(meas * meas)))
+        err = float(np.sqrt(np.mean((meas - model) ** 2)))
+        rows.append({"channel": ch, "quantity": kind, "rms_measured": rms, "rms_error": err,
+                     "nrmse": err / rms if rms > 0 else math.nan})
+    return pd.DataFrame(rows).set_index("channel") if rows else pd.DataFrame()
+
+
+def residuals(result: Result, block: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The equation errors of the fitted regression (regressor.h, with the estimate's
+    pre-filter and differences), one column per node's equation, and the sample index of
+    each row."""
+    c = result.config
+    idx, e = _core.stand_residuals(result.stand._core, list(result.parameters["value"].to_numpy(float)), block,
+                                   float(c["prefilter_hz"]), int(c["difference_order"]))
+    return np.asarray(idx), np.asarray(e)
+
+
+def _residual_figure(result: Result, block: np.ndarray):
+    from ._plot import _figure, autocorrelation
+
+    idx, e = residuals(result, block)
+    fs = result.stand.sample_rate
+    # Skip the pre-filter's start (its transient from rest): 4 time constants of a 4th-order
+    # Butterworth at f_c are about 2 / f_c s; nothing to skip without a pre-filter.
+    f_c = float(result.config["prefilter_hz"])
+    skip = int(math.ceil(2.0 / f_c * fs)) if f_c > 0 else 0
+    skip = min(skip, len(idx) // 4)
+    idx, e = idx[skip:], e[skip:]
+    n = len(idx)
+    max_lag = int(min(n - 1, max(50, round(fs / 10))))
+    fig = _figure(figsize=(8.0, 2.2 * e.shape[1] + 0.5), layout="constrained")
+    axes = fig.subplots(e.shape[1], 2, squeeze=False)
+    nodes = _node_names(result.stand)
+    band = 1.96 / math.sqrt(n)
+    outside = []
+    for j in range(e.shape[1]):
+        ax = axes[j, 0]
+        ax.plot(idx / fs, e[:, j], linewidth=0.6)
+        # a force balance in the stand's units (N for SI stands, docs/stand-file.md)
+        ax.set_ylabel("equation error")
+        ax.set_title(f"equation error of {nodes[j] if j < len(nodes) else j}", fontsize="small")
+        ax.grid(True, alpha=0.3)
+        r = autocorrelation(e[:, j], max_lag)
+        ax = axes[j, 1]
+        lags = np.arange(max_lag + 1)
+        ax.vlines(lags, 0, r, linewidth=0.8)
+        ax.axhline(band, color="C3", linestyle="--", linewidth=0.8, label="\u00b11.96/\u221aN")
+        ax.axhline(-band, color="C3", linestyle="--", linewidth=0.8)
+        ax.set_title("autocorrelation", fontsize="small")
+        ax.legend(fontsize="small")
+        outside.append(float(np.mean(np.abs(r[1:]) > band)))
+    axes[-1, 0].set_xlabel("time [s]")
+    axes[-1, 1].set_xlabel("lag [samples]")
+    return fig, n, band, outside, max_lag
+
+
+def _node_names(stand: Stand) -> list[str]:
+    names = {}
+    for _, kind, idx, model_name in channel_roles(stand):
+        if kind != "input" and idx >= 0:
+            names[idx] = model_name.split(".")[0]
+    return [names.get(i, f"node {i}") for i in range(stand.n_dof)]
+
+
+def _spectrum_figure(result: Result, block: np.ndarray):
+    from ._plot import _figure, welch_psd
+
+    chans = _excitation_channels(result.stand)
+    fig = _figure(figsize=(8.0, 3.2), layout="constrained")
+    ax = fig.subplots()
+    fs = result.stand.sample_rate
+    for ch in chans:
+        f, p = welch_psd(block[:, result.stand.channels.index(ch)], fs)
+        ax.semilogy(f[1:], p[1:], linewidth=0.8, label=ch)
+    for i, fm in result.modes["freq_hz"].items():
+        if math.isfinite(fm):
+            ax.axvline(fm, color="k", linestyle=":", linewidth=0.8)
+            ax.text(fm, 1.0, f" {i}", transform=ax.get_xaxis_transform(), fontsize="small", va="top")
+    ax.set_xlabel("frequency [Hz]")
+    ax.set_ylabel("PSD [unit\u00b2/Hz]")
+    ax.set_xlim(0, fs / 2)
+    ax.grid(True, alpha=0.3, which="both")
+    ax.legend(fontsize="small")
+    return fig, chans
+
+
+def _response_figure(result: Result, block: np.ndarray, sim: np.ndarray, start: int):
+    from ._plot import _figure
+
+    roles = [(i, ch) for i, (ch, kind, idx, _) in enumerate(channel_roles(result.stand)) if kind != "input" and idx != -2]
+    fs = result.stand.sample_rate
+    # A window of five periods of the lowest identified mode (at least 0.2 s) at the end of
+    # the capture: the whole capture would be a solid band at this scale.
+    fmin = min([f for f in result.modes["freq_hz"] if math.isfinite(f) and f > 0] or [fs / 100])
+    w = int(min(block.shape[0] - start, max(0.2 * fs, 5 * fs / fmin)))
+    sl = slice(block.shape[0] - w, block.shape[0])
+    t = np.arange(block.shape[0])[sl] / fs
+    fig = _figure(figsize=(8.0, 2.0 * len(roles) + 0.5), layout="constrained")
+    axes = fig.subplots(len(roles), 1, sharex=True, squeeze=False)[:, 0]
+    for ax, (i, ch) in zip(axes, roles):
+        ax.plot(t, block[sl, i], color="k", linewidth=1.0, label="measured")
+        ax.plot(t, sim[sl, i], color="C1", linewidth=1.0, linestyle="--", label="model (identified)")
+        ax.set_ylabel(ch)
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize="small", loc="upper right")
+    axes[-1].set_xlabel("time [s]")
+    return fig
+
+
+def write_report(result: Result, block: np.ndarray, capture: str, path: str) -> None:
+    """A self-contained HTML report: every figure a data: URI PNG, no external file, script,
+    style sheet or network access. A section that cannot be drawn for this stand or
+    estimator (e.g. no residuals of a state-space estimate) says why instead."""
+    from ._plot import figure_png_data_uri
+
+    esc = html.escape
+    sec = []
+
+    def figure(fig, alt):
+        uri = figure_png_data_uri(fig)
+        return f'<img alt="{esc(alt)}" src="{uri}">'
+
+    def section(id_, title, body):
+        sec.append(f'<section id="{id_}"><h2>{esc(title)}</h2>\n{body}\n</section>')
+
+    st = result.stand
+    section("parameters", "Parameters", _html_table(result.parameters))
+    section("modes", "Modes", _html_table(result.modes))
+    warns = warnings_of(result)
+    body = ("<ul>" + "".join(f"<li>{esc(w)}</li>" for w in warns) + "</ul>") if warns else \
+        "<p>No flag and no warning: the estimate is plausible and its standard errors hold.</p>"
+    body += ("<p>Flag letters (as in vibidd's tracks): "
+             + "; ".join(f"<b>{k}</b> {esc(v)}" for k, v in FLAG_MEANING.items()) + ".</p>")
+    section("flags", f"Flags and warnings: {result.flags or 'none'}", body)
+    section("estimator", "Estimator", f"<p>{esc(config_line(result))}</p><pre>{esc(result.description)}</pre>")
+    section("tracks", "Tracks (value \u00b1 2 se)",
+            figure(result.plot(), "parameter tracks") if len(result.tracks) else
+            "<p>No tracks (--track-every 0): the final estimate with its 2-se error bar per parameter.</p>"
+            + figure(result.plot(), "parameters with 2-se error bars"))
+    try:
+        if result.method in ("ekf", "kf_rls"):
+            raise ValueError(f"the state-space estimator {result.method} fits the states' equations through a "
+                             "Kalman filter, not the regression whose equation errors are shown here")
+        fig, n, band, outside, max_lag = _residual_figure(result, block)
+        lines = "".join(f"<li>{esc(node)}: {100 * o:.1f} % of the lags 1..{max_lag} outside "
+                        "the band</li>" for node, o in zip(_node_names(st), outside))
+        section("residuals", "Residuals of the fit",
+                f"<p>Equation errors y - x<sup>T</sup>&theta; of the regression at the estimate (the estimator's "
+                f"differences and pre-filter), N = {n}; white residuals stay within &plusmn;1.96/&radic;N = "
+                f"{band:.3g} at 95 % of the lags. Differences and the pre-filter colour them by design (which "
+                f"is why auto's error bars come from block statistics), so lags outside the band are no fault "
+                f"by themselves; residuals large against the forces, or periodic, are.</p><ul>{lines}</ul>"
+                + figure(fig, "residuals and their autocorrelation"))
+    except (_core.VibidError, ValueError) as e:
+        section("residuals", "Residuals of the fit", f"<p>Not available for this stand or estimator: {esc(str(e))}</p>")
+    chans = _excitation_channels(st)
+    if chans:
+        fig, chans = _spectrum_figure(result, block)
+        section("excitation", "Excitation spectrum",
+                f"<p>Welch PSD (Hann, 4096-sample segments, 50 % overlap) of the input channels "
+                f"{esc(', '.join(chans))}; the identified natural frequencies dotted and numbered. A mode outside the "
+                f"excited band is determined by little.</p>" + figure(fig, "excitation spectrum"))
+    else:
+        section("excitation", "Excitation spectrum", "<p>The stand has no measured input channel.</p>")
+    try:
+        sim, start = model_response(result, block)
+        fit = response_fit(result, block, sim, start)
+        section("response", "Measured against model response",
+                f"<p>The identified model driven by the measured inputs (RK4 over the library's equations of "
+                f"motion, from the measured state at sample 2). Errors from sample {start} "
+                f"({start / st.sample_rate:.3g} s: five time constants of the slowest mode, at most half the "
+                f"capture) on; NRMSE = RMS(measured - model) / RMS(measured).</p>" + _html_table(fit)
+                + figure(_response_figure(result, block, sim, start), "measured against model response"))
+    except (_core.VibidError, ValueError) as e:
+        section("response", "Measured against model response", f"<p>Not available: {esc(str(e))}</p>")
+    head = (f"<h1>vibid identify: {esc(st.name)}</h1><p>stand <code>{esc(st.source)}</code>, capture "
+            f"<code>{esc(capture)}</code>, {result.n_samples} samples at {st.sample_rate:g} Hz "
+            f"({result.n_samples / st.sample_rate:.6g} s), method {esc(result.method)}, flags "
+            f"<b>{esc(result.flags or '-')}</b>; vibid {esc(_core.version())}, "
+            f"{datetime.datetime.now(datetime.timezone.utc).strftime('%Y-%m-%d %H:%M:%S UTC')}</p>")
+    style = ("body{font-family:sans-serif;max-width:60em;margin:1em auto;padding:0 1em}"
+             "table.t{border-collapse:collapse}table.t td,table.t th{padding:2px 8px;border-bottom:1px solid #ccc;"
+             "text-align:right}img{max-width:100%}pre{background:#f4f4f4;padding:.5em;white-space:pre-wrap}")
+    doc = (f"<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>vibid: {esc(st.name)}</title>"
+           f"<style>{style}</style></head><body>\n{head}\n" + "\n".join(sec) + "\n</body></html>\n")
+    with open(path, "w", encoding="utf-8") as f:
+        f.write(doc)
+
+
+# ---- commands ----
+
+def _load_stand(path: str) -> Stand:
+    if not os.path.exists(path):
+        raise CliError(f"stand file {path!r}: no such file")
+    return Stand.load(path)
+
+
+def cmd_identify(a: argparse.Namespace) -> int:
+    stand = _load_stand(a.stand)
+    if not os.path.exists(a.capture):
+        raise CliError(f"capture {a.capture!r}: no such file")
+    if a.report:
+        try:
+            import matplotlib  # noqa: F401
+        except ImportError:
+            raise CliError("--report needs matplotlib: pip install 'vibid[plot]'") from None
+    block, t = _columns(stand, a.capture)
+    data = {ch: block[:, i] for i, ch in enumerate(stand.channels)}
+    if t is not None:
+        data["time_s"] = t
+    track_every = a.track_every
+    if track_every is None and (a.tracks or a.report):
+        # Tracks asked for: a row every 0.1 s, also for the batch estimators (as vibidd
+        # with decimation = f_a / 10), so that the report shows how the estimate settled.
+        track_every = max(1, int(round(stand.sample_rate / 10)))
+    result = identify(stand, data, method=a.method, forgetting=a.forgetting, prefilter_hz=a.prefilter_hz,
+                      iv_lag=a.iv_lag, track_every=track_every)
+    out = [f"stand {stand.name} ({stand.source}), capture {a.capture}: {result.n_samples} samples at "
+           f"{stand.sample_rate:g} Hz, method {result.method}, flags {result.flags or '-'}", "",
+           parameter_table(result), "", mode_table(result), ""]
+    warns = warnings_of(result)
+    out += ["warnings:"] + [f"  {w}" for w in warns] if warns else ["warnings: none"]
+    out += ["", config_line(result), "estimator:"] + [f"  {line}" for line in result.description.splitlines()]
+    print("\n".join(out), flush=True)
+    if a.tracks:
+        write_tracks(result, a.tracks)
+        print(f"tracks: {len(result.tracks)} rows written to {a.tracks}")
+    if a.report:
+        write_report(result, block, a.capture, a.report)
+        print(f"report: {a.report}")
+    return 0
+
+
+def cmd_check(a: argparse.Namespace) -> int:
+    stand = _load_stand(a.stand)
+    print(f"stand {stand.name} ({stand.source}): {stand.n_dof} degree{'s' if stand.n_dof != 1 else ''} of "
+          f"freedom, {stand.sample_rate:g} Hz")
+    print("\nchannels:")
+    print(_table(["channel", "quantity", "model"],
+                 [[ch, kind, name] for ch, kind, _, name in channel_roles(stand)]))
+    print("\nunknowns:")
+    print(_table(["parameter", "kind", "unit", "nominal", "true_value"],
+                 [[n, k, u, _fmt(v), _fmt(tv)] for n, k, u, v, tv in
+                  zip(stand.parameters, stand.kinds, stand.units, stand.nominal_values, stand.true_values)]))
+    # The regression's structural check (model.h), then what identify itself does: create
+    # the automatic estimator, which also covers the state-space estimators' own check.
+    status, msg, known, controllable, rank = _core.stand_identifiability(stand._core)
+    mats = [m for bit, m in ((1, "M"), (2, "D"), (4, "C"), (8, "B")) if known & bit]
+    print("\nidentifiability:")
+    if status == 0:
+        print(f"  regression: identifiable (generic rank {rank} of {len(stand.parameters)}, "
+              f"{'controllable' if controllable else 'not controllable'} from the inputs, known and regular: "
+              f"{', '.join(mats) or 'none'})")
+    else:
+        print(f"  regression: {msg}")
+    try:
+        ident = _core.Ident(stand._core, METHODS["auto"], 1.0, -1.0, 0)
+    except _core.VibidError as e:
+        print(f"  automatic estimator: refused: {e}")
+        print(f"{PROG} check: {stand.source}: cannot be identified: {e}", file=sys.stderr)
+        return 1
+    first = ident.describe().splitlines()
+    print(f"  automatic estimator: accepted: {first[0] if first else ''}")
+    print("identifiable")
+    return 0
+
+
+def _vibid_sim() -> str:
+    p = os.environ.get("VIBID_SIM")
+    if p:
+        if not (os.path.isfile(p) and os.access(p, os.X_OK)):
+            raise CliError(f"VIBID_SIM={p!r} is not an executable file")
+        return p
+    p = shutil.which("vibid-sim")
+    if not p:
+        raise CliError("vibid-sim not found: put it on PATH or set VIBID_SIM to its path "
+                       "(it is built with the C tree: <build>/sim/vibid-sim)")
+    return p
+
+
+def cmd_simulate(a: argparse.Namespace) -> int:
+    if not os.path.exists(a.stand):
+        raise CliError(f"stand file {a.stand!r}: no such file")
+    cmd = [_vibid_sim(), "-c", a.stand, "--csv", a.out, "--fast"]
+    if a.sim:
+        cmd += ["-s", a.sim]
+    if a.duration is not None:
+        cmd += ["-d", repr(a.duration)]
+    if a.seed is not None:
+        cmd += ["--seed", str(a.seed)]
+    # vibid-sim's own exit status (0, 1 run-time failure, 2 bad input) and messages.
+    return subprocess.run(cmd).returncode
+
+
+def _parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog=PROG, description="Identification of mechanical vibration systems "
+                                 "(masses, damping, stiffness) by least squares: docs/python.md.")
+    sub = ap.add_subparsers(dest="command", required=True, metavar="{identify,check,simulate}")
+    p = sub.add_parser("identify", help="identify a stand's unknowns from a capture",
+                       description="Prints the parameters and modes with standard errors and flags; "
+                       "optionally writes the tracks and an HTML report.")
+    p.add_argument("stand", metavar="STAND", help="stand file (docs/stand-file.md)")
+    p.add_argument("capture", metavar="CAPTURE", help="capture file (CSV with a header of channel names; "
+                   "MDF4/TDMS where the extras are installed)")
+    p.add_argument("--method", choices=list(METHODS), default="auto", help="estimator (default auto)")
+    p.add_argument("--forgetting", type=float, metavar="G", help="forgetting factor in (0, 1]")
+    p.add_argument("--prefilter-hz", type=float, metavar="F", help="pre-filter cutoff in Hz, 0 = off")
+    p.add_argument("--iv-lag", type=int, metavar="L", help="instrument delay in samples")
+    p.add_argument("--track-every", type=int, metavar="N", help="a track row every N samples (default with "
+                   "--tracks/--report: 0.1 s of samples; else identify's default)")
+    p.add_argument("--tracks", metavar="OUT.csv", help="write the tracks here (overwritten)")
+    p.add_argument("--report", metavar="OUT.html", help="write a self-contained HTML report here (needs matplotlib)")
+    p.set_defaults(func=cmd_identify)
+    p = sub.add_parser("check", help="channels, unknowns and identifiability of a stand",
+                       description="Exit status 0 when the stand can be identified, 1 when not (the reason on "
+                       "stdout and stderr).")
+    p.add_argument("stand", metavar="STAND")
+    p.set_defaults(func=cmd_check)
+    p = sub.add_parser("simulate", help="write a simulated CSV capture with vibid-sim",
+                       description="Runs vibid-sim (VIBID_SIM, else PATH) on the stand: vibid-sim -c STAND "
+                       "--csv OUT --fast [-s SIM] [-d S] [--seed N] (docs/sim.md).")
+    p.add_argument("stand", metavar="STAND")
+    p.add_argument("out", metavar="OUT.csv")
+    p.add_argument("--sim", metavar="SIM.cfg", help="file with the simulation group")
+    p.add_argument("--duration", type=float, metavar="S", help="simulated seconds")
+    p.add_argument("--seed", type=int, metavar="N")
+    p.set_defaults(func=cmd_simulate)
+    return ap
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    ap = _parser()
+    a = ap.parse_args(argv)  # exits 2 on a usage error, with the usage on stderr
+    try:
+        return a.func(a)
+    except (CliError, _core.VibidError, ValueError, OSError, ImportError) as e:
+        # What the library or the data refuse: the message alone (it names the file, field,
+        # channel or parameter), no traceback.
+        print(f"{PROG} {a.command}: error: {e}", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":  # python -m vibid._cli
+    sys.exit(main())

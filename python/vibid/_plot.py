@@ -1,0 +1,136 @@
+"""Figures of a Result (Result.plot) and of the `vibid identify --report` (matplotlib, the
+extra ``plot``). Every figure is a bare ``matplotlib.figure.Figure``, not a pyplot one: no
+global figure registry and no GUI backend, so they draw headless (Agg) in a server, a
+test or a batch job, and are garbage-collected like any object; Jupyter shows them all
+the same."""
+
+from __future__ import annotations
+
+import base64
+import io
+import math
+from typing import TYPE_CHECKING, Optional, Sequence
+
+import numpy as np
+
+if TYPE_CHECKING:  # pragma: no cover
+    from matplotlib.figure import Figure
+
+    from ._identify import Result
+
+# The half-width of the bands, in standard errors: the 95 % interval of a normal estimate,
+# the figure README's coverage tests are made of (2-se bars covered 95 %).
+BAND_SE = 2.0
+
+
+def _figure(**kw) -> "Figure":
+    try:
+        from matplotlib.figure import Figure
+    except ImportError as e:  # the extra is optional; say how to get it
+        raise ImportError("vibid's figures need matplotlib: pip install 'vibid[plot]' "
+                          f"(or pip install matplotlib) [{e}]") from None
+    return Figure(**kw)
+
+
+def _truth_lines(ax, truth: float, nominal: float) -> None:
+    """The stand's true value as a dashed line; where it gives none, the nominal (start)
+    value dash-dotted: a start value is not a truth and must not look like one."""
+    if math.isfinite(truth):
+        ax.axhline(truth, color="k", linestyle="--", linewidth=1.0, label="true value")
+    elif math.isfinite(nominal):
+        ax.axhline(nominal, color="0.4", linestyle="-.", linewidth=1.0, label="nominal (start value)")
+
+
+def plot_result(result: "Result", parameters: Optional[Sequence[str]] = None,
+                figsize: Optional[tuple[float, float]] = None) -> "Figure":
+    """The parameter tracks with value +- 2 se bands, one axis per parameter (shared time
+    axis); the stand's true value dashed (else its nominal value dash-dotted). Rows flagged E
+    (no estimate) and bands whose se is not finite (flag I) leave gaps. A result without
+    tracks (a batch estimate) gets the same layout with one point and its 2-se error bar per
+    axis."""
+    p = result.parameters
+    names = list(p.index) if parameters is None else list(parameters)
+    for name in names:
+        if name not in p.index:
+            raise ValueError(f"parameter {name!r}: the stand {result.stand.name!r} has {list(p.index)}")
+    if not names:
+        raise ValueError("no parameter to plot")
+    nominal = dict(zip(result.stand.parameters, result.stand.nominal_values))
+    fig = _figure(figsize=figsize or (8.0, 1.0 + 2.0 * len(names)), layout="constrained")
+    axes = fig.subplots(len(names), 1, sharex=True, squeeze=False)[:, 0]
+    tracks = result.tracks
+    have_tracks = len(tracks) > 0
+    for ax, name in zip(axes, names):
+        unit = p.loc[name, "unit"]
+        if have_tracks:
+            t = tracks["time_s"].to_numpy(float)
+            v = tracks[name].to_numpy(float)
+            se = tracks[name + "_se"].to_numpy(float)
+            lo, hi = v - BAND_SE * se, v + BAND_SE * se
+            ok = np.isfinite(lo) & np.isfinite(hi)
+            ax.fill_between(t, lo, hi, where=ok, color="C0", alpha=0.25, linewidth=0,
+                            label=f"value \u00b1 {BAND_SE:g} se", gid=f"band:{name}")
+            ax.plot(t, v, color="C0", linewidth=1.2, label="estimate", gid=f"track:{name}")
+            bad = tracks["flags"].astype(str).str.contains("[PU]", regex=True).to_numpy()
+            if bad.any():
+                # Rows whose value is impossible (P) or whose band does not hold (U): marked,
+                # so that a band is not read as a confidence interval where it is none.
+                ax.plot(t[bad], v[bad], linestyle="none", marker=".", markersize=3, color="C3",
+                        label="row flagged P or U")
+        else:
+            v, se = float(p.loc[name, "value"]), float(p.loc[name, "se"])
+            ax.errorbar([0.0], [v], yerr=[BAND_SE * se] if math.isfinite(se) else None, fmt="o", color="C0",
+                        capsize=6, label=f"value \u00b1 {BAND_SE:g} se", gid=f"point:{name}")
+            ax.set_xticks([])
+        _truth_lines(ax, float(p.loc[name, "true_value"]), float(nominal.get(name, math.nan)))
+        flags = p.loc[name, "flags"]
+        ax.set_ylabel(f"{name} [{unit}]" + (f"\nflags {flags}" if flags else ""))
+        ax.grid(True, alpha=0.3)
+        ax.legend(loc="best", fontsize="small")
+    if have_tracks:
+        axes[-1].set_xlabel("time [s]")
+    fig.suptitle(f"{result.stand.name}: {result.method}, {result.n_samples} samples"
+                 + (f", flags {result.flags}" if result.flags else ""))
+    return fig
+
+
+def figure_png_data_uri(fig: "Figure", dpi: int = 96) -> str:
+    """The figure as a data: URI of a PNG (for a self-contained HTML report). Rendered by
+    the Agg canvas explicitly, whatever backend the process has."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    FigureCanvasAgg(fig)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=dpi)
+    return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode("ascii")
+
+
+def autocorrelation(e: np.ndarray, max_lag: int) -> np.ndarray:
+    """Sample autocorrelation r(0..max_lag) of a series (mean removed, biased estimator
+    normalised by r(0), as the +-1.96/sqrt(N) whiteness band assumes)."""
+    e = np.asarray(e, dtype=float) - np.mean(e)
+    n = len(e)
+    nfft = 1 << int(math.ceil(math.log2(2 * n)))
+    f = np.fft.rfft(e, nfft)
+    r = np.fft.irfft(f * np.conj(f), nfft)[:max_lag + 1]
+    return r / r[0] if r[0] > 0 else np.full(max_lag + 1, np.nan)
+
+
+def welch_psd(x: np.ndarray, fs: float, nperseg: int = 4096) -> tuple[np.ndarray, np.ndarray]:
+    """One-sided power spectral density by Welch's method (Hann window, 50 % overlap, mean
+    removed per segment), in units^2/Hz. Shorter captures get one segment of their length."""
+    x = np.asarray(x, dtype=float)
+    nperseg = int(min(nperseg, len(x)))
+    step = max(1, nperseg // 2)
+    w = np.hanning(nperseg)
+    scale = 1.0 / (fs * np.sum(w * w))
+    acc = np.zeros(nperseg // 2 + 1)
+    count = 0
+    for start in range(0, len(x) - nperseg + 1, step):
+        seg = x[start:start + nperseg]
+        X = np.fft.rfft((seg - seg.mean()) * w)
+        acc += np.abs(X) ** 2
+        count += 1
+    psd = acc * scale / max(count, 1)
+    psd[1:-1 if nperseg % 2 == 0 else None] *= 2.0  # one-sided: fold the negative frequencies
+    return np.fft.rfftfreq(nperseg, 1.0 / fs), psd
