@@ -1,5 +1,5 @@
 // vibid._core: the thin nanobind layer over libvibid's C API (identify.h, modal.h,
-// plausibility.h) and the stand loader (stand_file.h). All numerics stay in the C library;
+// plausibility.h; lsq.h, rls.h, iv.h for the estimator classes) and the stand loader (stand_file.h). All numerics stay in the C library;
 // this file converts arrays and statuses and nothing else. The Pythonic API (channel names,
 // DataFrames, tracks) is in vibid/*.py.
 #include <nanobind/nanobind.h>
@@ -7,9 +7,13 @@
 #include <nanobind/stl/string.h>
 #include <nanobind/stl/vector.h>
 #include <nanobind/stl/tuple.h>
+#include <nanobind/stl/optional.h>
 
 extern "C" {
 #include <vibid/identify.h>
+#include <vibid/iv.h>
+#include <vibid/lsq.h>
+#include <vibid/rls.h>
 #include <vibid/modal.h>
 #include <vibid/plausibility.h>
 #include <vibid/regressor.h>
@@ -20,6 +24,8 @@ extern "C" {
 #include <algorithm>
 #include <cmath>
 #include <memory>
+#include <mutex>
+#include <optional>
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -614,6 +620,591 @@ Array2 stand_simulate(const Stand &st, const std::vector<double> &th, nb::ndarra
     return to_numpy(std::move(out), N, nc);
 }
 
+// ---- Estimator classes (issue 13): vibid.LeastSquares, RLS, IV, RecursiveIV ----
+// One C++ class per C handle of lsq.h, rls.h and iv.h, as thin as the rest: shapes are
+// checked and arrays handed over; every number is computed by the library. Block calls
+// take numpy arrays of any strides. lsq.h and iv.h take whole column-major blocks: an
+// array that is column-major already goes to the C call as it is, any other layout is
+// gathered once (column_major below). rls.h and riv take one sample at a time: the loop
+// over the block's rows runs here, reading each row through the caller's strides.
+// Every call into the library releases the GIL and takes the object's own mutex: a handle
+// is not thread-safe (common.h), so two Python threads using one object are serialized,
+// while threads using different objects run in parallel.
+
+using AnyArray1 = nb::ndarray<const double, nb::ndim<1>, nb::device::cpu>;
+using AnyArray2 = nb::ndarray<const double, nb::ndim<2>, nb::device::cpu>;
+using AnyArray3 = nb::ndarray<const double, nb::ndim<3>, nb::device::cpu>;
+
+// GIL released first, then the object's mutex: a thread never waits for the mutex while
+// holding the GIL (the holder may need the GIL to return). Destroyed in reverse order.
+struct Unlocked {
+    nb::gil_scoped_release release;
+    std::lock_guard<std::mutex> lock;
+    explicit Unlocked(std::mutex &m) : lock(m) {}
+};
+
+std::string shape_str(size_t a, size_t b) { return "(" + std::to_string(a) + ", " + std::to_string(b) + ")"; }
+
+// ValueError unless a is rows x cols; names the method, the argument and what it needs.
+void need_shape(const char *method, const char *name, const AnyArray2 &a, size_t rows, size_t cols,
+                const char *rows_says) {
+    if (a.shape(0) != rows || a.shape(1) != cols)
+        throw std::invalid_argument(std::string(method) + ": " + name + " has shape " +
+                                    shape_str(a.shape(0), a.shape(1)) + ", needs " + shape_str(rows, cols) + " (" +
+                                    rows_says + ")");
+}
+
+// The r x c array a as the C API's column-major block. No copy where a is column-major
+// already: numpy order "F", and any array with one column (a 1-D array seen as (n, 1)).
+// Copied into buf (once, r x c doubles) for every other layout: numpy's default C order
+// with c > 1, slices with a step, other views. Runs without the GIL (reads the buffer only).
+const double *column_major(const AnyArray2 &a, std::vector<double> &buf) {
+    const size_t r = a.shape(0), c = a.shape(1);
+    const int64_t rs = a.stride(0), cs = a.stride(1);
+    if ((rs == 1 || r <= 1) && (cs == static_cast<int64_t>(r) || c <= 1)) return a.data();
+    buf.resize(r * c);
+    const double *base = a.data();
+    for (size_t j = 0; j < c; ++j)
+        for (size_t k = 0; k < r; ++k)
+            buf[k + j * r] = base[static_cast<int64_t>(k) * rs + static_cast<int64_t>(j) * cs];
+    return buf.data();
+}
+
+const double *contiguous(const AnyArray1 &a, std::vector<double> &buf) {
+    if (a.stride(0) == 1 || a.shape(0) <= 1) return a.data();
+    buf.resize(a.shape(0));
+    for (size_t k = 0; k < a.shape(0); ++k) buf[k] = a.data()[static_cast<int64_t>(k) * a.stride(0)];
+    return buf.data();
+}
+
+// Row k of an (n x a x b) array as the column-major b x a matrix the recursive C calls take
+// (x: p x m from X[k] of shape (m, p); y: m x q from Y[k] of shape (m, q) when transposed
+// is false). Points into the array where its strides already are that layout (a C-order
+// (n, p) regressor block seen as (n, 1, p): each row is p consecutive doubles), else
+// gathers the row into buf (size a * b).
+const double *sample_of(const AnyArray3 &A, size_t k, bool transposed, std::vector<double> &buf) {
+    const size_t a = A.shape(1), b = A.shape(2);
+    const int64_t s1 = A.stride(1), s2 = A.stride(2);
+    const double *row = A.data() + static_cast<int64_t>(k) * A.stride(0);
+    // transposed (x): element (i, j) of the p x m result is A[k, j, i]: needs s2 == 1, s1 == b.
+    // not transposed (y): element (j, l) of the m x q result is A[k, j, l]: needs s1 == 1, s2 == a.
+    const bool direct = transposed ? (s2 == 1 || b <= 1) && (s1 == static_cast<int64_t>(b) || a <= 1)
+                                   : (s1 == 1 || a <= 1) && (s2 == static_cast<int64_t>(a) || b <= 1);
+    if (direct) return row;
+    for (size_t j = 0; j < a; ++j)
+        for (size_t i = 0; i < b; ++i) {
+            const double v = row[static_cast<int64_t>(j) * s1 + static_cast<int64_t>(i) * s2];
+            if (transposed) buf[i + j * b] = v;
+            else buf[j + i * a] = v;
+        }
+    return buf.data();
+}
+
+// Whether row k of A holds only finite values. The recursive block calls scan the whole
+// block first and refuse a block with a NaN or Inf before its first update, so that it
+// leaves the estimator as it was (the C calls guarantee that per sample only).
+bool row_finite(const AnyArray3 &A, size_t k) {
+    const double *row = A.data() + static_cast<int64_t>(k) * A.stride(0);
+    for (size_t j = 0; j < A.shape(1); ++j)
+        for (size_t i = 0; i < A.shape(2); ++i)
+            if (!std::isfinite(row[static_cast<int64_t>(j) * A.stride(1) + static_cast<int64_t>(i) * A.stride(2)]))
+                return false;
+    return true;
+}
+
+// The message of a recursive block call that failed at row k: which rows took effect.
+[[noreturn]] void raise_row(const char *function, size_t k, bool prescan, vibid_status s) {
+    std::string what = std::string(function) + " (row " + std::to_string(k) +
+                       (prescan ? "; the block was refused before its first row, the estimator is unchanged)"
+                        : k == 0 ? "; no row of the block applied, the estimator is unchanged)"
+                                 : "; rows 0.." + std::to_string(k - 1) +
+                                       " of the block applied, the estimator is as after row " +
+                                       std::to_string(k - 1) + ")");
+    raise_status(what.c_str(), s);
+}
+
+class Lsq {
+public:
+    Lsq(size_t p, size_t q, std::optional<double> rank_tol) {
+        vibid_lsq *h = vibid_lsq_create(p, q);
+        if (!h) throw VibidError(vibid_last_error());  // names the function and the argument
+        h_.reset(h);
+        p_ = p;
+        q_ = q;
+        if (rank_tol) {
+            vibid_status s = vibid_lsq_set_rank_tolerance(h, *rank_tol);
+            if (s != VIBID_OK) raise_status("vibid_lsq_set_rank_tolerance", s);
+        }
+    }
+
+    void add(const AnyArray2 &X, const AnyArray2 &Y, const std::optional<AnyArray1> &w) {
+        const size_t n = X.shape(0);
+        need_shape("LeastSquares.add", "X", X, n, p_, "n_rows x p");
+        need_shape("LeastSquares.add", "Y", Y, n, q_, "n_rows x q, the rows of X");
+        if (w && w->shape(0) != n)
+            throw std::invalid_argument("LeastSquares.add: weights has " + std::to_string(w->shape(0)) +
+                                        " entries for " + std::to_string(n) + " rows");
+        if (n == 0) return;  // an empty block adds nothing (the C call would refuse n_rows = 0)
+        vibid_status s;
+        {
+            Unlocked u(mu_);
+            std::vector<double> xb, yb, wb;
+            s = vibid_lsq_add_rows(h_.get(), n, column_major(X, xb), column_major(Y, yb),
+                                   w ? contiguous(*w, wb) : nullptr);
+        }
+        if (s != VIBID_OK) raise_status("vibid_lsq_add_rows", s);
+    }
+
+    void add_correlated(const AnyArray2 &X, const AnyArray2 &Y, const AnyArray2 &Sigma) {
+        const size_t n = X.shape(0);
+        need_shape("LeastSquares.add_correlated", "X", X, n, p_, "n_rows x p");
+        need_shape("LeastSquares.add_correlated", "Y", Y, n, q_, "n_rows x q, the rows of X");
+        need_shape("LeastSquares.add_correlated", "Sigma", Sigma, n, n, "n_rows x n_rows");
+        if (n == 0) return;
+        vibid_status s;
+        {
+            Unlocked u(mu_);
+            std::vector<double> xb, yb, sb;
+            s = vibid_lsq_add_correlated(h_.get(), n, column_major(X, xb), column_major(Y, yb),
+                                         column_major(Sigma, sb));
+        }
+        if (s != VIBID_OK) raise_status("vibid_lsq_add_correlated", s);
+    }
+
+    Array2 solve() {
+        std::vector<double> theta(p_ * q_);
+        vibid_status s;
+        {
+            Unlocked u(mu_);
+            s = vibid_lsq_solve(h_.get(), theta.data(), nullptr);
+        }
+        if (s != VIBID_OK) raise_status("vibid_lsq_solve", s);
+        return to_numpy(std::move(theta), p_, q_);
+    }
+
+    // (n_rows, rank, rcond, sum_weights) of vibid_lsq_info, from a solve (the library's only
+    // source of it; O(p^3)). Before any row with weight > 0: (0, 0, nan, 0).
+    std::tuple<size_t, size_t, double, double> info() {
+        std::vector<double> theta(p_ * q_);
+        vibid_lsq_info in{};
+        vibid_status s;
+        {
+            Unlocked u(mu_);
+            s = vibid_lsq_solve(h_.get(), theta.data(), &in);
+        }
+        if (s == VIBID_E_INSUFFICIENT_DATA) return {0, 0, NAN, 0.0};
+        if (s != VIBID_OK && s != VIBID_E_NOT_IDENTIFIABLE) raise_status("vibid_lsq_solve", s);
+        return {in.n_rows, in.rank, in.rcond, in.sum_weights};
+    }
+
+    Array2 covariance() { return cov(true); }
+    Array2 residual_covariance() { return cov(false); }
+
+    Array2 stderr_() {
+        std::vector<double> se(p_ * q_);
+        vibid_status s;
+        {
+            Unlocked u(mu_);
+            s = vibid_lsq_stderr(h_.get(), se.data());
+        }
+        if (s != VIBID_OK) raise_status("vibid_lsq_stderr", s);
+        return to_numpy(std::move(se), p_, q_);
+    }
+
+    Array2 null_space() {
+        std::vector<double> basis(p_ * p_);
+        size_t k = 0;
+        vibid_status s;
+        {
+            Unlocked u(mu_);
+            s = vibid_lsq_null_space(h_.get(), basis.data(), p_, &k);
+        }
+        if (s != VIBID_OK) raise_status("vibid_lsq_null_space", s);
+        basis.resize(p_ * k);
+        return to_numpy(std::move(basis), p_, k);
+    }
+
+    void reset() {
+        vibid_status s;
+        {
+            Unlocked u(mu_);
+            s = vibid_lsq_reset(h_.get());
+        }
+        if (s != VIBID_OK) raise_status("vibid_lsq_reset", s);
+    }
+
+    size_t p() const { return p_; }
+    size_t q() const { return q_; }
+
+private:
+    Array2 cov(bool param) {
+        const size_t d = param ? p_ : q_;
+        std::vector<double> c(d * d);
+        vibid_status s;
+        {
+            Unlocked u(mu_);
+            s = vibid_lsq_covariance(h_.get(), param ? c.data() : nullptr, param ? nullptr : c.data());
+        }
+        if (s != VIBID_OK) raise_status("vibid_lsq_covariance", s);
+        return to_numpy(std::move(c), d, d);
+    }
+    struct Deleter {
+        void operator()(vibid_lsq *p) const { vibid_lsq_destroy(p); }
+    };
+    std::unique_ptr<vibid_lsq, Deleter> h_;
+    size_t p_ = 0, q_ = 0;
+    std::mutex mu_;
+};
+
+class Iv {
+public:
+    Iv(size_t p, size_t q) {
+        vibid_iv *h = vibid_iv_create(p, q);
+        if (!h) throw VibidError(vibid_last_error());
+        h_.reset(h);
+        p_ = p;
+        q_ = q;
+    }
+
+    void add(const AnyArray2 &X, const AnyArray2 &W, const AnyArray2 &Y, const std::optional<AnyArray1> &w) {
+        const size_t n = X.shape(0);
+        need_shape("IV.add", "X", X, n, p_, "n_rows x p");
+        need_shape("IV.add", "Z", W, n, p_, "n_rows x p, as X");
+        need_shape("IV.add", "Y", Y, n, q_, "n_rows x q, the rows of X");
+        if (w && w->shape(0) != n)
+            throw std::invalid_argument("IV.add: weights has " + std::to_string(w->shape(0)) + " entries for " +
+                                        std::to_string(n) + " rows");
+        if (n == 0) return;
+        vibid_status s;
+        {
+            Unlocked u(mu_);
+            std::vector<double> xb, zb, yb, wb;
+            s = vibid_iv_add_rows(h_.get(), n, column_major(X, xb), column_major(W, zb), column_major(Y, yb),
+                                  w ? contiguous(*w, wb) : nullptr);
+        }
+        if (s != VIBID_OK) raise_status("vibid_iv_add_rows", s);
+    }
+
+    Array2 solve() {
+        std::vector<double> theta(p_ * q_);
+        vibid_status s;
+        {
+            Unlocked u(mu_);
+            s = vibid_iv_solve(h_.get(), theta.data(), nullptr);
+        }
+        if (s != VIBID_OK) raise_status("vibid_iv_solve", s);
+        return to_numpy(std::move(theta), p_, q_);
+    }
+
+    std::tuple<size_t, size_t, double, double> info() {
+        std::vector<double> theta(p_ * q_);
+        vibid_lsq_info in{};
+        vibid_status s;
+        {
+            Unlocked u(mu_);
+            s = vibid_iv_solve(h_.get(), theta.data(), &in);
+        }
+        if (s == VIBID_E_INSUFFICIENT_DATA) return {0, 0, NAN, 0.0};
+        if (s != VIBID_OK && s != VIBID_E_NOT_IDENTIFIABLE) raise_status("vibid_iv_solve", s);
+        return {in.n_rows, in.rank, in.rcond, in.sum_weights};
+    }
+
+    Array2 stderr_() {
+        std::vector<double> se(p_ * q_);
+        vibid_status s;
+        {
+            Unlocked u(mu_);
+            s = vibid_iv_stderr(h_.get(), se.data());
+        }
+        if (s != VIBID_OK) raise_status("vibid_iv_stderr", s);
+        return to_numpy(std::move(se), p_, q_);
+    }
+
+    void reset() {
+        vibid_status s;
+        {
+            Unlocked u(mu_);
+            s = vibid_iv_reset(h_.get());
+        }
+        if (s != VIBID_OK) raise_status("vibid_iv_reset", s);
+    }
+
+    size_t p() const { return p_; }
+    size_t q() const { return q_; }
+
+private:
+    struct Deleter {
+        void operator()(vibid_iv *p) const { vibid_iv_destroy(p); }
+    };
+    std::unique_ptr<vibid_iv, Deleter> h_;
+    size_t p_ = 0, q_ = 0;
+    std::mutex mu_;
+};
+
+class Rls {
+public:
+    Rls(size_t p, size_t q, size_t m, int form, double forgetting, double alpha, bool trace_bound,
+        std::optional<double> trace_max) {
+        vibid_rls_config cfg;
+        vibid_rls_config_init(&cfg, p, q);
+        cfg.n_equations = m;
+        cfg.form = static_cast<vibid_rls_form>(form);
+        cfg.forgetting = forgetting;
+        cfg.alpha = alpha;
+        // config_init's default trace_max is p / alpha for its own alpha: recompute for ours.
+        cfg.trace_max = trace_max ? *trace_max : static_cast<double>(p) / alpha;
+        cfg.windup = trace_bound ? VIBID_RLS_WINDUP_TRACE_BOUND : VIBID_RLS_WINDUP_NONE;
+        vibid_rls *h = vibid_rls_create(&cfg);
+        if (!h) throw VibidError(vibid_last_error());
+        h_.reset(h);
+        p_ = p;
+        q_ = q;
+        m_ = m;
+    }
+
+    // X (n, m, p), Y (n, m, q): sample k is x = X[k]^T (p x m), y = Y[k] (m x q).
+    void update(const AnyArray3 &X, const AnyArray3 &Y) {
+        const size_t n = X.shape(0);
+        check3("RLS.update", X, Y, n);
+        vibid_status s = VIBID_OK;
+        size_t k = 0;
+        bool prescan = false;
+        {
+            Unlocked u(mu_);
+            std::vector<double> xb(p_ * m_), yb(m_ * q_);
+            while (k < n && row_finite(X, k) && row_finite(Y, k)) ++k;
+            if (k < n) {
+                // The library refuses the bad row with its own message, on the untouched
+                // estimator (rls.h: a refused sample leaves it exactly as it was).
+                prescan = true;
+                s = vibid_rls_update(h_.get(), sample_of(X, k, true, xb), sample_of(Y, k, false, yb));
+                if (s == VIBID_OK) s = VIBID_E_INTERNAL;  // rls.h promises VIBID_E_NONFINITE
+            } else {
+                for (k = 0; k < n; ++k) {
+                    s = vibid_rls_update(h_.get(), sample_of(X, k, true, xb), sample_of(Y, k, false, yb));
+                    if (s != VIBID_OK) break;
+                }
+            }
+        }
+        if (s != VIBID_OK) raise_row("vibid_rls_update", k, prescan, s);
+    }
+
+    // Predictions for X (n, m, p): n * m * q values in C order of (n, m, q).
+    Array1 predict(const AnyArray3 &X) {
+        const size_t n = X.shape(0);
+        if (X.shape(1) != m_ || X.shape(2) != p_)
+            throw std::invalid_argument("RLS.predict: X has " + std::to_string(X.shape(2)) + " columns per equation and " +
+                                        std::to_string(X.shape(1)) + " equations, needs p = " + std::to_string(p_) +
+                                        ", m = " + std::to_string(m_));
+        std::vector<double> out(n * m_ * q_);
+        vibid_status s = VIBID_OK;
+        size_t k = 0;
+        {
+            Unlocked u(mu_);
+            std::vector<double> xb(p_ * m_), y(m_ * q_);
+            for (; k < n; ++k) {
+                s = vibid_rls_predict(h_.get(), sample_of(X, k, true, xb), y.data());
+                if (s != VIBID_OK) break;
+                for (size_t j = 0; j < m_; ++j)
+                    for (size_t l = 0; l < q_; ++l) out[(k * m_ + j) * q_ + l] = y[j + l * m_];
+            }
+        }
+        if (s != VIBID_OK) raise_status(("vibid_rls_predict (row " + std::to_string(k) + ")").c_str(), s);
+        return to_numpy(std::move(out));
+    }
+
+    Array2 theta() { return get(p_, q_, vibid_rls_theta, "vibid_rls_theta"); }
+    Array2 covariance() { return get(p_, p_, vibid_rls_covariance, "vibid_rls_covariance"); }
+    Array2 residual_covariance() {
+        return get(q_, q_, vibid_rls_residual_covariance, "vibid_rls_residual_covariance");
+    }
+    Array2 stderr_() { return get(p_, q_, vibid_rls_stderr, "vibid_rls_stderr"); }
+
+    // (n_samples, n_eff, trace_p, min_d, last_forgetting) of vibid_rls_stats.
+    std::tuple<unsigned long long, double, double, double, double> stats() {
+        vibid_rls_stats st{};
+        vibid_status s;
+        {
+            Unlocked u(mu_);
+            s = vibid_rls_get_stats(h_.get(), &st);
+        }
+        if (s != VIBID_OK) raise_status("vibid_rls_get_stats", s);
+        return {st.n_samples, st.n_eff, st.trace_p, st.min_d, st.last_forgetting};
+    }
+
+    void reset() { call(vibid_rls_reset, "vibid_rls_reset"); }
+
+    void set_prior(const std::optional<AnyArray2> &theta0, const std::optional<AnyArray2> &P0) {
+        if (theta0) need_shape("RLS.set_prior", "theta0", *theta0, p_, q_, "p x q");
+        if (P0) need_shape("RLS.set_prior", "P0", *P0, p_, p_, "p x p");
+        vibid_status s;
+        {
+            Unlocked u(mu_);
+            std::vector<double> tb, pb;
+            s = vibid_rls_set_prior(h_.get(), theta0 ? column_major(*theta0, tb) : nullptr,
+                                    P0 ? column_major(*P0, pb) : nullptr);
+        }
+        if (s != VIBID_OK) raise_status("vibid_rls_set_prior", s);
+    }
+
+    void set_equation_covariance(const std::optional<AnyArray2> &Sigma) {
+        if (Sigma) need_shape("RLS.set_equation_covariance", "Sigma", *Sigma, m_, m_, "m x m");
+        vibid_status s;
+        {
+            Unlocked u(mu_);
+            std::vector<double> sb;
+            s = vibid_rls_set_equation_covariance(h_.get(), Sigma ? column_major(*Sigma, sb) : nullptr);
+        }
+        if (s != VIBID_OK) raise_status("vibid_rls_set_equation_covariance", s);
+    }
+
+    void set_adaptation(bool enabled) {
+        vibid_status s;
+        {
+            Unlocked u(mu_);
+            s = vibid_rls_set_adaptation(h_.get(), enabled ? 1 : 0);
+        }
+        if (s != VIBID_OK) raise_status("vibid_rls_set_adaptation", s);
+    }
+
+    size_t p() const { return p_; }
+    size_t q() const { return q_; }
+    size_t m() const { return m_; }
+
+private:
+    void check3(const char *method, const AnyArray3 &X, const AnyArray3 &Y, size_t n) const {
+        if (X.shape(1) != m_ || X.shape(2) != p_)
+            throw std::invalid_argument(std::string(method) + ": X has " + std::to_string(X.shape(2)) +
+                                        " regressors in " + std::to_string(X.shape(1)) +
+                                        " equations per row, needs p = " + std::to_string(p_) + " in m = " +
+                                        std::to_string(m_));
+        if (Y.shape(0) != n || Y.shape(1) != m_ || Y.shape(2) != q_)
+            throw std::invalid_argument(std::string(method) + ": Y has " + std::to_string(Y.shape(0)) + " rows of " +
+                                        std::to_string(Y.shape(1)) + " x " + std::to_string(Y.shape(2)) +
+                                        ", needs " + std::to_string(n) + " rows (as X) of m x q = " +
+                                        std::to_string(m_) + " x " + std::to_string(q_));
+    }
+    Array2 get(size_t r, size_t c, vibid_status (*f)(const vibid_rls *, double *), const char *name) {
+        std::vector<double> v(r * c);
+        vibid_status s;
+        {
+            Unlocked u(mu_);
+            s = f(h_.get(), v.data());
+        }
+        if (s != VIBID_OK) raise_status(name, s);
+        return to_numpy(std::move(v), r, c);
+    }
+    void call(vibid_status (*f)(vibid_rls *), const char *name) {
+        vibid_status s;
+        {
+            Unlocked u(mu_);
+            s = f(h_.get());
+        }
+        if (s != VIBID_OK) raise_status(name, s);
+    }
+    struct Deleter {
+        void operator()(vibid_rls *p) const { vibid_rls_destroy(p); }
+    };
+    std::unique_ptr<vibid_rls, Deleter> h_;
+    size_t p_ = 0, q_ = 0, m_ = 0;
+    std::mutex mu_;
+};
+
+class Riv {
+public:
+    Riv(size_t p, size_t q, double forgetting, double alpha, bool trace_bound, std::optional<double> trace_max) {
+        vibid_riv_config cfg;
+        vibid_riv_config_init(&cfg, p, q);
+        cfg.forgetting = forgetting;
+        cfg.alpha = alpha;
+        cfg.trace_bound = trace_bound ? 1 : 0;
+        cfg.trace_max = trace_max ? *trace_max : static_cast<double>(p) / alpha;
+        vibid_riv *h = vibid_riv_create(&cfg);
+        if (!h) throw VibidError(vibid_last_error());
+        h_.reset(h);
+        p_ = p;
+        q_ = q;
+    }
+
+    // X, Z (n, 1, p), Y (n, 1, q): one equation per sample (riv has m = 1).
+    void update(const AnyArray3 &X, const AnyArray3 &W, const AnyArray3 &Y) {
+        const size_t n = X.shape(0);
+        if (X.shape(1) != 1 || X.shape(2) != p_ || W.shape(0) != n || W.shape(1) != 1 || W.shape(2) != p_ ||
+            Y.shape(0) != n || Y.shape(1) != 1 || Y.shape(2) != q_)
+            throw std::invalid_argument("RecursiveIV.update: X " + shape_str(X.shape(0), X.shape(2)) + ", Z " +
+                                        shape_str(W.shape(0), W.shape(2)) + ", Y " +
+                                        shape_str(Y.shape(0), Y.shape(2)) + ": need (n, p), (n, p), (n, q) with p = " +
+                                        std::to_string(p_) + ", q = " + std::to_string(q_));
+        vibid_status s = VIBID_OK;
+        size_t k = 0;
+        bool prescan = false;
+        {
+            Unlocked u(mu_);
+            std::vector<double> xb(p_), wb(p_), yb(q_);
+            while (k < n && row_finite(X, k) && row_finite(W, k) && row_finite(Y, k)) ++k;
+            if (k < n) {
+                prescan = true;
+                s = vibid_riv_update(h_.get(), sample_of(X, k, true, xb), sample_of(W, k, true, wb),
+                                     sample_of(Y, k, true, yb));
+                if (s == VIBID_OK) s = VIBID_E_INTERNAL;  // iv.h promises VIBID_E_NONFINITE
+            } else {
+                for (k = 0; k < n; ++k) {
+                    s = vibid_riv_update(h_.get(), sample_of(X, k, true, xb), sample_of(W, k, true, wb),
+                                         sample_of(Y, k, true, yb));
+                    if (s != VIBID_OK) break;
+                }
+            }
+        }
+        if (s != VIBID_OK) raise_row("vibid_riv_update", k, prescan, s);
+    }
+
+    Array2 theta() { return get(p_, q_, vibid_riv_theta, "vibid_riv_theta"); }
+    Array2 covariance() { return get(p_, p_, vibid_riv_covariance, "vibid_riv_covariance"); }
+
+    void reset() {
+        vibid_status s;
+        {
+            Unlocked u(mu_);
+            s = vibid_riv_reset(h_.get());
+        }
+        if (s != VIBID_OK) raise_status("vibid_riv_reset", s);
+    }
+
+    void set_prior(const std::optional<AnyArray2> &theta0, const std::optional<AnyArray2> &P0) {
+        if (theta0) need_shape("RecursiveIV.set_prior", "theta0", *theta0, p_, q_, "p x q");
+        if (P0) need_shape("RecursiveIV.set_prior", "P0", *P0, p_, p_, "p x p");
+        vibid_status s;
+        {
+            Unlocked u(mu_);
+            std::vector<double> tb, pb;
+            s = vibid_riv_set_prior(h_.get(), theta0 ? column_major(*theta0, tb) : nullptr,
+                                    P0 ? column_major(*P0, pb) : nullptr);
+        }
+        if (s != VIBID_OK) raise_status("vibid_riv_set_prior", s);
+    }
+
+    size_t p() const { return p_; }
+    size_t q() const { return q_; }
+
+private:
+    Array2 get(size_t r, size_t c, vibid_status (*f)(const vibid_riv *, double *), const char *name) {
+        std::vector<double> v(r * c);
+        vibid_status s;
+        {
+            Unlocked u(mu_);
+            s = f(h_.get(), v.data());
+        }
+        if (s != VIBID_OK) raise_status(name, s);
+        return to_numpy(std::move(v), r, c);
+    }
+    struct Deleter {
+        void operator()(vibid_riv *p) const { vibid_riv_destroy(p); }
+    };
+    std::unique_ptr<vibid_riv, Deleter> h_;
+    size_t p_ = 0, q_ = 0;
+    std::mutex mu_;
+};
+
 }  // namespace
 
 NB_MODULE(_core, m) {
@@ -702,4 +1293,62 @@ NB_MODULE(_core, m) {
                                       .c_str());
         },
         "dim"_a, "unit"_a);
+
+    // Estimator classes (issue 13): the classes of vibid/_estimators.py wrap these. Arrays
+    // arrive as float64 of any strides (the Python layer converts the dtype); see
+    // column_major and sample_of for what is copied.
+    nb::class_<Lsq>(m, "Lsq")
+        .def(nb::init<size_t, size_t, std::optional<double>>(), "p"_a, "q"_a, "rank_tolerance"_a.none())
+        .def("add", &Lsq::add, "X"_a, "Y"_a, "weights"_a.none())
+        .def("add_correlated", &Lsq::add_correlated, "X"_a, "Y"_a, "Sigma"_a)
+        .def("solve", &Lsq::solve)
+        .def("info", &Lsq::info)
+        .def("covariance", &Lsq::covariance)
+        .def("residual_covariance", &Lsq::residual_covariance)
+        .def("stderr", &Lsq::stderr_)
+        .def("null_space", &Lsq::null_space)
+        .def("reset", &Lsq::reset)
+        .def_prop_ro("p", &Lsq::p)
+        .def_prop_ro("q", &Lsq::q);
+
+    nb::class_<Iv>(m, "Iv")
+        .def(nb::init<size_t, size_t>(), "p"_a, "q"_a)
+        .def("add", &Iv::add, "X"_a, "Z"_a, "Y"_a, "weights"_a.none())
+        .def("solve", &Iv::solve)
+        .def("info", &Iv::info)
+        .def("stderr", &Iv::stderr_)
+        .def("reset", &Iv::reset)
+        .def_prop_ro("p", &Iv::p)
+        .def_prop_ro("q", &Iv::q);
+
+    nb::class_<Rls>(m, "Rls")
+        .def(nb::init<size_t, size_t, size_t, int, double, double, bool, std::optional<double>>(), "p"_a, "q"_a,
+             "m"_a, "form"_a, "forgetting"_a, "alpha"_a, "trace_bound"_a, "trace_max"_a.none())
+        .def("update", &Rls::update, "X"_a, "Y"_a)
+        .def("predict", &Rls::predict, "X"_a)
+        .def("theta", &Rls::theta)
+        .def("covariance", &Rls::covariance)
+        .def("residual_covariance", &Rls::residual_covariance)
+        .def("stderr", &Rls::stderr_)
+        .def("stats", &Rls::stats)
+        .def("reset", &Rls::reset)
+        .def("set_prior", &Rls::set_prior, "theta0"_a.none(), "P0"_a.none())
+        .def("set_equation_covariance", &Rls::set_equation_covariance, "Sigma"_a.none())
+        .def("set_adaptation", &Rls::set_adaptation, "enabled"_a)
+        .def_prop_ro("p", &Rls::p)
+        .def_prop_ro("q", &Rls::q)
+        .def_prop_ro("m", &Rls::m);
+
+    nb::class_<Riv>(m, "Riv")
+        .def(nb::init<size_t, size_t, double, double, bool, std::optional<double>>(), "p"_a, "q"_a, "forgetting"_a,
+             "alpha"_a, "trace_bound"_a, "trace_max"_a.none())
+        .def("update", &Riv::update, "X"_a, "Z"_a, "Y"_a)
+        .def("theta", &Riv::theta)
+        .def("covariance", &Riv::covariance)
+        .def("reset", &Riv::reset)
+        .def("set_prior", &Riv::set_prior, "theta0"_a.none(), "P0"_a.none())
+        .def_prop_ro("p", &Riv::p)
+        .def_prop_ro("q", &Riv::q);
+    m.attr("RLS_FORM_BIERMAN_UD") = static_cast<int>(VIBID_RLS_FORM_BIERMAN_UD);
+    m.attr("RLS_FORM_COVARIANCE") = static_cast<int>(VIBID_RLS_FORM_COVARIANCE);
 }

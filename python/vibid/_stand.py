@@ -76,9 +76,14 @@ class Stand:
     by vibidd and vibid-sim and the errors are the same (``file:line: field: reason``,
     raised as :class:`vibid.VibidError`)."""
 
-    def __init__(self, core: _core.Stand, source: str):
+    def __init__(self, core: _core.Stand, source: str, text: str | None = None):
         self._core = core
         self.source = source
+        # What rebuilds the stand in another process (pickling, vibid.identify_many's
+        # workers): the libconfig text of a stand made from a dict, else the absolute path
+        # of its file (the C object itself cannot be pickled).
+        self._text = text
+        self._path = os.path.abspath(source) if text is None else None
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> "Stand":
@@ -93,17 +98,7 @@ class Stand:
         Written to a temporary libconfig file and read by the C loader, so the checks are
         the stand file's; an error names the field (``stand dict: stand.nodes.[0].mass: ...``),
         not the temporary file, whose name and line mean nothing to the caller."""
-        text = to_libconfig(d)
-        fd, path = tempfile.mkstemp(prefix="vibid-stand-", suffix=".cfg")
-        try:
-            with os.fdopen(fd, "w") as f:
-                f.write(text)
-            try:
-                return cls(_core.Stand(path), "<dict>")
-            except _core.VibidError as e:
-                raise _core.VibidError(re.sub(re.escape(path) + r":\d+: ", "stand dict: ", str(e))) from None
-        finally:
-            os.unlink(path)
+        return _stand_from_text(to_libconfig(d))
 
     @property
     def name(self) -> str:
@@ -171,6 +166,27 @@ class Stand:
     def n_dof(self) -> int:
         return self._core.n_dof
 
+    def __reduce__(self):
+        # Pickled as what rebuilds it: a dict's libconfig text, or the file's absolute path
+        # (which must then be readable where it is unpickled).
+        if self._text is not None:
+            return (_stand_from_text, (self._text,))
+        return (Stand.load, (self._path,))
+
     def __repr__(self) -> str:
         return (f"<vibid.Stand {self.name!r}: {self.sample_rate:g} Hz, channels {self.channels}, "
                 f"unknowns {self.parameters}>")
+
+
+def _stand_from_text(text: str) -> Stand:
+    """A stand from the libconfig text :meth:`Stand.from_dict` wrote (unpickling)."""
+    fd, path = tempfile.mkstemp(prefix="vibid-stand-", suffix=".cfg")
+    try:
+        with os.fdopen(fd, "w") as f:
+            f.write(text)
+        try:
+            return Stand(_core.Stand(path), "<dict>", text)
+        except _core.VibidError as e:
+            raise _core.VibidError(re.sub(re.escape(path) + r":\d+: ", "stand dict: ", str(e))) from None
+    finally:
+        os.unlink(path)
