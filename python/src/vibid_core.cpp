@@ -22,6 +22,7 @@ extern "C" {
 }
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <memory>
 #include <mutex>
@@ -620,6 +621,59 @@ Array2 stand_simulate(const Stand &st, const std::vector<double> &th, nb::ndarra
     return to_numpy(std::move(out), N, nc);
 }
 
+// ---- Yardstick of python/bench/bench_python.py (issue 13) ----
+// identify(stand, data, method) done by a C program: vibid_ident_create with the same
+// config, every sample through vibid_ident_push in one loop from an interleaved buffer
+// already in memory (as an acquisition loop holds samples), vibid_ident_estimate, destroy.
+// The buffer is filled before the clock starts; the clock (steady_clock) runs in C++ with
+// the GIL released, so Python time / this time isolates the binding's and the Python
+// layer's overhead. Returns (seconds, theta, se) so the benchmark can check that both did
+// the same work (push_block is this loop, so the numbers must be identical).
+std::tuple<double, std::vector<double>, std::vector<double>> bench_identify_c(
+    const Stand &stand, nb::ndarray<const double, nb::ndim<2>, nb::device::cpu> data, int estimator,
+    double forgetting, double prefilter_hz, size_t iv_lag) {
+    const size_t n = data.shape(0), nc = data.shape(1), p = stand.dims().n_params;
+    if (nc != stand.dims().n_channels)
+        throw std::invalid_argument("bench_identify_c: " + std::to_string(nc) + " columns for " +
+                                    std::to_string(stand.dims().n_channels) + " channels");
+    const double *base = data.data();
+    const int64_t rs = data.stride(0), cs = data.stride(1);
+    std::vector<double> theta(p, NAN), se(p, NAN);
+    double seconds = 0;
+    vibid_status s = VIBID_OK;
+    std::string what, create_error;
+    {
+        nb::gil_scoped_release release;
+        std::vector<double> buf(n * nc);
+        for (size_t k = 0; k < n; ++k)
+            for (size_t c = 0; c < nc; ++c) buf[k * nc + c] = base[k * rs + c * cs];
+        const auto t0 = std::chrono::steady_clock::now();
+        vibid_ident_config cfg;
+        vibid_ident_config_init(&cfg, 1.0 / stand.sample_rate());
+        cfg.estimator = static_cast<vibid_estimator>(estimator);
+        cfg.forgetting = forgetting;
+        cfg.prefilter_hz = prefilter_hz;
+        cfg.iv_lag = iv_lag;
+        vibid_ident *id = vibid_ident_create(stand.model(), &cfg);
+        if (!id) {
+            create_error = vibid_last_error();
+        } else {
+            for (size_t k = 0; k < n && s == VIBID_OK; ++k) s = vibid_ident_push(id, buf.data() + k * nc);
+            what = "vibid_ident_push";
+            if (s == VIBID_OK) {
+                vibid_ident_info info{};
+                s = vibid_ident_estimate(id, theta.data(), se.data(), &info);
+                what = "vibid_ident_estimate";
+            }
+            vibid_ident_destroy(id);
+        }
+        seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    }
+    if (!create_error.empty()) throw VibidError(create_error);
+    if (s != VIBID_OK) raise_status(what.c_str(), s);
+    return {seconds, std::move(theta), std::move(se)};
+}
+
 // ---- Estimator classes (issue 13): vibid.LeastSquares, RLS, IV, RecursiveIV ----
 // One C++ class per C handle of lsq.h, rls.h and iv.h, as thin as the rest: shapes are
 // checked and arrays handed over; every number is computed by the library. Block calls
@@ -1207,11 +1261,30 @@ private:
 
 }  // namespace
 
+#ifdef VIBID_HAVE_DRIVERS
+// vibid_drivers.cpp: candump captures and vibid.replay (built only with the drivers).
+void vibid_register_drivers(nb::module_ &m);
+#endif
+
 NB_MODULE(_core, m) {
     m.doc() = "vibid._core: nanobind binding of libvibid's C API (use the vibid package instead)";
     nb::exception<VibidError>(m, "VibidError", PyExc_RuntimeError);
 
     m.def("version", [] { return std::string(vibid_version_string()); });
+#ifdef VIBID_HAVE_DRIVERS
+    vibid_register_drivers(m);
+#endif
+    // What this build holds (python/CMakeLists.txt): vibid/_drivers.py says how to get it.
+#ifdef VIBID_HAVE_DRIVERS
+    m.attr("HAVE_DRIVERS") = true;
+#else
+    m.attr("HAVE_DRIVERS") = false;
+#endif
+#ifdef VIBID_HAVE_DAEMON
+    m.attr("HAVE_DAEMON") = true;
+#else
+    m.attr("HAVE_DAEMON") = false;
+#endif
 
     nb::class_<Stand>(m, "Stand")
         .def(nb::init<const std::string &>(), "path"_a)
@@ -1262,6 +1335,8 @@ NB_MODULE(_core, m) {
     m.def("stand_channel_info", &stand_channel_info, "stand"_a);
     m.def("stand_residuals", &stand_residuals, "stand"_a, "theta"_a, "data"_a, "prefilter_hz"_a, "order"_a);
     m.def("stand_simulate", &stand_simulate, "stand"_a, "theta"_a, "data"_a, "substeps"_a = 8);
+    m.def("bench_identify_c", &bench_identify_c, "stand"_a, "data"_a, "estimator"_a, "forgetting"_a,
+          "prefilter_hz"_a, "iv_lag"_a);  // python/bench/bench_python.py
 
     m.attr("QUALITY_SE_INVALID") = VIBID_QUALITY_SE_INVALID;
     m.attr("QUALITY_NOT_EXCITED") = VIBID_QUALITY_NOT_EXCITED;

@@ -106,3 +106,15 @@ def vibidd_path():
     if not root.is_absolute():
         root = REPO / root
     return root / "werror" / "daemon" / "vibidd"
+
+
+def sim_path():
+    """vibid-sim of a build tree (candump logs and CSV of the same run): VIBID_SIM, else the
+    test suite's build/werror (scripts/test.sh builds it before the Python tests)."""
+    p = os.environ.get("VIBID_SIM")
+    if p:
+        return Path(p)
+    root = Path(os.environ.get("VIBID_BUILD_ROOT", REPO / "build"))
+    if not root.is_absolute():
+        root = REPO / root
+    return root / "werror" / "sim" / "vibid-sim"

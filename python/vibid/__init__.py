@@ -23,3 +23,8 @@ __all__ = ["Stand", "identify", "identify_many", "read_capture", "Result", "Vibi
 from ._estimators import EKF, IV, KFRLS, RLS, Estimate, LeastSquares, RecursiveIV  # noqa: E402
 
 __all__ += ["LeastSquares", "RLS", "IV", "RecursiveIV", "KFRLS", "EKF", "Estimate"]
+
+# vibidd's pipeline in-process (issue 13; docs/python.md "vibid.replay").
+from ._drivers import replay  # noqa: E402
+
+__all__ += ["replay"]

@@ -22,9 +22,10 @@ from . import _core
 from ._stand import Stand
 
 # Extension -> format. ".mdf" is also MDF version 3, which asammdf reads as well.
-_EXTENSIONS = {".csv": "csv", ".mf4": "mdf", ".mdf": "mdf", ".tdms": "tdms"}
-_FORMATS = {"csv": "csv", "mdf": "mdf", "mf4": "mdf", "mdf4": "mdf", "tdms": "tdms"}
-_ACCEPTED = ".csv (format='csv'), .mf4 or .mdf (ASAM MDF4, format='mdf'), .tdms (NI TDMS, format='tdms')"
+_EXTENSIONS = {".csv": "csv", ".mf4": "mdf", ".mdf": "mdf", ".tdms": "tdms", ".log": "candump"}
+_FORMATS = {"csv": "csv", "mdf": "mdf", "mf4": "mdf", "mdf4": "mdf", "tdms": "tdms", "candump": "candump"}
+_ACCEPTED = (".csv (format='csv'), .mf4 or .mdf (ASAM MDF4, format='mdf'), .tdms (NI TDMS, format='tdms'), "
+             ".log with dbc= (candump, format='candump')")
 # Time columns/channels looked for when the file has no time base of its own (CSV: the
 # columns identify has always accepted; TDMS: also the names NI's loggers use).
 _CSV_TIME = ("time_s", "t")
@@ -52,7 +53,7 @@ def _format_of(path: str, format: Optional[str]) -> str:
     if format is not None:
         f = _FORMATS.get(str(format).lower())
         if f is None:
-            raise ValueError(f"format {format!r} for {path}: one of 'csv', 'mdf', 'tdms'")
+            raise ValueError(f"format {format!r} for {path}: one of 'csv', 'mdf', 'tdms', 'candump'")
         return f
     ext = os.path.splitext(path)[1].lower()
     f = _EXTENSIONS.get(ext)
@@ -282,7 +283,8 @@ def _factor(stand: Stand, index: int, unit: str, what: str) -> float:
 
 
 def read_capture(path: str | os.PathLike, stand: Stand | str | os.PathLike, *, format: Optional[str] = None,
-                 channels: Optional[Mapping[str, str]] = None, group: Any = None) -> pd.DataFrame:
+                 channels: Optional[Mapping[str, str]] = None, group: Any = None, dbc: Any = None,
+                 channel_map: Any = None) -> pd.DataFrame:
     """Reads the stand's channels from a capture file.
 
     path: a CSV (header row of names, ``#`` lines skipped), ASAM MDF4 (``.mf4``, ``.mdf``;
@@ -294,6 +296,12 @@ def read_capture(path: str | os.PathLike, stand: Stand | str | os.PathLike, *, f
         their own names. Channels of the file that the stand does not read are ignored.
     group: TDMS: the group's name (needed when the file has several); MDF4: the data group
         index, where a channel name occurs in several.
+    dbc, channel_map: a candump log (``.log``, or any name with ``format='candump'`` or a
+        ``dbc``) is decoded by the drivers with its DBC ``dbc``; its channels are the DBC
+        signals of the stand's channel names (``channels`` renames them) numbered by the
+        ``SampleCounter`` signal, or what the channel-map file ``channel_map`` says
+        (docs/drivers.md). Missing samples are NaN rows (time NaN), listed in
+        ``attrs['gaps']``; source faults in ``attrs['faults']`` (docs/python.md).
 
     Returns a DataFrame with the stand's channels in stand order, in the stand's units (a
     channel's unit in the file, MDF ``unit`` or TDMS ``unit_string``, is converted by
@@ -309,10 +317,20 @@ def read_capture(path: str | os.PathLike, stand: Stand | str | os.PathLike, *, f
     if not isinstance(stand, Stand):
         stand = Stand.load(stand)
     path = os.fspath(path)
-    fmt = _format_of(path, format)
+    ext = os.path.splitext(path)[1].lower()
+    # With a DBC, a log of any name is candump, as for vibidd's replay (source_replay.h).
+    fmt = "candump" if format is None and dbc is not None and ext not in _EXTENSIONS else _format_of(path, format)
     names = _mapping(stand, channels)
-    reader = {"csv": _read_csv, "mdf": _read_mdf, "tdms": _read_tdms}[fmt]
-    cols, units, t = reader(path, stand, names, group)
+    attrs = {}
+    if fmt == "candump":
+        from ._drivers import read_candump  # the C drivers' replay source
+
+        cols, units, t, attrs = read_candump(path, stand, names, group, dbc, channel_map)
+    else:
+        if dbc is not None or channel_map is not None:
+            raise ValueError(f"{path}: dbc= and channel_map= are for candump logs, not {fmt} files")
+        reader = {"csv": _read_csv, "mdf": _read_mdf, "tdms": _read_tdms}[fmt]
+        cols, units, t = reader(path, stand, names, group)
     _same_length(cols, path)
     n = len(cols[stand.channels[0]]) if stand.channels else 0
     out = {}
@@ -326,4 +344,6 @@ def read_capture(path: str | os.PathLike, stand: Stand | str | os.PathLike, *, f
                 v = v * k
         out[c] = v
     out["time_s"] = t if t is not None else np.arange(n) / stand.sample_rate
-    return pd.DataFrame(out, columns=[*stand.channels, "time_s"])
+    df = pd.DataFrame(out, columns=[*stand.channels, "time_s"])
+    df.attrs.update(attrs)
+    return df

@@ -48,7 +48,8 @@ def _flags(status_ok: bool, implausible: int, quality: int) -> str:
     return s
 
 
-def _columns(stand: Stand, data: Any) -> tuple[np.ndarray, Optional[np.ndarray]]:
+def _columns(stand: Stand, data: Any, dbc: Any = None,
+             channel_map: Any = None) -> tuple[np.ndarray, Optional[np.ndarray]]:
     """The capture as an (n_samples x n_channels) float64 array in the stand's channel
     order, and the time column if there is one. Copies only where the layout requires it:
     a 2-D array is used as it is (any strides); a DataFrame whose channels share one float64
@@ -60,7 +61,19 @@ def _columns(stand: Stand, data: Any) -> tuple[np.ndarray, Optional[np.ndarray]]
         # A file (CSV, MDF4, TDMS by its extension): read_capture gives the stand's channels,
         # converted to the stand's units, and time_s (checked below as any time column).
         from ._captures import read_capture
-        data = read_capture(data, stand)
+        path = os.fspath(data)
+        data = read_capture(path, stand, dbc=dbc, channel_map=channel_map)
+        gaps = data.attrs.get("gaps")
+        if gaps:
+            # A candump log's missing samples (NaN rows): refused, never bridged, naming
+            # where; the rows before and after a gap can be identified separately.
+            g = gaps[0]
+            raise ValueError(f"{path}: {g['count']} sample(s) missing at rows {g['row']}..{g['row'] + g['count'] - 1} "
+                             f"(after t = {g['after_time_s']:.6f} s): {g['text']}; vibid never bridges a gap: identify "
+                             f"the parts between gaps separately (read_capture(...).attrs['gaps'] lists all "
+                             f"{len(gaps)})")
+    elif dbc is not None or channel_map is not None:
+        raise ValueError("dbc= and channel_map= are for a candump log given by its path")
     if isinstance(data, np.ndarray):
         arr = np.asarray(data, dtype=np.float64)
         if arr.ndim != 2 or arr.shape[1] != len(channels):
@@ -220,7 +233,8 @@ class Result:
 
 def identify(stand: Stand | str | os.PathLike, data: Any, method: str = "auto",
              forgetting: Optional[float] = None, prefilter_hz: Optional[float] = None,
-             iv_lag: Optional[int] = None, track_every: Optional[int] = None) -> Result:
+             iv_lag: Optional[int] = None, track_every: Optional[int] = None, *, dbc: Any = None,
+             channel_map: Any = None) -> Result:
     """Identifies the stand's unknowns from a capture.
 
     stand: a :class:`Stand` or the path of a stand file.
@@ -236,6 +250,8 @@ def identify(stand: Stand | str | os.PathLike, data: Any, method: str = "auto",
     track_every: an estimate every this many samples into ``Result.tracks``. None: every
         0.1 s of samples for recursive settings (rls, ekf, kf_rls, or forgetting < 1),
         no tracks otherwise; 0: no tracks.
+    dbc, channel_map: for a candump log given by path (read_capture); a log with missing
+        samples is refused, naming the rows, the time and the count.
 
     Raises ValueError for data that do not fit the stand (naming the channel), VibidError
     for what the library refuses (its message, e.g. the parameters that cannot be separated).
@@ -244,7 +260,7 @@ def identify(stand: Stand | str | os.PathLike, data: Any, method: str = "auto",
         stand = Stand.load(stand)
     if method not in METHODS:
         raise ValueError(f"method {method!r}: one of {', '.join(METHODS)}")
-    block, t = _columns(stand, data)
+    block, t = _columns(stand, data, dbc, channel_map)
     ident = _core.Ident(stand._core, METHODS[method], 1.0 if forgetting is None else float(forgetting),
                         -1.0 if prefilter_hz is None else float(prefilter_hz), 0 if iv_lag is None else int(iv_lag))
     est_code, f_c, lag, gamma, order = ident.config()
