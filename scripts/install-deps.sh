@@ -17,6 +17,9 @@ if [[ "${1:-}" == "--test" ]]; then
   packages+=(can-utils qemu-system-x86 busybox-static cpio xz-utils python3-venv python3-dev clang
              libclang-rt-14-dev)
   packages+=(systemd)  # systemd-analyze, and systemd as PID 1 in the VM (tests/daemon/systemd)
+  # promtool (`promtool check metrics`) and a real Prometheus server scraping vibidd's
+  # metrics endpoint (daemon.e2e.prometheus, daemon.e2e.prometheus_server)
+  packages+=(prometheus)
 fi
 
 missing=()

@@ -7,6 +7,7 @@
 #include "config.h"
 
 #include "log.h"
+#include "metrics.h"
 
 #include <errno.h>
 #include <libconfig.h>
@@ -495,7 +496,7 @@ static const char *const acq_known[] = {"ring_size",   "read_batch",   "read_tim
 static const char *const est_known[] = {"method",         "forgetting",       "prefilter_hz", "rls_alpha",
                                         "iv_lag",         "difference_order", "decimation",   "warmup_samples",
                                         "start_values",   NULL};
-static const char *const out_known[] = {"tracks", "influx", "record", "status", NULL};
+static const char *const out_known[] = {"tracks", "influx", "record", "status", "prometheus", NULL};
 static const char *const alarm_known[] = {"enabled", "threshold", "min_relative", "hold", "learn_start",
                                           "learn_duration", "parameters", NULL};
 static const char *const log_known[] = {"level", "status_interval", NULL};
@@ -677,11 +678,31 @@ static int load_outputs(ctx *c, config_t *cf)
             "(socketcan, or a candump replay) with source.dbc; use \"csv\" for this source");
     config_setting_t *s = g ? config_setting_get_member(g, "status") : NULL;
     static const char *const sk[] = {"path", "interval", NULL};
-    return check_known(c, s, "outputs.status", sk) ||
-                   get_path(c, s, "outputs.status", "path", cfg->status_path, sizeof cfg->status_path) ||
-                   get_double(c, s, "outputs.status", "interval", 1.0, 0.05, 3600.0, &cfg->status_interval_s)
-               ? -1
-               : 0;
+    if (check_known(c, s, "outputs.status", sk) ||
+        get_path(c, s, "outputs.status", "path", cfg->status_path, sizeof cfg->status_path) ||
+        get_double(c, s, "outputs.status", "interval", 1.0, 0.05, 3600.0, &cfg->status_interval_s))
+        return -1;
+    /* The metrics endpoint: off without the group; the group alone listens on loopback
+     * (VD_PROMETHEUS_DEFAULT); another address only when given. Only the syntax here: the
+     * bind is tried by --check (vd_metrics_check) and at start-up (vd_metrics_open). */
+    config_setting_t *p = g ? config_setting_get_member(g, "prometheus") : NULL;
+    static const char *const pk[] = {"listen", NULL};
+    if (p && !config_setting_is_group(p))
+        return vibid_cfg_fail(&c->r, p, "outputs.prometheus", "must be a group { listen = \"%s\"; }",
+                              VD_PROMETHEUS_DEFAULT);
+    if (check_known(c, p, "outputs.prometheus", pk) ||
+        get_string(c, p, "outputs.prometheus", "listen", p ? VD_PROMETHEUS_DEFAULT : "", cfg->prom_listen,
+                   sizeof cfg->prom_listen))
+        return -1;
+    if (cfg->prom_listen[0]) {
+        struct sockaddr_storage a;
+        socklen_t len;
+        char why[300];
+        if (vd_metrics_parse_listen(cfg->prom_listen, &a, &len, why, sizeof why))
+            return vibid_cfg_fail(&c->r, config_setting_get_member(p, "listen"), "outputs.prometheus.listen", "%s",
+                                  why);
+    }
+    return 0;
 }
 
 static int load_alarms(ctx *c, config_t *cf)
@@ -1026,10 +1047,11 @@ void vd_config_print(const vd_config *cfg, FILE *o)
     fprintf(o,
             "outputs = {\n  tracks = { path = \"%s\"; flush_interval = %s; fsync = %s; };\n"
             "  influx = { path = \"%s\"; udp = \"%s\"; measurement = \"%s\"; };\n"
-            "  record = { path = \"%s\"; format = \"%s\"; };\n  status = { path = \"%s\"; interval = %s; };\n};\n",
+            "  record = { path = \"%s\"; format = \"%s\"; };\n  status = { path = \"%s\"; interval = %s; };\n"
+            "  prometheus = { listen = \"%s\"; };  # \"\" = off\n};\n",
             cfg->tracks_path, num(cfg->flush_interval_s), yes(cfg->fsync_on_flush), cfg->influx_path, cfg->influx_udp,
             cfg->influx_measurement, cfg->record_path, cfg->record_format == VD_REC_CSV ? "csv" : "candump",
-            cfg->status_path, num(cfg->status_interval_s));
+            cfg->status_path, num(cfg->status_interval_s), cfg->prom_listen);
     fprintf(o,
             "alarms = {\n  enabled = %s;\n  threshold = %s;\n  min_relative = %s;\n  hold = %s;\n"
             "  learn_start = %s;\n  learn_duration = %s;\n  parameters = (",

@@ -120,6 +120,7 @@ typedef struct vd_config {
     double status_interval_s;
     double flush_interval_s;
     bool fsync_on_flush;
+    char prom_listen[128];       /* outputs.prometheus.listen "HOST:PORT" (metrics.h); "" = off */
 
     /* alarms */
     bool alarms_enabled;

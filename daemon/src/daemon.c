@@ -446,19 +446,100 @@ double vd_daemon_latency_us(const vd_daemon *d, double q)
 
 static void write_status_file(vd_daemon *d, const char *buf, size_t len);
 
-static void write_status(vd_daemon *d, const char *state, double now)
+/* The sample rate over the last status interval (the status file's sample_rate_hz). */
+static void update_rate(vd_daemon *d, double now)
 {
-    const vd_config *cfg = d->cfg;
-    vibid_source_stats ss;
-    pthread_mutex_lock(&d->stats_mu);
-    ss = d->src_stats;
-    pthread_mutex_unlock(&d->stats_mu);
     double dt = now - d->t_last_status;
     if (dt > 0 && d->t_last_status > 0)
         d->rate_hz = (double)(d->est.samples - d->samples_at_last_status) / dt;
     d->samples_at_last_status = d->est.samples;
     d->t_last_status = now;
+}
 
+/* Every counter the status file and the metrics show, into d->snap (estimation thread:
+ * it owns the estimator's, the writers' and the alarms' counters; the acquisition
+ * thread's are atomics or under stats_mu). */
+static void take_snapshot(vd_daemon *d, const char *state, double now)
+{
+    const vd_config *cfg = d->cfg;
+    vd_snapshot *s = &d->snap;
+    memset(s, 0, sizeof *s);
+    s->state = state;
+    s->stand = vibid_stand_name(cfg->stand);
+    s->source = vibid_source_kind(d->src);
+    s->estimator = vd_estimator_name(cfg->method);
+    s->uptime_s = now - d->t_start;
+    s->stand_rate_hz = cfg->sample_rate;
+    s->samples = d->est.samples;
+    s->gaps = d->est.gaps;
+    s->missing = d->est.missing;
+    s->faults = d->faults;
+    s->rate_hz = d->rate_hz;
+    s->ring_capacity = vd_ring_capacity(d->ring);
+    s->ring_fill = vd_ring_fill(d->ring);
+    s->ring_high_water = vd_ring_high_water(d->ring);
+    s->ring_overflows = vd_ring_overflows(d->ring);
+    s->replay_waits = atomic_load(&d->acq_wait_full);
+    pthread_mutex_lock(&d->stats_mu);
+    s->src = d->src_stats;
+    pthread_mutex_unlock(&d->stats_mu);
+    s->n_fault_kinds = (unsigned)VIBID_FAULT_LAST;
+    for (unsigned c = 1; c <= (unsigned)VIBID_FAULT_LAST && c < 16; c++) {
+        s->fault_kind[c] = fault_name((vibid_fault_code)c);
+        s->faults_by_kind[c] = d->faults_by_code[c];
+    }
+    s->rows = d->est.rows;
+    s->est_errors = d->est.est_errors;
+    s->implausible_rows = d->est.implausible_rows;
+    s->nonfinite_samples = d->est.push_errors;
+    s->lat_p50_us = vd_daemon_latency_us(d, 0.5);
+    s->lat_p99_us = vd_daemon_latency_us(d, 0.99);
+    s->lat_n = d->lat_n;
+    s->lat_sum_s = (double)d->lat_sum_us / 1e6;
+    /* cumulative counts at the histogram's bounds: bucket i holds [i, i + 1) us, so the
+     * buckets below bound b hold the latencies below b us */
+    uint64_t acc = 0;
+    unsigned i = 0;
+    for (unsigned b = 0; b < VD_METRICS_LAT_BOUNDS; b++) {
+        for (; i < vd_metrics_lat_bounds_us[b] && i < VD_LAT_BUCKETS; i++)
+            acc += d->lat_hist[i];
+        s->lat_le[b] = acc;
+    }
+    s->write_errors = d->w.write_errors;
+    s->torn_lines = d->w.torn_lines;
+    s->udp_sent = d->w.udp_sent;
+    s->udp_errors = d->w.udp_errors;
+    s->alarms_raised = d->alarms_raised;
+    s->n_params = cfg->n_params;
+    s->n_modes = cfg->n_modes;
+    for (size_t k = 0; k < cfg->n_params; k++) {
+        s->param[k] = cfg->alarm_param[k].name; /* the parameter's name (config.c) */
+        s->alarm_enabled[k] = cfg->alarms_enabled && cfg->alarm_param[k].enabled;
+        s->alarm_active[k] = d->alarm[k].active;
+    }
+    if (d->est.have_last) {
+        const vd_row *r = &d->est.last;
+        s->have_last = true;
+        s->last_index = r->index;
+        s->last_t_us = r->t_us;
+        s->last_flags = r->flags;
+        memcpy(s->theta, r->theta, cfg->n_params * sizeof *s->theta);
+        memcpy(s->se, r->se, cfg->n_params * sizeof *s->se);
+        memcpy(s->freq, r->freq, cfg->n_modes * sizeof *s->freq);
+        memcpy(s->freq_se, r->freq_se, cfg->n_modes * sizeof *s->freq_se);
+        memcpy(s->zeta, r->zeta, cfg->n_modes * sizeof *s->zeta);
+        memcpy(s->zeta_se, r->zeta_se, cfg->n_modes * sizeof *s->zeta_se);
+    }
+    if (d->metrics_on) {
+        vd_metrics_counters(&d->metrics, s);
+        s->metrics_listen = d->metrics.where;
+    }
+}
+
+/* The status file's text from the snapshot (key=value lines, docs/vibidd.md). */
+static void write_status(vd_daemon *d, const vd_snapshot *sn)
+{
+    const vibid_source_stats *ss = &sn->src;
     char buf[8192];
     size_t off = 0;
 #define S(...)                                                                                                         \
@@ -467,63 +548,61 @@ static void write_status(vd_daemon *d, const char *state, double now)
         if (n_ > 0)                                                                                                    \
             off += (size_t)n_;                                                                                         \
     } while (0)
-    S("state=%s\nstand=%s\nsource=%s\nuptime_s=%.3f\n", state, vibid_stand_name(cfg->stand), vibid_source_kind(d->src),
-      now - d->t_start);
+    S("state=%s\nstand=%s\nsource=%s\nuptime_s=%.3f\n", sn->state, sn->stand, sn->source, sn->uptime_s);
     S("samples=%llu\nsample_rate_hz=%.1f\ngaps=%llu\nmissing_samples=%llu\nfaults=%llu\n",
-      (unsigned long long)d->est.samples, d->rate_hz, (unsigned long long)d->est.gaps,
-      (unsigned long long)d->est.missing, (unsigned long long)d->faults);
+      (unsigned long long)sn->samples, sn->rate_hz, (unsigned long long)sn->gaps, (unsigned long long)sn->missing,
+      (unsigned long long)sn->faults);
     S("ring_capacity=%zu\nring_fill=%zu\nring_high_water=%llu\nring_overflows=%llu\nreplay_waits=%llu\n",
-      vd_ring_capacity(d->ring), vd_ring_fill(d->ring), (unsigned long long)vd_ring_high_water(d->ring),
-      (unsigned long long)vd_ring_overflows(d->ring), (unsigned long long)atomic_load(&d->acq_wait_full));
+      sn->ring_capacity, sn->ring_fill, (unsigned long long)sn->ring_high_water,
+      (unsigned long long)sn->ring_overflows, (unsigned long long)sn->replay_waits);
     S("source_samples=%llu\nsource_gaps=%llu\nsource_missing_samples=%llu\nsource_faults=%llu\n",
-      (unsigned long long)ss.samples, (unsigned long long)ss.gaps, (unsigned long long)ss.missing_samples,
-      (unsigned long long)ss.faults);
+      (unsigned long long)ss->samples, (unsigned long long)ss->gaps, (unsigned long long)ss->missing_samples,
+      (unsigned long long)ss->faults);
     S("source_frames=%llu\nsource_dropped_frames=%llu\nsource_error_frames=%llu\nsource_bad_lines=%llu\n",
-      (unsigned long long)ss.frames, (unsigned long long)ss.dropped, (unsigned long long)ss.error_frames,
-      (unsigned long long)ss.bad_lines);
+      (unsigned long long)ss->frames, (unsigned long long)ss->dropped, (unsigned long long)ss->error_frames,
+      (unsigned long long)ss->bad_lines);
     S("source_polls=%llu\nsource_failed_polls=%llu\nsource_timeouts=%llu\nsource_link_losses=%llu\n"
       "source_reconnects=%llu\nsource_connect_failures=%llu\nsource_overruns=%llu\nsource_implausible=%llu\n",
-      (unsigned long long)ss.polls, (unsigned long long)ss.failed_polls, (unsigned long long)ss.timeouts,
-      (unsigned long long)ss.link_losses, (unsigned long long)ss.reconnects, (unsigned long long)ss.connect_failures,
-      (unsigned long long)ss.overruns, (unsigned long long)ss.implausible);
-    S("jitter_mean_s=%.9g\njitter_std_s=%.3g\n", ss.jitter.mean_s, ss.jitter.std_s);
-    for (unsigned c = 1; c <= (unsigned)VIBID_FAULT_LAST; c++) /* faults by kind */
-        S("faults_%s=%llu\n", fault_name((vibid_fault_code)c), (unsigned long long)d->faults_by_code[c]);
+      (unsigned long long)ss->polls, (unsigned long long)ss->failed_polls, (unsigned long long)ss->timeouts,
+      (unsigned long long)ss->link_losses, (unsigned long long)ss->reconnects,
+      (unsigned long long)ss->connect_failures, (unsigned long long)ss->overruns, (unsigned long long)ss->implausible);
+    S("jitter_mean_s=%.9g\njitter_std_s=%.3g\n", ss->jitter.mean_s, ss->jitter.std_s);
+    for (unsigned c = 1; c <= sn->n_fault_kinds && c < 16; c++) /* faults by kind */
+        S("faults_%s=%llu\n", sn->fault_kind[c], (unsigned long long)sn->faults_by_kind[c]);
     S("rows=%llu\nestimate_failures=%llu\nimplausible_rows=%llu\nnonfinite_samples=%llu\n",
-      (unsigned long long)d->est.rows, (unsigned long long)d->est.est_errors,
-      (unsigned long long)d->est.implausible_rows, (unsigned long long)d->est.push_errors);
-    S("latency_us_p50=%.1f\nlatency_us_p99=%.1f\n", vd_daemon_latency_us(d, 0.5), vd_daemon_latency_us(d, 0.99));
+      (unsigned long long)sn->rows, (unsigned long long)sn->est_errors, (unsigned long long)sn->implausible_rows,
+      (unsigned long long)sn->nonfinite_samples);
+    S("latency_us_p50=%.1f\nlatency_us_p99=%.1f\n", sn->lat_p50_us, sn->lat_p99_us);
     S("write_errors=%llu\ntorn_lines=%llu\ninflux_udp_sent=%llu\ninflux_udp_errors=%llu\n",
-      (unsigned long long)d->w.write_errors, (unsigned long long)d->w.torn_lines, (unsigned long long)d->w.udp_sent,
-      (unsigned long long)d->w.udp_errors);
-    S("alarms_raised=%llu\nalarms_active=", (unsigned long long)d->alarms_raised);
-    const vibid_model *m = vibid_stand_model(cfg->stand);
+      (unsigned long long)sn->write_errors, (unsigned long long)sn->torn_lines, (unsigned long long)sn->udp_sent,
+      (unsigned long long)sn->udp_errors);
+    S("alarms_raised=%llu\nalarms_active=", (unsigned long long)sn->alarms_raised);
     bool first = true;
-    for (size_t k = 0; k < cfg->n_params; k++)
-        if (d->alarm[k].active) {
-            vibid_param_info pi;
-            vibid_model_param_info(m, k, &pi);
-            S("%s%s", first ? "" : ",", pi.name);
+    for (size_t k = 0; k < sn->n_params; k++)
+        if (sn->alarm_active[k]) {
+            S("%s%s", first ? "" : ",", sn->param[k]);
             first = false;
         }
     S("\n");
-    if (d->est.have_last) {
-        const vd_row *r = &d->est.last;
-        S("last_index=%llu\nlast_time_s=%lld.%06lld\n", (unsigned long long)r->index, (long long)(r->t_us / 1000000),
-          (long long)(r->t_us % 1000000));
-        for (size_t k = 0; k < cfg->n_params; k++) {
-            vibid_param_info pi;
-            vibid_model_param_info(m, k, &pi);
-            S("estimate.%s=%.10g\nestimate.%s_se=%.3g\n", pi.name, r->theta[k], pi.name, r->se[k]);
-        }
-        for (size_t i = 0; i < cfg->n_modes; i++)
-            S("f%zu_hz=%.6g\nzeta%zu=%.6g\n", i + 1, r->freq[i], i + 1, r->zeta[i]);
+    if (sn->have_last) {
+        S("last_index=%llu\nlast_time_s=%lld.%06lld\n", (unsigned long long)sn->last_index,
+          (long long)(sn->last_t_us / 1000000), (long long)(sn->last_t_us % 1000000));
+        for (size_t k = 0; k < sn->n_params; k++)
+            S("estimate.%s=%.10g\nestimate.%s_se=%.3g\n", sn->param[k], sn->theta[k], sn->param[k], sn->se[k]);
+        for (size_t i = 0; i < sn->n_modes; i++)
+            S("f%zu_hz=%.6g\nzeta%zu=%.6g\n", i + 1, sn->freq[i], i + 1, sn->zeta[i]);
+    }
+    if (sn->metrics_on) {
+        unsigned long long refused = 0;
+        for (unsigned r = 0; r < VD_REFUSED_N; r++)
+            refused += sn->refused[r];
+        S("metrics_listen=%s\nmetrics_scrapes=%llu\nmetrics_refused=%llu\n", sn->metrics_listen,
+          (unsigned long long)sn->scrapes, refused);
     }
 #undef S
     if (off > sizeof buf)
         off = sizeof buf;
-    if (cfg->status_path[0])
-        write_status_file(d, buf, off);
+    write_status_file(d, buf, off);
 }
 
 /* The status file is replaced atomically (a .tmp renamed over it). When that fails (a full
@@ -585,8 +664,23 @@ static void housekeeping(vd_daemon *d, bool final)
         vd_writers_flush(&d->w, d->cfg->fsync_on_flush);
         d->t_last_flush = now;
     }
-    if (final || now - d->t_last_status >= d->cfg->status_interval_s)
-        write_status(d, final ? "stopped" : "running", now);
+    /* One snapshot for both: the status file at its interval, the metrics at least every
+     * second (sooner with a shorter status interval). */
+    const bool status_due = final || now - d->t_last_status >= d->cfg->status_interval_s;
+    const bool metrics_due = d->metrics_on && (final || d->metrics_pending ||
+                                               now - d->t_last_metrics >= fmin(d->cfg->status_interval_s, 1.0));
+    if (status_due)
+        update_rate(d, now);
+    if (status_due || metrics_due) {
+        take_snapshot(d, final ? "stopped" : "running", now);
+        if (status_due && d->cfg->status_path[0])
+            write_status(d, &d->snap);
+        if (d->metrics_on) {
+            /* never waits while estimating: a busy server gets the next one (metrics.h) */
+            d->metrics_pending = !vd_metrics_publish(&d->metrics, &d->snap, final);
+            d->t_last_metrics = now;
+        }
+    }
     if (d->cfg->log_status_interval_s > 0 && now - d->t_last_logstatus >= d->cfg->log_status_interval_s) {
         log_status_line(d);
         d->t_last_logstatus = now;
@@ -625,6 +719,7 @@ static void process(vd_daemon *d, const vd_item *it)
                 lat = 0;
             d->lat_hist[lat < VD_LAT_BUCKETS ? lat : VD_LAT_BUCKETS - 1]++;
             d->lat_n++;
+            d->lat_sum_us += (uint64_t)lat;
         }
         vd_writers_sample(&d->w, rec);
     }
@@ -757,6 +852,13 @@ int vd_daemon_init(vd_daemon *d, vd_config *cfg, const vd_options *opt, char *er
     vd_est_log_choices(&d->est);
     if (vd_writers_open(&d->w, cfg, &d->rec_chanmap, d->est.choices, err, cap))
         return -1;
+    /* the endpoint's socket is bound here, before READY=1: an address that cannot be
+     * bound is a configuration error (exit 2), not a run-time surprise */
+    if (cfg->prom_listen[0]) {
+        if (vd_metrics_open(&d->metrics, cfg, err, cap))
+            return -1;
+        d->metrics_on = true;
+    }
     return 0;
 }
 
@@ -800,6 +902,14 @@ int vd_daemon_run(vd_daemon *d)
         return 1;
     }
     d->acq_started = true;
+    if (d->metrics_on) {
+        char err[256];
+        if (vd_metrics_start(&d->metrics, err, sizeof err)) {
+            vd_error("%s", err);
+            stop_threads(d);
+            return 1;
+        }
+    }
     vd_notify_send(&d->notify, "READY=1\nSTATUS=acquiring");
     vd_notice("running: stand '%s', %s source, %s estimator, %.6g Hz, ring %zu records", vibid_stand_name(d->cfg->stand),
               vibid_source_kind(d->src), vd_estimator_name(d->cfg->method), d->cfg->sample_rate, vd_ring_capacity(d->ring));
@@ -852,6 +962,7 @@ int vd_daemon_run(vd_daemon *d)
 void vd_daemon_fini(vd_daemon *d)
 {
     stop_threads(d);
+    vd_metrics_close(&d->metrics); /* after the threads: the final state was published */
     vd_writers_close(&d->w);
     vibid_source_close(d->src);
     d->src = NULL;

@@ -13,8 +13,10 @@
  *   main thread: signals (sigtimedwait on a blocked set: no asynchronous handler at all),
  *     the systemd notifications and watchdog pings (only while both threads make
  *     progress).
+ *   metrics thread (outputs.prometheus only): the HTTP endpoint (metrics.h); it reads the
+ *     text the estimation thread renders at its housekeeping and nothing else.
  * Start order: config -> log -> memory lock -> ring -> estimator -> writers -> source ->
- * threads -> READY=1; torn down in reverse.
+ * metrics socket -> threads -> READY=1; torn down in reverse.
  */
 #ifndef VIBIDD_DAEMON_H
 #define VIBIDD_DAEMON_H
@@ -29,6 +31,7 @@
 #include "alarm.h"
 #include "config.h"
 #include "estimator.h"
+#include "metrics.h"
 #include "notify.h"
 #include "rate_check.h"
 #include "ring.h"
@@ -82,9 +85,17 @@ typedef struct vd_daemon {
     uint64_t episode_first, episode_rows;
     uint32_t *lat_hist;        /* receipt -> estimate pushed, 1 us buckets */
     uint64_t lat_n;
-    double t_start, t_last_flush, t_last_status, t_last_logstatus;
+    uint64_t lat_sum_us;       /* sum of the measured latencies (not clipped), us */
+    double t_start, t_last_flush, t_last_status, t_last_logstatus, t_last_metrics;
     uint64_t samples_at_last_status;
     double rate_hz;
+    /* the counters at one instant, for the status file and the metrics alike (metrics.h);
+     * filled by the estimation thread at its housekeeping */
+    vd_snapshot snap;
+    /* outputs.prometheus: the endpoint (its own thread, metrics.h) */
+    vd_metrics metrics;
+    bool metrics_on;
+    bool metrics_pending;      /* the last publish found the server busy: retry */
 } vd_daemon;
 
 /* Opens everything (see the start order). 0, or -1 with err. */

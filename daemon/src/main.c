@@ -8,6 +8,7 @@
 #include "daemon.h"
 #include "writers.h"
 #include "log.h"
+#include "metrics.h"
 
 #include <locale.h>
 #include <stdio.h>
@@ -176,10 +177,24 @@ int main(int argc, char **argv)
             vd_config_free(&cfg);
             return 2;
         }
+        /* the metrics endpoint: the address is bound and released, as start-up binds it;
+         * in use (by the running vibidd this --check is meant to replace?) is a warning */
+        char prom_note[400];
+        int prc = vd_metrics_check(&cfg, prom_note, sizeof prom_note, e2, sizeof e2);
+        if (prc < 0) {
+            vd_error("%s", e2);
+            vd_est_free(&est);
+            vd_config_free(&cfg);
+            return 2;
+        }
+        if (prc > 0)
+            vd_warning("%s", prom_note);
         vd_config_print(&cfg, stdout);
         vd_est_print_choices(&est, stdout, "# ");
         if (rate_note[0])
             printf("# %s\n", rate_note);
+        if (prc > 0)
+            printf("# %s\n", prom_note);
         vd_est_free(&est);
         vd_config_free(&cfg);
         return 0;

@@ -105,6 +105,38 @@ rate_stand() {
     grep -q "sample_rate = $1;" "$2" || fail "test setup: sample_rate not replaced in $2"
 }
 
+# config_prometheus FILE: config_csv with outputs.prometheus on a port the kernel picks
+config_prometheus() {
+    config_csv "$1" ""
+    sed -i 's|^outputs = { tracks = { path = "tracks.csv"; }; status = { path = "status"; interval = 0.2; }; };|outputs = { tracks = { path = "tracks.csv"; }; status = { path = "status"; interval = 0.2; };\n            prometheus = { listen = "127.0.0.1:0"; }; };|' "$1"
+    grep -q 'prometheus = { listen = "127.0.0.1:0"; }' "$1" || fail "test setup: prometheus group not inserted in $1"
+}
+
+# wait_metrics_listen: the endpoint's address from the status file (metrics_listen), 5 s at most
+wait_metrics_listen() {
+    local t
+    for _ in $(seq 50); do
+        t=$(status_val metrics_listen status 2>/dev/null)
+        [ -n "$t" ] && { echo "$t"; return 0; }
+        sleep 0.1
+    done
+    return 1
+}
+
+# metric NAME FILE: the value of the sample NAME (with its labels) in an exposition
+metric() { awk -v n="$1" '$1 == n { print $2 }' "$2"; }
+
+# prom_query API QUERY: the first result's value from Prometheus' query API ("" if none)
+prom_query() {
+    curl -s --max-time 2 -G "$1" --data-urlencode "query=$2" | python3 -c '
+import json, sys
+try:
+    r = json.load(sys.stdin)["data"]["result"]
+    print(r[0]["value"][1] if r else "")
+except Exception:
+    print("")'
+}
+
 case $CASE in
 replay_csv)
     # 20 s at 2 kHz, noise 0.1 % of RMS on every channel; tolerance 1 % (issue 7); the
@@ -927,6 +959,182 @@ clock_step)
     [ "$(head -2 tracks.csv | tail -1 | cut -d, -f1-2)" != "" ] || fail "test setup"
     cmp a.txt b.txt || fail "estimates of the stepped log differ from the unmodified log"
     note "2 clock steps (+1e6 s, -5 s) counted, 20000 samples, estimates identical; paced x20 replay of 10 s took $took s"
+    ;;
+prometheus)
+    # outputs.prometheus (issue 14 item 3): a paced replay serves its metrics on a loopback
+    # port; the exposition passes `promtool check metrics`; a scrape and the status file
+    # written from the same snapshot agree; hostile peers (one that sends nothing, garbage,
+    # 50 connections at once) neither stall nor stop vibidd; SIGTERM with connections open
+    # stops it within 1 s; an address in use is a configuration error (exit 2).
+    command -v promtool > /dev/null || fail "promtool not found (Debian package prometheus: scripts/install-deps.sh --test)"
+    $GEN "$STAND" --duration 60 --noise 0.001 --seed 14 --csv cap.csv 2>/dev/null || fail "generator"
+    config_prometheus v.cfg
+    # --check binds and releases the address; one not on this host is refused (exit 2)
+    timeout 10 "$VIBIDD" -c v.cfg --check > check.out 2> check.err || fail "--check: $(cat check.err)"
+    grep -q '^  prometheus = { listen = "127.0.0.1:0"; };' check.out || fail "--check printout: $(grep prometheus check.out)"
+    sed 's|listen = "127.0.0.1:0"|listen = "192.0.2.1:18813"|' v.cfg > far.cfg
+    timeout 10 "$VIBIDD" -c far.cfg --check > /dev/null 2> far.err; rc=$?
+    [ $rc -eq 2 ] || fail "--check with 192.0.2.1 (not on this host): exit $rc, expected 2"
+    grep -q 'outputs.prometheus.listen 192.0.2.1:18813: cannot listen: Cannot assign requested address' far.err ||
+        fail "--check error: $(cat far.err)"
+    timeout 60 "$VIBIDD" -c v.cfg --pace 2> log &
+    pid=$!
+    trap 'kill $pid 2>/dev/null; rm -rf "$W"' EXIT  # a failure must not leave vibidd running
+    target=$(wait_metrics_listen) || fail "no metrics_listen in the status file: $(cat log)"
+    port=${target##*:}
+    grep -q "metrics: Prometheus exposition at http://127.0.0.1:$port/metrics" log || fail "no start-up notice: $(cat log)"
+    URL=http://127.0.0.1:$port/metrics
+    sleep 1.5  # a few rows
+    curl -s --max-time 5 -D headers -o scrape.txt "$URL" || fail "curl $URL: exit $?"
+    grep -qi '^Content-Type: text/plain; version=0.0.4; charset=utf-8' headers || fail "headers: $(cat headers)"
+    promtool check metrics < scrape.txt > promtool.out 2>&1 || fail "promtool check metrics: $(cat promtool.out)"
+    # the same snapshot in both: a scrape between two reads of an unchanged status file
+    # has its samples, uptime, rows, last row and estimates (to the status file's precision)
+    same=0
+    for _ in $(seq 30); do
+        cp status s1; curl -s --max-time 5 -o m.txt "$URL" || fail "curl"; cp status s2
+        if cmp -s s1 s2 && [ "$(metric vibid_samples_total m.txt)" = "$(status_val samples s1)" ]; then same=1; break; fi
+        sleep 0.05
+    done
+    [ $same -eq 1 ] || fail "no scrape matched an unchanged status file in 30 tries"
+    s=$(status_val samples s1)
+    [ "$s" -gt 0 ] || fail "samples $s"
+    awk -v a="$(metric vibid_uptime_seconds m.txt)" -v b="$(status_val uptime_s s1)" 'BEGIN { exit !(sprintf("%.3f", a) == b) }' ||
+        fail "uptime: metrics $(metric vibid_uptime_seconds m.txt), status $(status_val uptime_s s1)"
+    [ "$(metric vibid_last_row_index m.txt)" = "$(status_val last_index s1)" ] || fail "last row index differs"
+    [ "$(metric vibid_rows_total m.txt)" = "$(status_val rows s1)" ] || fail "rows differ"
+    for p in c1 d c2; do
+        mv=$(metric "vibid_estimate{parameter=\"$p\"}" m.txt) sv=$(status_val "estimate.$p" s1)
+        awk -v a="$mv" -v b="$sv" 'BEGIN { exit !(sprintf("%.10g", a) == b) }' || fail "estimate $p: metrics $mv, status $sv"
+    done
+    c1=$(metric 'vibid_estimate{parameter="c1"}' m.txt)
+    awk -v c="$c1" 'BEGIN { exit !(c > 0.99 * 2.5e5 && c < 1.01 * 2.5e5) }' || fail "c1 = $c1, truth 2.5e5"
+    [ "$(metric vibid_stand_sample_rate_hertz m.txt)" = 2000 ] || fail "stand rate"
+    grep -q '^vibid_latency_seconds_count [1-9]' m.txt || fail "no latency measured in a paced run"
+    note "scrape = status file at $s samples (uptime, rows, last row, c1 d c2 alike); promtool accepts $(grep -vc '^#' scrape.txt) samples"
+    # hostile peers: one that sends nothing, kept open; the others are served meanwhile
+    exec 3<> "/dev/tcp/127.0.0.1/$port" || fail "connect"
+    t0=$(date +%s%N) t_idle=$(date +%s%N)
+    curl -s --max-time 2 -o /dev/null "$URL" || fail "scrape beside an idle connection: curl exit $?"
+    dt=$((($(date +%s%N) - t0) / 1000000))
+    [ $dt -lt 500 ] || fail "scrape beside an idle connection took $dt ms"
+    # garbage: 400 at once
+    exec 5<> "/dev/tcp/127.0.0.1/$port" || fail "connect"
+    printf 'GARBAGE\r\n\r\n' >&5
+    IFS= read -r -t 2 line <&5 || fail "no answer to garbage"
+    exec 5<&-
+    [ "${line%$'\r'}" = "HTTP/1.1 400 Bad Request" ] || fail "garbage answered '$line'"
+    # the idle connection is closed at the 2 s deadline, without an answer
+    IFS= read -r -t 4 line <&3; rc=$?
+    [ $rc -eq 1 ] || fail "the idle connection was not closed by the deadline (read status $rc, '$line')"
+    exec 3<&-
+    dt_idle=$((($(date +%s%N) - t_idle) / 1000000))
+    [ $dt_idle -ge 1500 ] && [ $dt_idle -le 3000 ] || fail "the idle connection was closed after $dt_idle ms, not at 2 s"
+    # 50 connections at once, half of them idle, half with a request
+    python3 - "$port" <<'PYEOF' || fail "50 connections: python failed"
+import socket, sys, time
+port = int(sys.argv[1])
+conns = []
+for i in range(50):
+    s = socket.create_connection(("127.0.0.1", port), timeout=5)
+    if i % 2:
+        s.sendall(b"GET /metrics HTTP/1.1\r\nHost: x\r\n\r\n")
+    conns.append(s)
+time.sleep(0.5)
+for s in conns:
+    s.close()
+PYEOF
+    curl -s --max-time 2 -o after.txt "$URL" || fail "scrape after 50 connections: curl exit $?"
+    grep -q '^vibid_samples_total [1-9]' after.txt || fail "scrape after 50 connections: $(head -c 300 after.txt)"
+    sleep 0.5  # the endpoint's counters reach the text at the next render (every 0.2 s here)
+    curl -s --max-time 2 -o counts.txt "$URL" || fail "curl"
+    awk '$1 == "vibid_metrics_refused_total{reason=\"timeout\"}" && $2 >= 1 { t = 1 }
+         $1 == "vibid_metrics_refused_total{reason=\"bad_request\"}" && $2 >= 1 { b = 1 }
+         $1 == "vibid_metrics_refused_total{reason=\"evicted\"}" && $2 >= 1 { e = 1 }
+         $1 == "vibid_metrics_scrapes_total" && $2 >= 5 { s = 1 } END { exit !(t && b && e && s) }' counts.txt ||
+        fail "endpoint counters: $(grep vibid_metrics_ counts.txt | grep -v '^#')"
+    # SIGTERM with an idle connection and a half-sent request open: stopped within 1 s
+    exec 3<> "/dev/tcp/127.0.0.1/$port" || fail "connect"
+    exec 4<> "/dev/tcp/127.0.0.1/$port" || fail "connect"
+    printf 'GET /metr' >&4
+    kill -0 $pid || fail "vibidd died: $(cat log)"
+    kill -TERM $pid
+    t0=$(date +%s%N)
+    wait $pid; rc=$?
+    dt=$((($(date +%s%N) - t0) / 1000000))
+    exec 3<&- 4<&-
+    [ $rc -eq 0 ] || fail "exit status $rc after SIGTERM: $(cat log)"
+    [ $dt -lt 1000 ] || fail "took $dt ms to stop after SIGTERM with connections open"
+    [ "$(status_val state status)" = stopped ] || fail "status not final"
+    ! grep -Eq '^vibidd: (error|warning):' log || fail "errors in the log: $(grep -E '^vibidd: (error|warning):' log)"
+    note "idle connection closed after $dt_idle ms (deadline 2 s), garbage 400, 50 connections survived ($(metric 'vibid_metrics_refused_total{reason="evicted"}' counts.txt) evicted); SIGTERM stopped vibidd in $dt ms"
+    # an address in use: --check warns (exit 0, noted in the printout), start-up exits 2
+    python3 - > busy.port <<'PYEOF' &
+import socket, time
+s = socket.socket(); s.bind(("127.0.0.1", 0)); s.listen(1)
+print(s.getsockname()[1], flush=True)
+time.sleep(8)
+PYEOF
+    py=$!
+    for _ in $(seq 50); do [ -s busy.port ] && break; sleep 0.1; done
+    bp=$(cat busy.port)
+    sed "s|listen = \"127.0.0.1:0\"|listen = \"127.0.0.1:$bp\"|" v.cfg > busy.cfg
+    timeout 10 "$VIBIDD" -c busy.cfg --check > busy.out 2> busy.err || fail "--check on a busy port: exit $? ($(cat busy.err))"
+    grep -q "^# outputs.prometheus.listen 127.0.0.1:$bp is in use now" busy.out || fail "--check note: $(tail -3 busy.out)"
+    timeout 10 "$VIBIDD" -c busy.cfg --status "" --tracks "" 2> busy.log; rc=$?
+    kill $py 2>/dev/null; wait $py 2>/dev/null
+    [ $rc -eq 2 ] || fail "start on a busy port: exit $rc, expected 2 ($(cat busy.log))"
+    grep -q "outputs.prometheus.listen 127.0.0.1:$bp: cannot listen: Address already in use" busy.log ||
+        fail "busy port message: $(cat busy.log)"
+    note "a port in use: --check warns, start-up exits 2 naming the address"
+    ;;
+prometheus_server)
+    # A real Prometheus server (Debian's /usr/bin/prometheus) scrapes a running vibidd every
+    # second; its query API must return vibid_samples_total > 0, consistent with the status
+    # file (not above the samples vibidd counted by then), the estimates and the info labels.
+    if ! command -v prometheus > /dev/null; then
+        echo "SKIPPED [$CASE]: the prometheus binary is not installed (Debian package prometheus,"
+        echo "SKIPPED [$CASE]: scripts/install-deps.sh --test); the real-server test was NOT run"
+        exit 77
+    fi
+    $GEN "$STAND" --duration 60 --noise 0.001 --seed 15 --csv cap.csv 2>/dev/null || fail "generator"
+    config_prometheus v.cfg
+    timeout 90 "$VIBIDD" -c v.cfg --pace 2> log &
+    pid=$!
+    target=$(wait_metrics_listen) || fail "no metrics_listen in the status file: $(cat log)"
+    pport=$(python3 -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
+    printf '%s\n' "global:" "  scrape_interval: 1s" "  scrape_timeout: 1s" "  evaluation_interval: 1s" \
+        "scrape_configs:" "  - job_name: vibidd" "    static_configs:" "      - targets: ['$target']" > prometheus.yml
+    timeout 90 prometheus --config.file="$W/prometheus.yml" --storage.tsdb.path="$W/tsdb" \
+        --web.listen-address="127.0.0.1:$pport" --log.level=warn > prom.log 2>&1 &
+    ppid=$!
+    trap 'kill $ppid $pid 2>/dev/null; wait; rm -rf "$W"' EXIT
+    API="http://127.0.0.1:$pport/api/v1/query"
+    v=
+    for _ in $(seq 60); do
+        v=$(prom_query "$API" vibid_samples_total)
+        [ -n "$v" ] && [ "$v" != 0 ] && break
+        kill -0 $ppid 2>/dev/null || fail "prometheus exited: $(cat prom.log)"
+        sleep 0.5
+    done
+    [ -n "$v" ] && [ "$v" -gt 0 ] 2>/dev/null ||
+        fail "no vibid_samples_total > 0 from the query API in 30 s (got '$v'): $(tail -5 prom.log)"
+    s=$(status_val samples status)
+    # the stored sample was scraped at most ~1 s ago: not above what vibidd counts now, and
+    # not more than 3 s of samples (2 kHz) below it
+    [ "$v" -le "$s" ] || fail "Prometheus has $v samples, the status file only $s"
+    [ "$v" -ge $((s - 3 * 2000)) ] || fail "Prometheus' $v samples lag the status file's $s by more than 3 s"
+    [ "$(prom_query "$API" 'up{job="vibidd"}')" = 1 ] || fail "up{job=\"vibidd\"} is not 1"
+    [ "$(prom_query "$API" 'vibid_info{stand="paper_example1",source="replay",estimator="rls"}')" = 1 ] ||
+        fail "vibid_info labels"
+    c1=$(prom_query "$API" 'vibid_estimate{parameter="c1"}')
+    awk -v c="$c1" 'BEGIN { exit !(c > 0.99 * 2.5e5 && c < 1.01 * 2.5e5) }' || fail "c1 via Prometheus = '$c1', truth 2.5e5"
+    scrapes=$(status_val metrics_scrapes status)
+    [ "$scrapes" -ge 1 ] || fail "the status file counts no scrape"
+    kill -TERM $pid
+    wait $pid || fail "vibidd exit status $?: $(cat log)"
+    kill $ppid; wait $ppid 2>/dev/null
+    note "Prometheus ($(prometheus --version 2>&1 | head -1 | cut -d' ' -f3)) stored vibid_samples_total = $v (status file: $s), c1 = $c1, $scrapes scrapes of vibidd"
     ;;
 *)
     fail "unknown case"

@@ -96,6 +96,46 @@ static void test_unknown_directive(void **state)
     expect_error("unknown2.cfg", STAND SOURCE "output = { };\n", ":12: output:", "unknown setting 'output' (known: stand, ");
 }
 
+/* outputs.prometheus: absent = off, the group alone = loopback on the default port, a
+ * given address kept; a host name or a bad port is refused naming the field; the printout
+ * carries it (and reads back: test_defaults_and_roundtrip prints the default). */
+static void test_prometheus(void **state)
+{
+    (void)state;
+    vd_config cfg;
+    vd_config_error err;
+    assert_int_equal(vd_config_load(write_cfg("p0.cfg", STAND SOURCE), &cfg, &err), 0);
+    assert_string_equal(cfg.prom_listen, "");
+    vd_config_free(&cfg);
+    assert_int_equal(vd_config_load(write_cfg("p1.cfg", STAND SOURCE "outputs = { prometheus = { }; };\n"), &cfg, &err),
+                     0);
+    assert_string_equal(cfg.prom_listen, "127.0.0.1:18813");
+    char *p = NULL;
+    size_t n = 0;
+    FILE *o = open_memstream(&p, &n);
+    vd_config_print(&cfg, o);
+    fclose(o);
+    assert_non_null(strstr(p, "  prometheus = { listen = \"127.0.0.1:18813\"; };"));
+    free(p);
+    vd_config_free(&cfg);
+    assert_int_equal(vd_config_load(write_cfg("p2.cfg", STAND SOURCE
+                                              "outputs = { prometheus = { listen = \"[::1]:9999\"; }; };\n"),
+                                    &cfg, &err),
+                     0);
+    assert_string_equal(cfg.prom_listen, "[::1]:9999");
+    vd_config_free(&cfg);
+    expect_error("p3.cfg", STAND SOURCE "outputs = { prometheus = { listen = \"example.org:9100\"; }; };\n",
+                 ":12: outputs.prometheus.listen:", "'example.org' is not an IPv4 address");
+    expect_error("p4.cfg", STAND SOURCE "outputs = { prometheus = { listen = \"127.0.0.1:70000\"; }; };\n",
+                 ":12: outputs.prometheus.listen:", "port '70000' outside 0..65535");
+    expect_error("p5.cfg", STAND SOURCE "outputs = { prometheus = { listen = \"::1:9100\"; }; };\n",
+                 ":12: outputs.prometheus.listen:", "needs brackets");
+    expect_error("p6.cfg", STAND SOURCE "outputs = { prometheus = { port = 9100; }; };\n",
+                 ":12: outputs.prometheus.port:", "unknown setting 'port' (known: listen)");
+    expect_error("p7.cfg", STAND SOURCE "outputs = { prometheus = \"127.0.0.1:1\"; };\n", ":12: outputs.prometheus:",
+                 "must be a group");
+}
+
 static void test_ring_power_of_two(void **state)
 {
     (void)state;
@@ -391,7 +431,7 @@ int main(void)
         cmocka_unit_test(test_stand_errors),      cmocka_unit_test(test_channel_missing),
         cmocka_unit_test(test_alarm_param),       cmocka_unit_test(test_modbus_url),
         cmocka_unit_test(test_defaults_and_roundtrip),
-        cmocka_unit_test(test_start_values),
+        cmocka_unit_test(test_start_values),      cmocka_unit_test(test_prometheus),
         cmocka_unit_test(test_channel_units),     cmocka_unit_test(test_channel_units_dbc),
     };
     int rc = cmocka_run_group_tests(tests, NULL, NULL);
