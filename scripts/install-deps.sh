@@ -7,6 +7,8 @@ set -euo pipefail
 # Build: compilers, CMake, and the libraries of every part.
 packages=(build-essential cmake ninja-build pkg-config libeigen3-dev libcmocka-dev
           libsundials-dev libmodbus-dev libconfig-dev)
+# vibidd's MQTT output (outputs.mqtt, daemon/src/mqtt.c)
+packages+=(libmosquitto-dev)
 # Demo plots.
 packages+=(gnuplot-nox)
 if [[ "${1:-}" == "--test" ]]; then
@@ -20,6 +22,9 @@ if [[ "${1:-}" == "--test" ]]; then
   # promtool (`promtool check metrics`) and a real Prometheus server scraping vibidd's
   # metrics endpoint (daemon.e2e.prometheus, daemon.e2e.prometheus_server)
   packages+=(prometheus)
+  # a real MQTT broker (mosquitto, with mosquitto_passwd) and its clients (mosquitto_sub,
+  # mosquitto_pub) for vibidd's MQTT tests (daemon.e2e_mqtt.*); openssl makes their CA
+  packages+=(mosquitto mosquitto-clients openssl)
 fi
 
 missing=()

@@ -496,7 +496,7 @@ static const char *const acq_known[] = {"ring_size",   "read_batch",   "read_tim
 static const char *const est_known[] = {"method",         "forgetting",       "prefilter_hz", "rls_alpha",
                                         "iv_lag",         "difference_order", "decimation",   "warmup_samples",
                                         "start_values",   NULL};
-static const char *const out_known[] = {"tracks", "influx", "record", "status", "prometheus", NULL};
+static const char *const out_known[] = {"tracks", "influx", "record", "status", "prometheus", "mqtt", NULL};
 static const char *const alarm_known[] = {"enabled", "threshold", "min_relative", "hold", "learn_start",
                                           "learn_duration", "parameters", NULL};
 static const char *const log_known[] = {"level", "status_interval", NULL};
@@ -627,6 +627,155 @@ static int load_estimator(ctx *c, config_t *cf)
     return load_start_values(c, g ? config_setting_get_member(g, "start_values") : NULL);
 }
 
+/* An MQTT topic level: not empty, no '/', '+', '#' (the separator and the wildcards). */
+static const char *topic_level_problem(const char *s)
+{
+    if (!*s)
+        return "is empty";
+    if (strchr(s, '/'))
+        return "contains '/', the topic level separator";
+    if (strpbrk(s, "+#"))
+        return "contains a wildcard ('+' or '#')";
+    return NULL;
+}
+
+/* outputs.mqtt.url: mqtt://HOST[:PORT] (1883) or mqtts://HOST[:PORT] (8883); HOST a name, an
+ * IPv4 literal or a bracketed IPv6 literal; nothing after the port. 0, or -1 with why. */
+static int parse_mqtt_url(vd_config *cfg, char *why, size_t cap)
+{
+    const char *u = cfg->mqtt_url, *h;
+    if (!strncmp(u, "mqtt://", 7)) {
+        cfg->mqtt_tls = false;
+        cfg->mqtt_port = 1883;
+        h = u + 7;
+    } else if (!strncmp(u, "mqtts://", 8)) {
+        cfg->mqtt_tls = true;
+        cfg->mqtt_port = 8883;
+        h = u + 8;
+    } else {
+        snprintf(why, cap, "'%s': expected mqtt://HOST[:PORT] or mqtts://HOST[:PORT] (TLS)", u);
+        return -1;
+    }
+    const char *end, *port = NULL;
+    if (*h == '[') {
+        end = strchr(h, ']');
+        if (!end) {
+            snprintf(why, cap, "'%s': unterminated [IPv6] address", u);
+            return -1;
+        }
+        snprintf(cfg->mqtt_host, sizeof cfg->mqtt_host, "%.*s", (int)(end - h - 1), h + 1);
+        end++;
+    } else {
+        end = h + strcspn(h, ":/?#@");
+        snprintf(cfg->mqtt_host, sizeof cfg->mqtt_host, "%.*s", (int)(end - h), h);
+    }
+    if (!cfg->mqtt_host[0]) {
+        snprintf(why, cap, "'%s': no host", u);
+        return -1;
+    }
+    if (*end == ':') {
+        port = end + 1;
+        char *e;
+        long p = strtol(port, &e, 10);
+        if (!*port || *e || *port == '-' || *port == '+' || p < 1 || p > 65535) {
+            snprintf(why, cap, "'%s': port '%s' outside 1..65535 (nothing may follow the port)", u, port);
+            return -1;
+        }
+        cfg->mqtt_port = (int)p;
+    } else if (*end) {
+        snprintf(why, cap, "'%s': unexpected '%s' after the host (no user, path or query: username and "
+                           "password_file are settings of their own)", u, end);
+        return -1;
+    }
+    return 0;
+}
+
+/* outputs.mqtt (docs/vibidd.md, "MQTT"): off without the group or with url = ""; the group
+ * alone publishes to the broker on loopback. Only what the file says is checked here; the
+ * files it names are read by --check and at start-up (mqtt.c). The password comes from a
+ * file of its own, never from this configuration: --check prints the configuration (and
+ * systemd's ExecStartPre puts that into the journal), configurations are copied and
+ * compared, and /etc/vibidd is readable by the service; a password file can be 0600 (or a
+ * systemd credential) and rotated on its own. */
+static int load_mqtt(ctx *c, const config_setting_t *q)
+{
+    vd_config *cfg = c->cfg;
+    static const char *const qk[] = {"url",     "site",     "stand",        "topic_prefix", "client_id",
+                                     "username", "password_file", "ca_file", "cert_file",   "key_file",
+                                     "qos",      "queue_size", "format",     "keepalive",    "protocol",
+                                     "drain_timeout", NULL};
+    static const char *const fmts[] = {"json", "line", NULL};
+    static const char *const protos[] = {"5", "3.1.1", NULL};
+    const char *S = "outputs.mqtt";
+    if (q && !config_setting_is_group(q))
+        return vibid_cfg_fail(&c->r, q, S, "must be a group { url = \"mqtt://127.0.0.1:1883\"; site = \"...\"; }");
+    long long v;
+    int fi = 0, pi = 0;
+    if (check_known(c, q, S, qk) ||
+        get_string(c, q, S, "url", q ? "mqtt://127.0.0.1:1883" : "", cfg->mqtt_url, sizeof cfg->mqtt_url) ||
+        get_string(c, q, S, "site", "", cfg->mqtt_site, sizeof cfg->mqtt_site) ||
+        get_string(c, q, S, "stand", "", cfg->mqtt_stand, sizeof cfg->mqtt_stand) ||
+        get_string(c, q, S, "topic_prefix", "vibid/v1", cfg->mqtt_prefix, sizeof cfg->mqtt_prefix) ||
+        get_string(c, q, S, "client_id", "", cfg->mqtt_client_id, sizeof cfg->mqtt_client_id) ||
+        get_string(c, q, S, "username", "", cfg->mqtt_username, sizeof cfg->mqtt_username) ||
+        get_path(c, q, S, "password_file", cfg->mqtt_password_file, sizeof cfg->mqtt_password_file) ||
+        get_path(c, q, S, "ca_file", cfg->mqtt_ca_file, sizeof cfg->mqtt_ca_file) ||
+        get_path(c, q, S, "cert_file", cfg->mqtt_cert_file, sizeof cfg->mqtt_cert_file) ||
+        get_path(c, q, S, "key_file", cfg->mqtt_key_file, sizeof cfg->mqtt_key_file) ||
+        get_int(c, q, S, "qos", 1, 1, 2, &v))
+        return -1;
+    cfg->mqtt_qos = (int)v;
+    if (get_int(c, q, S, "queue_size", 10000, 1, 10000000, &v))
+        return -1;
+    cfg->mqtt_queue_size = (unsigned)v;
+    if (get_enum(c, q, S, "format", 0, fmts, &fi) || get_int(c, q, S, "keepalive", 30, 5, 3600, &v))
+        return -1;
+    cfg->mqtt_format = fi;
+    cfg->mqtt_keepalive = (int)v;
+    if (get_enum(c, q, S, "protocol", 0, protos, &pi) ||
+        get_double(c, q, S, "drain_timeout", 5.0, 0.0, 60.0, &cfg->mqtt_drain_timeout_s))
+        return -1;
+    cfg->mqtt_protocol = pi == 0 ? 5 : 4;
+    if (!cfg->mqtt_url[0])
+        return 0;
+    char why[400];
+    if (parse_mqtt_url(cfg, why, sizeof why))
+        return vibid_cfg_fail(&c->r, config_setting_get_member(q, "url"), "outputs.mqtt.url", "%s", why);
+    const char *bad;
+    if (!config_setting_get_member(q, "site"))
+        return vibid_cfg_fail(&c->r, q, "outputs.mqtt.site",
+                              "missing: the plant or site, the topic level after topic_prefix "
+                              "(<topic_prefix>/<site>/<stand>/tracks)");
+    if ((bad = topic_level_problem(cfg->mqtt_site)))
+        return vibid_cfg_fail(&c->r, config_setting_get_member(q, "site"), "outputs.mqtt.site",
+                              "'%s' %s: it is one MQTT topic level", cfg->mqtt_site, bad);
+    if (cfg->mqtt_stand[0] && (bad = topic_level_problem(cfg->mqtt_stand)))
+        return vibid_cfg_fail(&c->r, config_setting_get_member(q, "stand"), "outputs.mqtt.stand",
+                              "'%s' %s: it is one MQTT topic level", cfg->mqtt_stand, bad);
+    if (!cfg->mqtt_stand[0] && (bad = topic_level_problem(vibid_stand_name(cfg->stand))))
+        return vibid_cfg_fail(&c->r, q, "outputs.mqtt.stand",
+                              "the stand's name '%s' %s and cannot be an MQTT topic level: give "
+                              "outputs.mqtt.stand",
+                              vibid_stand_name(cfg->stand), bad);
+    const char *pre = cfg->mqtt_prefix;
+    size_t pl = strlen(pre);
+    if (!pl || pre[0] == '/' || pre[pl - 1] == '/' || strstr(pre, "//") || strpbrk(pre, "+#"))
+        return vibid_cfg_fail(&c->r, config_setting_get_member(q, "topic_prefix"), "outputs.mqtt.topic_prefix",
+                              "'%s': expected topic levels without wildcards, leading, trailing or double "
+                              "slashes, e.g. \"vibid/v1\"",
+                              pre);
+    if (cfg->mqtt_password_file[0] && !cfg->mqtt_username[0])
+        return vibid_cfg_fail(&c->r, config_setting_get_member(q, "password_file"), "outputs.mqtt.password_file",
+                              "a password needs a username (outputs.mqtt.username)");
+    if (!cfg->mqtt_tls && (cfg->mqtt_ca_file[0] || cfg->mqtt_cert_file[0] || cfg->mqtt_key_file[0]))
+        return vibid_cfg_fail(&c->r, q, "outputs.mqtt",
+                              "ca_file, cert_file and key_file are for TLS: the url must be mqtts://");
+    if (!cfg->mqtt_cert_file[0] != !cfg->mqtt_key_file[0])
+        return vibid_cfg_fail(&c->r, q, "outputs.mqtt",
+                              "a client certificate needs both cert_file and key_file");
+    return 0;
+}
+
 static int load_outputs(ctx *c, config_t *cf)
 {
     vd_config *cfg = c->cfg;
@@ -702,7 +851,7 @@ static int load_outputs(ctx *c, config_t *cf)
             return vibid_cfg_fail(&c->r, config_setting_get_member(p, "listen"), "outputs.prometheus.listen", "%s",
                                   why);
     }
-    return 0;
+    return load_mqtt(c, g ? config_setting_get_member(g, "mqtt") : NULL);
 }
 
 static int load_alarms(ctx *c, config_t *cf)
@@ -913,6 +1062,22 @@ static const char *num(double v)
     return b;
 }
 
+/* A string as the inside of a libconfig string literal (quote and backslash escaped). */
+static const char *esc(const char *v)
+{
+    static char bufs[12][2 * VD_PATH_MAX + 2];
+    static unsigned next;
+    char *b = bufs[next++ % 12];
+    size_t o = 0;
+    for (; *v && o + 2 < sizeof bufs[0]; v++) {
+        if (*v == '"' || *v == '\\')
+            b[o++] = '\\';
+        b[o++] = *v;
+    }
+    b[o] = '\0';
+    return b;
+}
+
 void vd_config_print(const vd_config *cfg, FILE *o)
 {
     const vibid_model *m = vibid_stand_model(cfg->stand);
@@ -1048,10 +1213,23 @@ void vd_config_print(const vd_config *cfg, FILE *o)
             "outputs = {\n  tracks = { path = \"%s\"; flush_interval = %s; fsync = %s; };\n"
             "  influx = { path = \"%s\"; udp = \"%s\"; measurement = \"%s\"; };\n"
             "  record = { path = \"%s\"; format = \"%s\"; };\n  status = { path = \"%s\"; interval = %s; };\n"
-            "  prometheus = { listen = \"%s\"; };  # \"\" = off\n};\n",
+            "  prometheus = { listen = \"%s\"; };  # \"\" = off\n",
             cfg->tracks_path, num(cfg->flush_interval_s), yes(cfg->fsync_on_flush), cfg->influx_path, cfg->influx_udp,
             cfg->influx_measurement, cfg->record_path, cfg->record_format == VD_REC_CSV ? "csv" : "candump",
             cfg->status_path, num(cfg->status_interval_s), cfg->prom_listen);
+    if (!cfg->mqtt_url[0])
+        fprintf(o, "  mqtt = { url = \"\"; };  # \"\" = off\n};\n");
+    else
+        fprintf(o,
+                "  mqtt = {\n    url = \"%s\";\n    site = \"%s\";\n    stand = \"%s\";  # \"\" = the stand's name\n"
+                "    topic_prefix = \"%s\";\n    client_id = \"%s\";  # \"\" = vibidd-<site>-<stand>\n"
+                "    username = \"%s\";\n    password_file = \"%s\";\n    ca_file = \"%s\";\n    cert_file = \"%s\";\n"
+                "    key_file = \"%s\";\n    qos = %d;\n    queue_size = %u;\n    format = \"%s\";\n    keepalive = %d;\n"
+                "    protocol = \"%s\";\n    drain_timeout = %s;\n  };\n};\n",
+                esc(cfg->mqtt_url), esc(cfg->mqtt_site), esc(cfg->mqtt_stand), esc(cfg->mqtt_prefix),
+                esc(cfg->mqtt_client_id), esc(cfg->mqtt_username), esc(cfg->mqtt_password_file),
+                esc(cfg->mqtt_ca_file), esc(cfg->mqtt_cert_file), esc(cfg->mqtt_key_file), cfg->mqtt_qos, cfg->mqtt_queue_size, cfg->mqtt_format ? "line" : "json",
+                cfg->mqtt_keepalive, cfg->mqtt_protocol == 5 ? "5" : "3.1.1", num(cfg->mqtt_drain_timeout_s));
     fprintf(o,
             "alarms = {\n  enabled = %s;\n  threshold = %s;\n  min_relative = %s;\n  hold = %s;\n"
             "  learn_start = %s;\n  learn_duration = %s;\n  parameters = (",

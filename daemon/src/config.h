@@ -121,6 +121,23 @@ typedef struct vd_config {
     double flush_interval_s;
     bool fsync_on_flush;
     char prom_listen[128];       /* outputs.prometheus.listen "HOST:PORT" (metrics.h); "" = off */
+    /* outputs.mqtt (mqtt.h, docs/vibidd.md "MQTT"); mqtt_url "" = off */
+    char mqtt_url[256];
+    bool mqtt_tls;               /* mqtts:// */
+    char mqtt_host[200];         /* from the URL (an IPv6 literal without its brackets) */
+    int mqtt_port;
+    char mqtt_site[64], mqtt_stand[64]; /* topic levels; mqtt_stand "" = the stand's name */
+    char mqtt_prefix[128];       /* topic_prefix, e.g. "vibid/v1" */
+    char mqtt_client_id[128];    /* "" = "vibidd-<site>-<stand>" */
+    char mqtt_username[128];
+    char mqtt_password_file[VD_PATH_MAX], mqtt_ca_file[VD_PATH_MAX], mqtt_cert_file[VD_PATH_MAX],
+        mqtt_key_file[VD_PATH_MAX];
+    int mqtt_qos;                /* 1 or 2 */
+    unsigned mqtt_queue_size;    /* messages between the estimation thread and the publisher */
+    int mqtt_format;             /* 0 json, 1 line (InfluxDB line protocol) */
+    int mqtt_keepalive;          /* s */
+    int mqtt_protocol;           /* 5 (MQTT 5) or 4 (MQTT 3.1.1) */
+    double mqtt_drain_timeout_s; /* at the end: longest wait for the queue to reach the broker */
 
     /* alarms */
     bool alarms_enabled;

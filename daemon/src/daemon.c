@@ -408,10 +408,14 @@ static void run_alarms(vd_daemon *d, vd_row *row)
                        pi.name, row->theta[k], a->base, a->last_z, a->cfg.threshold, a->cfg.hold_s,
                        (unsigned long long)row->index, row->run_s);
             vd_writers_alarm(&d->w, pi.name, 1, row, row->theta[k], a->base, a->last_z);
+            if (d->mqtt)
+                d->mqtt_ops->alarm(d->mqtt, pi.name, 1, row, row->theta[k], a->base, a->last_z);
         } else if (ev == VD_ALARM_CLEARED) {
             vd_notice("alarm %s cleared: %.6g is back within %g standard errors of %.6g at sample %llu", pi.name,
                       row->theta[k], a->cfg.threshold, a->base, (unsigned long long)row->index);
             vd_writers_alarm(&d->w, pi.name, 0, row, row->theta[k], a->base, a->last_z);
+            if (d->mqtt)
+                d->mqtt_ops->alarm(d->mqtt, pi.name, 0, row, row->theta[k], a->base, a->last_z);
         } else if (a->have_baseline && a->cfg.learn && !d->base_reported[k]) {
             vd_info("alarm baseline of %s learned: %.9g (mean standard error %.3g, %llu estimates)", pi.name,
                     a->base, a->base_se, (unsigned long long)a->n_learn);
@@ -534,17 +538,21 @@ static void take_snapshot(vd_daemon *d, const char *state, double now)
         vd_metrics_counters(&d->metrics, s);
         s->metrics_listen = d->metrics.where;
     }
+    if (d->mqtt)
+        d->mqtt_ops->counters(d->mqtt, s);
 }
 
-/* The status file's text from the snapshot (key=value lines, docs/vibidd.md). */
-static void write_status(vd_daemon *d, const vd_snapshot *sn)
+/* The status file's text from the snapshot (key=value lines, docs/vibidd.md) into
+ * d->status_text; the MQTT status is the same text as JSON (mqtt.h). */
+static void format_status(vd_daemon *d, const vd_snapshot *sn)
 {
     const vibid_source_stats *ss = &sn->src;
-    char buf[8192];
+    char *buf = d->status_text;
+    const size_t cap = sizeof d->status_text;
     size_t off = 0;
 #define S(...)                                                                                                         \
     do {                                                                                                               \
-        int n_ = snprintf(buf + off, off < sizeof buf ? sizeof buf - off : 0, __VA_ARGS__);                            \
+        int n_ = snprintf(buf + off, off < cap ? cap - off : 0, __VA_ARGS__);                                          \
         if (n_ > 0)                                                                                                    \
             off += (size_t)n_;                                                                                         \
     } while (0)
@@ -599,10 +607,17 @@ static void write_status(vd_daemon *d, const vd_snapshot *sn)
         S("metrics_listen=%s\nmetrics_scrapes=%llu\nmetrics_refused=%llu\n", sn->metrics_listen,
           (unsigned long long)sn->scrapes, refused);
     }
+    if (sn->mqtt_on)
+        S("mqtt_connected=%d\nmqtt_published=%llu\nmqtt_refused=%llu\nmqtt_dropped=%llu\nmqtt_queue_fill=%zu\n"
+          "mqtt_queue_capacity=%zu\nmqtt_inflight=%llu\nmqtt_reconnects=%llu\nmqtt_connect_failures=%llu\n",
+          sn->mqtt_connected ? 1 : 0, (unsigned long long)sn->mqtt_published, (unsigned long long)sn->mqtt_refused,
+          (unsigned long long)sn->mqtt_dropped, sn->mqtt_queue_fill, sn->mqtt_queue_capacity,
+          (unsigned long long)sn->mqtt_inflight, (unsigned long long)sn->mqtt_reconnects,
+          (unsigned long long)sn->mqtt_connect_failures);
 #undef S
-    if (off > sizeof buf)
-        off = sizeof buf;
-    write_status_file(d, buf, off);
+    if (off > cap)
+        off = cap;
+    d->status_len = off;
 }
 
 /* The status file is replaced atomically (a .tmp renamed over it). When that fails (a full
@@ -671,10 +686,16 @@ static void housekeeping(vd_daemon *d, bool final)
                                                now - d->t_last_metrics >= fmin(d->cfg->status_interval_s, 1.0));
     if (status_due)
         update_rate(d, now);
-    if (status_due || metrics_due) {
+    const bool mqtt_due = d->mqtt && (status_due || d->mqtt_pending);
+    if (status_due || metrics_due || mqtt_due) {
         take_snapshot(d, final ? "stopped" : "running", now);
+        if (status_due || mqtt_due)
+            format_status(d, &d->snap);
         if (status_due && d->cfg->status_path[0])
-            write_status(d, &d->snap);
+            write_status_file(d, d->status_text, d->status_len);
+        /* the same text to MQTT; never waits while estimating (mqtt.h) */
+        if (mqtt_due)
+            d->mqtt_pending = !d->mqtt_ops->status(d->mqtt, d->status_text, d->status_len, final);
         if (d->metrics_on) {
             /* never waits while estimating: a busy server gets the next one (metrics.h) */
             d->metrics_pending = !vd_metrics_publish(&d->metrics, &d->snap, final);
@@ -727,6 +748,8 @@ static void process(vd_daemon *d, const vd_item *it)
         note_plausibility(d, &row);
         run_alarms(d, &row);
         vd_writers_row(&d->w, &row);
+        if (d->mqtt)
+            d->mqtt_ops->track(d->mqtt, &row); /* queued; never waits (mqtt.h) */
     }
 }
 
@@ -789,6 +812,10 @@ static void *est_main(void *arg)
 }
 
 /* ------------------------------------------------------------ life cycle ---- */
+
+static const vd_mqtt_ops *mqtt_impl; /* vd_daemon_use_mqtt */
+
+void vd_daemon_use_mqtt(const vd_mqtt_ops *ops) { mqtt_impl = ops; }
 
 int vd_daemon_init(vd_daemon *d, vd_config *cfg, const vd_options *opt, char *err, size_t cap)
 {
@@ -859,6 +886,13 @@ int vd_daemon_init(vd_daemon *d, vd_config *cfg, const vd_options *opt, char *er
             return -1;
         d->metrics_on = true;
     }
+    if (cfg->mqtt_url[0]) {
+        d->mqtt_ops = mqtt_impl;
+        if (!d->mqtt_ops)
+            vd_warning("outputs.mqtt ignored: this program has no MQTT client (libmosquitto); vibidd has");
+        else if (!(d->mqtt = d->mqtt_ops->open(cfg, err, cap)))
+            return -1;
+    }
     return 0;
 }
 
@@ -910,6 +944,14 @@ int vd_daemon_run(vd_daemon *d)
             return 1;
         }
     }
+    if (d->mqtt) {
+        char err[256];
+        if (d->mqtt_ops->start(d->mqtt, err, sizeof err)) {
+            vd_error("%s", err);
+            stop_threads(d);
+            return 1;
+        }
+    }
     vd_notify_send(&d->notify, "READY=1\nSTATUS=acquiring");
     vd_notice("running: stand '%s', %s source, %s estimator, %.6g Hz, ring %zu records", vibid_stand_name(d->cfg->stand),
               vibid_source_kind(d->src), vd_estimator_name(d->cfg->method), d->cfg->sample_rate, vd_ring_capacity(d->ring));
@@ -948,6 +990,17 @@ int vd_daemon_run(vd_daemon *d)
     }
     (void)stop_signal;
     stop_threads(d);
+    if (d->mqtt) {
+        /* the final status is handed over: publish what is queued (outputs.mqtt.drain_timeout
+         * at most), disconnect cleanly; then the status file once more, with the MQTT
+         * counters after the drain (the estimation thread is gone: this thread owns them) */
+        d->mqtt_ops->drain(d->mqtt);
+        if (d->cfg->status_path[0]) {
+            take_snapshot(d, "stopped", mono_s());
+            format_status(d, &d->snap);
+            write_status_file(d, d->status_text, d->status_len);
+        }
+    }
     vd_notice("stopped: %llu samples, %llu rows, %llu gaps (%llu missing samples), %llu faults, %llu ring overflows, "
               "latency p50 %.1f us p99 %.1f us",
               (unsigned long long)d->est.samples, (unsigned long long)d->est.rows, (unsigned long long)d->est.gaps,
@@ -963,6 +1016,9 @@ void vd_daemon_fini(vd_daemon *d)
 {
     stop_threads(d);
     vd_metrics_close(&d->metrics); /* after the threads: the final state was published */
+    if (d->mqtt)
+        d->mqtt_ops->close(d->mqtt);
+    d->mqtt = NULL;
     vd_writers_close(&d->w);
     vibid_source_close(d->src);
     d->src = NULL;

@@ -15,6 +15,8 @@
  *     progress).
  *   metrics thread (outputs.prometheus only): the HTTP endpoint (metrics.h); it reads the
  *     text the estimation thread renders at its housekeeping and nothing else.
+ *   MQTT thread (outputs.mqtt only): the broker connection (mqtt.h); it takes the messages the
+ *     estimation thread queues (never waiting for them) and the status text it hands over.
  * Start order: config -> log -> memory lock -> ring -> estimator -> writers -> source ->
  * metrics socket -> threads -> READY=1; torn down in reverse.
  */
@@ -32,6 +34,7 @@
 #include "config.h"
 #include "estimator.h"
 #include "metrics.h"
+#include "mqtt.h"
 #include "notify.h"
 #include "rate_check.h"
 #include "ring.h"
@@ -43,6 +46,11 @@ typedef struct vd_options {
     double speed;              /* --speed (with --pace) */
     vd_rate_mode rate_check;   /* --rate-check (default error): capture/stand rate mismatch */
 } vd_options;
+
+/* outputs.mqtt's implementation (vibidd: vd_mqtt_libmosquitto, mqtt.h), given before
+ * vd_daemon_init. Without it (a program that links vibidd_core without libmosquitto, e.g. the
+ * Python module's vibid.replay) outputs.mqtt is ignored with a warning. */
+void vd_daemon_use_mqtt(const vd_mqtt_ops *ops);
 
 #define VD_LAT_BUCKETS 20000   /* 1 us buckets up to 20 ms; the last one collects the rest */
 
@@ -96,6 +104,12 @@ typedef struct vd_daemon {
     vd_metrics metrics;
     bool metrics_on;
     bool metrics_pending;      /* the last publish found the server busy: retry */
+    /* outputs.mqtt: the publisher (its own thread, mqtt.h), reached through mqtt_ops */
+    const vd_mqtt_ops *mqtt_ops;
+    vd_mqtt *mqtt;
+    bool mqtt_pending;         /* the last status hand-over found the publisher busy: retry */
+    char status_text[8192];    /* the status file's text, also the MQTT status */
+    size_t status_len;
 } vd_daemon;
 
 /* Opens everything (see the start order). 0, or -1 with err. */

@@ -9,6 +9,7 @@
 #include "writers.h"
 #include "log.h"
 #include "metrics.h"
+#include "mqtt.h"
 
 #include <locale.h>
 #include <stdio.h>
@@ -177,6 +178,13 @@ int main(int argc, char **argv)
             vd_config_free(&cfg);
             return 2;
         }
+        /* outputs.mqtt: the password and TLS files can be read (no connection is made) */
+        if (vd_mqtt_check(&cfg, e2, sizeof e2)) {
+            vd_error("%s", e2);
+            vd_est_free(&est);
+            vd_config_free(&cfg);
+            return 2;
+        }
         /* the metrics endpoint: the address is bound and released, as start-up binds it;
          * in use (by the running vibidd this --check is meant to replace?) is a warning */
         char prom_note[400];
@@ -200,6 +208,7 @@ int main(int argc, char **argv)
         return 0;
     }
     static vd_daemon d;
+    vd_daemon_use_mqtt(&vd_mqtt_libmosquitto); /* outputs.mqtt (mqtt.h) */
     char e3[2048];
     int rc;
     if (vd_daemon_init(&d, &cfg, &opt, e3, sizeof e3)) {

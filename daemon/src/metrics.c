@@ -290,6 +290,25 @@ int vd_metrics_render(char *buf, size_t cap, const vd_snapshot *s)
             u64(&o, "vibid_metrics_refused_total", a, s->refused[r]);
         }
     }
+    if (s->mqtt_on) {
+        gauge(&o, "vibid_mqtt_connected", "1 while connected to the MQTT broker.", s->mqtt_connected ? 1.0 : 0.0);
+        counter(&o, "vibid_mqtt_published_total", "MQTT messages acknowledged by the broker.", s->mqtt_published);
+        counter(&o, "vibid_mqtt_refused_total",
+                "MQTT messages the broker refused (MQTT 5 reason codes, e.g. an ACL; always 0 with MQTT 3.1.1).",
+                s->mqtt_refused);
+        counter(&o, "vibid_mqtt_dropped_total", "MQTT messages dropped because the queue was full.",
+                s->mqtt_dropped);
+        gauge(&o, "vibid_mqtt_queue_fill", "MQTT messages waiting in the queue for the broker.",
+              (double)s->mqtt_queue_fill);
+        gauge(&o, "vibid_mqtt_queue_capacity", "MQTT messages the queue holds (outputs.mqtt.queue_size).",
+              (double)s->mqtt_queue_capacity);
+        gauge(&o, "vibid_mqtt_inflight", "MQTT messages sent and not yet acknowledged (resent after a reconnection).",
+              (double)s->mqtt_inflight);
+        counter(&o, "vibid_mqtt_reconnects_total", "MQTT connections after the first one.", s->mqtt_reconnects);
+        counter(&o, "vibid_mqtt_connect_failures_total",
+                "Failed MQTT connection attempts (unreachable, TLS, refused by the broker).",
+                s->mqtt_connect_failures);
+    }
     return o.full ? -1 : (int)o.off;
 }
 

@@ -120,6 +120,14 @@ typedef struct vd_snapshot {
     bool metrics_on;
     const char *metrics_listen;      /* the bound address, "127.0.0.1:18813" */
     uint64_t scrapes, refused[VD_REFUSED_N];
+    /* outputs.mqtt (mqtt.h), when configured */
+    bool mqtt_on, mqtt_connected;
+    uint64_t mqtt_published;        /* acknowledged by the broker */
+    uint64_t mqtt_refused;          /* refused by the broker (MQTT 5 reason codes; an ACL) */
+    uint64_t mqtt_dropped;          /* dropped because the queue was full */
+    uint64_t mqtt_reconnects, mqtt_connect_failures;
+    uint64_t mqtt_inflight;         /* handed to libmosquitto, not yet acknowledged */
+    size_t mqtt_queue_fill, mqtt_queue_capacity;
 } vd_snapshot;
 
 /* The exposition text of s into buf. Returns its length, or -1 if cap is too small (the

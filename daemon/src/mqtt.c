@@ -1,0 +1,940 @@
+/* mqtt.c: see mqtt.h. */
+
+#include "mqtt.h"
+
+#include "log.h"
+#include "writers.h"
+
+#include <errno.h>
+#include <fcntl.h>
+#include <math.h>
+#include <mosquitto.h>
+#include <poll.h>
+#include <pthread.h>
+#include <stdarg.h>
+#include <stdatomic.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/eventfd.h>
+#include <sys/stat.h>
+#include <time.h>
+#include <unistd.h>
+
+#define BACKOFF_FIRST_S 0.5
+#define BACKOFF_MAX_S 30.0
+#define RELOG_S 60.0 /* a repeated failure is logged again at most this often */
+
+static double mono_s(void) {
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
+/* ------------------------------------------------------------ formatting ---- */
+
+typedef struct out {
+    char *buf;
+    size_t cap, off;
+    bool full;
+} out;
+
+static void put(out *o, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
+static void put(out *o, const char *fmt, ...) {
+    if (o->full || o->off >= o->cap) {
+        o->full = true;
+        return;
+    }
+    va_list ap;
+    va_start(ap, fmt);
+    int n = vsnprintf(o->buf + o->off, o->cap - o->off, fmt, ap);
+    va_end(ap);
+    if (n < 0 || (size_t)n >= o->cap - o->off) {
+        o->full = true;
+        return;
+    }
+    o->off += (size_t)n;
+}
+
+static void put_str(out *o, const char *s) {
+    put(o, "\"");
+    for (const unsigned char *p = (const unsigned char *)s; *p && !o->full; p++) {
+        if (*p == '"' || *p == '\\')
+            put(o, "\\%c", *p);
+        else if (*p < 0x20)
+            put(o, "\\u%04x", *p);
+        else
+            put(o, "%c", *p);
+    }
+    put(o, "\"");
+}
+
+int vd_mqtt_json_string(char *buf, size_t cap, const char *s) {
+    out o = {buf, cap, 0, cap == 0};
+    put_str(&o, s);
+    return o.full ? -1 : (int)o.off;
+}
+
+/* a number as the tracks CSV writes it; NaN and infinities are not JSON: null */
+static void put_num(out *o, double v) {
+    if (isfinite(v))
+        put(o, "%.10g", v);
+    else
+        put(o, "null");
+}
+
+static void put_time(out *o, int64_t t_us) {
+    const char *sign = "";
+    uint64_t a = (uint64_t)t_us;
+    if (t_us < 0) {
+        sign = "-";
+        a = (uint64_t)(-(t_us + 1)) + 1u;
+    }
+    put(o, "%s%llu.%06llu", sign, (unsigned long long)(a / 1000000u), (unsigned long long)(a % 1000000u));
+}
+
+static void flag_text(unsigned flags, char out_[8]) {
+    int n = 0;
+    if (flags & VD_FLAG_GAP) out_[n++] = 'G';
+    if (flags & VD_FLAG_NOEST) out_[n++] = 'E';
+    if (flags & VD_FLAG_IMPLAUSIBLE) out_[n++] = 'P';
+    if (flags & VD_FLAG_SE_INVALID) out_[n++] = 'U';
+    if (flags & VD_FLAG_NOT_EXCITED) out_[n++] = 'I';
+    if (flags & VD_FLAG_ALARM) out_[n++] = 'A';
+    out_[n] = '\0';
+}
+
+static void put_header(out *o, const vd_config *cfg, const char *stand, uint64_t seq) {
+    put(o, "{\"stand\":");
+    put_str(o, stand);
+    put(o, ",\"site\":");
+    put_str(o, cfg->mqtt_site);
+    put(o, ",\"seq\":%llu", (unsigned long long)seq);
+}
+
+int vd_mqtt_format_track(char *buf, size_t cap, const vd_config *cfg, const char *stand, uint64_t seq,
+                         uint64_t dropped_before, const vd_row *row) {
+    out o = {buf, cap, 0, cap == 0};
+    put_header(&o, cfg, stand, seq);
+    put(&o, ",\"index\":%llu,\"time_s\":", (unsigned long long)row->index);
+    put_time(&o, row->t_us);
+    put(&o, ",\"params\":{");
+    const vibid_model *m = vibid_stand_model(cfg->stand);
+    for (size_t k = 0; k < cfg->n_params; k++) {
+        vibid_param_info pi;
+        vibid_model_param_info(m, k, &pi);
+        if (k) put(&o, ",");
+        put_str(&o, pi.name);
+        put(&o, ":{\"value\":");
+        put_num(&o, row->theta[k]);
+        put(&o, ",\"se\":");
+        put_num(&o, row->se[k]);
+        put(&o, "}");
+    }
+    put(&o, "},\"modes\":[");
+    for (size_t i = 0; i < cfg->n_modes; i++) {
+        put(&o, "%s{\"f_hz\":", i ? "," : "");
+        put_num(&o, row->freq[i]);
+        put(&o, ",\"f_hz_se\":");
+        put_num(&o, row->freq_se[i]);
+        put(&o, ",\"zeta\":");
+        put_num(&o, row->zeta[i]);
+        put(&o, ",\"zeta_se\":");
+        put_num(&o, row->zeta_se[i]);
+        put(&o, "}");
+    }
+    char fl[8];
+    flag_text(row->flags, fl);
+    put(&o, "],\"gap_samples\":%llu,\"flags\":\"%s\",\"dropped_before\":%llu}",
+        (unsigned long long)row->gap_samples, fl, (unsigned long long)dropped_before);
+    return o.full ? -1 : (int)o.off;
+}
+
+int vd_mqtt_format_alarm(char *buf, size_t cap, const vd_config *cfg, const char *stand, uint64_t seq,
+                         uint64_t dropped_before, const char *param, int raised, const vd_row *row,
+                         double value, double baseline, double z) {
+    out o = {buf, cap, 0, cap == 0};
+    put_header(&o, cfg, stand, seq);
+    put(&o, ",\"index\":%llu,\"time_s\":", (unsigned long long)row->index);
+    put_time(&o, row->t_us);
+    put(&o, ",\"parameter\":");
+    put_str(&o, param);
+    put(&o, ",\"state\":\"%s\",\"value\":", raised ? "raised" : "cleared");
+    put_num(&o, value);
+    put(&o, ",\"baseline\":");
+    put_num(&o, baseline);
+    put(&o, ",\"z\":");
+    put_num(&o, z);
+    put(&o, ",\"dropped_before\":%llu}", (unsigned long long)dropped_before);
+    return o.full ? -1 : (int)o.off;
+}
+
+/* RFC 8259's number: -? (0 | [1-9][0-9]*) (. [0-9]+)? ([eE] [+-]? [0-9]+)? */
+static bool is_json_number(const char *s, size_t n) {
+    size_t i = 0;
+    if (i < n && s[i] == '-') i++;
+    if (i >= n) return false;
+    if (s[i] == '0')
+        i++;
+    else if (s[i] >= '1' && s[i] <= '9')
+        while (i < n && s[i] >= '0' && s[i] <= '9') i++;
+    else
+        return false;
+    if (i < n && s[i] == '.') {
+        size_t d = ++i;
+        while (i < n && s[i] >= '0' && s[i] <= '9') i++;
+        if (i == d) return false;
+    }
+    if (i < n && (s[i] == 'e' || s[i] == 'E')) {
+        i++;
+        if (i < n && (s[i] == '+' || s[i] == '-')) i++;
+        size_t d = i;
+        while (i < n && s[i] >= '0' && s[i] <= '9') i++;
+        if (i == d) return false;
+    }
+    return i == n;
+}
+
+static bool is_nonfinite_word(const char *s, size_t n) {
+    if (n && (*s == '-' || *s == '+')) s++, n--;
+    return (n == 3 && (!strncasecmp(s, "nan", 3) || !strncasecmp(s, "inf", 3))) ||
+           (n == 8 && !strncasecmp(s, "infinity", 8));
+}
+
+int vd_mqtt_format_status(char *buf, size_t cap, const vd_config *cfg, const char *stand, uint64_t seq,
+                          const char *text, size_t len) {
+    out o = {buf, cap, 0, cap == 0};
+    put_header(&o, cfg, stand, seq);
+    /* the index of the latest row, for the schema's common header */
+    const char *li = NULL;
+    size_t lin = 0;
+    for (size_t p = 0; p < len;) {
+        const char *line = text + p, *nl = memchr(line, '\n', len - p);
+        size_t ll = nl ? (size_t)(nl - line) : len - p;
+        if (ll > 11 && !strncmp(line, "last_index=", 11)) {
+            li = line + 11;
+            lin = ll - 11;
+        }
+        p += ll + 1;
+    }
+    if (li && is_json_number(li, lin))
+        put(&o, ",\"index\":%.*s", (int)lin, li);
+    else
+        put(&o, ",\"index\":null");
+    char key[256], val[1024];
+    for (size_t p = 0; p < len && !o.full;) {
+        const char *line = text + p, *nl = memchr(line, '\n', len - p);
+        size_t ll = nl ? (size_t)(nl - line) : len - p;
+        p += ll + 1;
+        const char *eq = memchr(line, '=', ll);
+        if (!eq || eq == line) continue;
+        size_t kl = (size_t)(eq - line), vl = ll - kl - 1;
+        if (kl >= sizeof key || vl >= sizeof val) continue;
+        memcpy(key, line, kl);
+        key[kl] = '\0';
+        memcpy(val, eq + 1, vl);
+        val[vl] = '\0';
+        if (!strcmp(key, "stand")) continue; /* in the header (the topic's stand name) */
+        put(&o, ",");
+        put_str(&o, key);
+        put(&o, ":");
+        if (is_json_number(val, vl))
+            put(&o, "%s", val);
+        else if (is_nonfinite_word(val, vl))
+            put(&o, "null");
+        else
+            put_str(&o, val);
+    }
+    put(&o, "}");
+    return o.full ? -1 : (int)o.off;
+}
+
+/* format "line": the InfluxDB line of writers.c with seq and dropped_before added as
+ * integer fields (before the timestamp). */
+static int splice_seq(char *buf, size_t cap, int n, uint64_t seq, uint64_t dropped) {
+    if (n <= 0) return -1;
+    if (buf[n - 1] == '\n') n--;
+    char *sp = NULL;
+    for (int i = n - 1; i >= 0; i--)
+        if (buf[i] == ' ') {
+            sp = buf + i;
+            break;
+        }
+    if (!sp) return -1;
+    char ts[40], ins[80];
+    snprintf(ts, sizeof ts, "%.*s", (int)(buf + n - sp), sp);
+    int k = snprintf(ins, sizeof ins, ",seq=%llui,dropped_before=%llui", (unsigned long long)seq,
+                     (unsigned long long)dropped);
+    size_t at = (size_t)(sp - buf), tl = strlen(ts);
+    if (at + (size_t)k + tl + 1 > cap) return -1;
+    memcpy(buf + at, ins, (size_t)k);
+    memcpy(buf + at + (size_t)k, ts, tl);
+    buf[at + (size_t)k + tl] = '\0';
+    return (int)(at + (size_t)k + tl);
+}
+
+/* ----------------------------------------------------------------- module ---- */
+
+typedef struct slot_hdr {
+    uint32_t len;
+    uint16_t kind;  /* VD_MQTT_TRACKS or VD_MQTT_ALARMS */
+    uint16_t param; /* alarms: the parameter (its topic) */
+} slot_hdr;
+
+struct vd_mqtt {
+    const vd_config *cfg;
+    char stand[64];
+    char client_id[160];
+    char topic_tracks[400], topic_status[400];
+    char (*topic_alarm)[400]; /* n_params */
+    char password[512];
+    struct mosquitto *mosq;
+    bool lib_init;
+    /* the queue: n_slots slots of stride bytes (slot_hdr + payload) */
+    char *slots;
+    size_t n_slots, stride, payload_max;
+    _Atomic size_t head, tail; /* produced (estimation thread), consumed (publisher) */
+    /* estimation thread only */
+    uint64_t seq[2], pending_drop[2];
+    bool drop_episode;
+    uint64_t episode_drops;
+    char fmt[VD_MQTT_STATUS_MAX];
+    /* status hand-over */
+    pthread_mutex_t st_mu;
+    char *st_text; /* VD_MQTT_STATUS_MAX */
+    size_t st_len;
+    bool st_new;
+    /* wake-up and stop */
+    int efd;
+    _Atomic int sleeping, stop;
+    pthread_t thread;
+    bool started;
+    /* publisher thread */
+    char *st_local; /* the latest status text the publisher has */
+    size_t st_local_len;
+    char *st_json;
+    uint64_t status_seq;
+    bool sock_active; /* a connection attempt or a connection */
+    bool connected_local, just_connected, ever_connected;
+    int refused_rc;      /* CONNACK reason of the current attempt (0 = none) */
+    char lib_error[300]; /* the last error libmosquitto logged (OpenSSL's reasons) */
+    char last_logged[600];
+    double last_log_t;
+    /* counters (publisher writes, estimation thread reads) */
+    _Atomic uint64_t published, refused, reconnects, connect_failures, dropped, inflight, errors;
+    _Atomic int connected;
+};
+
+static void wake(vd_mqtt *m) {
+    atomic_thread_fence(memory_order_seq_cst);
+    if (atomic_load_explicit(&m->sleeping, memory_order_relaxed)) {
+        uint64_t one = 1;
+        ssize_t w = write(m->efd, &one, sizeof one);
+        (void)w;
+    }
+}
+
+static slot_hdr *slot_at(vd_mqtt *m, size_t i) {
+    return (slot_hdr *)(m->slots + (i % m->n_slots) * m->stride);
+}
+
+/* The estimation thread: a free slot, or NULL (the message is dropped and counted). */
+static slot_hdr *claim(vd_mqtt *m, int kind) {
+    size_t head = atomic_load_explicit(&m->head, memory_order_relaxed);
+    size_t tail = atomic_load_explicit(&m->tail, memory_order_acquire);
+    if (head - tail < m->n_slots) return slot_at(m, head);
+    m->pending_drop[kind]++;
+    atomic_fetch_add(&m->dropped, 1);
+    m->episode_drops++;
+    if (!m->drop_episode) {
+        m->drop_episode = true;
+        vd_warning(
+            "mqtt: the queue is full (%zu messages, %llu waiting for the broker's acknowledgement): dropping "
+            "messages until the broker takes them again (counted in mqtt_dropped; the next message carries "
+            "dropped_before)",
+            m->n_slots, (unsigned long long)atomic_load(&m->inflight));
+    }
+    return NULL;
+}
+
+static void commit(vd_mqtt *m, slot_hdr *s, int kind, uint16_t param, int n) {
+    if (n < 0) { /* cannot happen: the slots fit the longest message (vd_mqtt open) */
+        atomic_fetch_add(&m->errors, 1);
+        return;
+    }
+    s->len = (uint32_t)n;
+    s->kind = (uint16_t)kind;
+    s->param = param;
+    m->pending_drop[kind] = 0;
+    if (m->drop_episode) {
+        m->drop_episode = false;
+        vd_notice("mqtt: the queue takes messages again; %llu were dropped",
+                  (unsigned long long)m->episode_drops);
+        m->episode_drops = 0;
+    }
+    atomic_store_explicit(&m->head, atomic_load_explicit(&m->head, memory_order_relaxed) + 1,
+                          memory_order_release);
+    wake(m);
+}
+
+static int format_track(vd_mqtt *m, char *buf, size_t cap, uint64_t seq, uint64_t dropped,
+                        const vd_row *row) {
+    if (m->cfg->mqtt_format == 0) return vd_mqtt_format_track(buf, cap, m->cfg, m->stand, seq, dropped, row);
+    int n = vd_format_influx_row(buf, cap, m->cfg, m->stand, row);
+    return n < 0 ? -1 : splice_seq(buf, cap, n, seq, dropped);
+}
+
+static int format_alarm(vd_mqtt *m, char *buf, size_t cap, uint64_t seq, uint64_t dropped, const char *param,
+                        int raised, const vd_row *row, double value, double baseline, double z) {
+    if (m->cfg->mqtt_format == 0)
+        return vd_mqtt_format_alarm(buf, cap, m->cfg, m->stand, seq, dropped, param, raised, row, value,
+                                    baseline, z);
+    int n = vd_format_influx_alarm(buf, cap, m->cfg, m->stand, param, raised, row, value, baseline, z);
+    return n < 0 ? -1 : splice_seq(buf, cap, n, seq, dropped);
+}
+
+static void op_track(vd_mqtt *m, const vd_row *row) {
+    uint64_t seq = ++m->seq[VD_MQTT_TRACKS];
+    slot_hdr *s = claim(m, VD_MQTT_TRACKS);
+    if (!s) return;
+    int n = format_track(m, (char *)(s + 1), m->payload_max, seq, m->pending_drop[VD_MQTT_TRACKS], row);
+    commit(m, s, VD_MQTT_TRACKS, 0, n);
+}
+
+static void op_alarm(vd_mqtt *m, const char *param, int raised, const vd_row *row, double value,
+                     double baseline, double z) {
+    uint64_t seq = ++m->seq[VD_MQTT_ALARMS];
+    uint16_t k = 0;
+    const vibid_model *mod = vibid_stand_model(m->cfg->stand);
+    for (size_t i = 0; i < m->cfg->n_params; i++) {
+        vibid_param_info pi;
+        vibid_model_param_info(mod, i, &pi);
+        if (!strcmp(pi.name, param)) k = (uint16_t)i;
+    }
+    slot_hdr *s = claim(m, VD_MQTT_ALARMS);
+    if (!s) return;
+    int n = format_alarm(m, (char *)(s + 1), m->payload_max, seq, m->pending_drop[VD_MQTT_ALARMS], param,
+                         raised, row, value, baseline, z);
+    commit(m, s, VD_MQTT_ALARMS, k, n);
+}
+
+static bool op_status(vd_mqtt *m, const char *text, size_t len, bool wait) {
+    if (len >= VD_MQTT_STATUS_MAX) len = VD_MQTT_STATUS_MAX - 1;
+    if (wait ? pthread_mutex_lock(&m->st_mu) != 0 : pthread_mutex_trylock(&m->st_mu) != 0) return false;
+    memcpy(m->st_text, text, len);
+    m->st_len = len;
+    m->st_new = true;
+    pthread_mutex_unlock(&m->st_mu);
+    atomic_store(&m->sleeping, 1); /* a status is rare: always wake the publisher */
+    wake(m);
+    return true;
+}
+
+static void op_counters(vd_mqtt *m, vd_snapshot *s) {
+    s->mqtt_on = true;
+    s->mqtt_connected = atomic_load(&m->connected) != 0;
+    s->mqtt_published = atomic_load(&m->published);
+    s->mqtt_refused = atomic_load(&m->refused);
+    s->mqtt_dropped = atomic_load(&m->dropped);
+    s->mqtt_reconnects = atomic_load(&m->reconnects);
+    s->mqtt_connect_failures = atomic_load(&m->connect_failures);
+    s->mqtt_inflight = atomic_load(&m->inflight);
+    s->mqtt_queue_capacity = m->n_slots;
+    s->mqtt_queue_fill = atomic_load(&m->head) - atomic_load(&m->tail);
+}
+
+/* ------------------------------------------------------ publisher thread ---- */
+
+static const char *url_of(const vd_mqtt *m) {
+    return m->cfg->mqtt_url;
+}
+
+static void on_log(struct mosquitto *mosq, void *obj, int level, const char *str) {
+    (void)mosq;
+    vd_mqtt *m = obj;
+    size_t n = strlen(m->lib_error);
+    if ((level & MOSQ_LOG_ERR) && n + 3 < sizeof m->lib_error)
+        snprintf(m->lib_error + n, sizeof m->lib_error - n, "%s%s", n ? "; " : "", str);
+}
+
+static const char *reason_text(int rc) {
+    /* CONNACK codes of MQTT 3.1.1 are 1..5; MQTT 5 reason codes are >= 128 */
+    return rc < 128 ? mosquitto_connack_string(rc) : mosquitto_reason_string(rc);
+}
+
+static void on_connect(struct mosquitto *mosq, void *obj, int rc, int flags,
+                       const mosquitto_property *props) {
+    (void)mosq, (void)flags, (void)props;
+    vd_mqtt *m = obj;
+    if (rc != 0) {
+        m->refused_rc = rc;
+        return;
+    }
+    m->connected_local = true;
+    m->just_connected = true;
+    atomic_store(&m->connected, 1);
+    if (m->ever_connected) atomic_fetch_add(&m->reconnects, 1);
+}
+
+static void on_publish(struct mosquitto *mosq, void *obj, int mid, int reason,
+                       const mosquitto_property *props) {
+    (void)mosq, (void)props;
+    vd_mqtt *m = obj;
+    if (atomic_load(&m->inflight) > 0) atomic_fetch_sub(&m->inflight, 1);
+    if (reason >= 128) {
+        /* MQTT 5 only: the broker refused the message (an ACL: "not authorized"). MQTT 3.1.1
+         * acknowledges a refused message like any other: nothing to see there. */
+        uint64_t n = atomic_fetch_add(&m->refused, 1) + 1;
+        if (n == 1 || n % 1000 == 0)
+            vd_warning(
+                "mqtt: the broker refused a message (mid %d): %s (%llu refused so far; an ACL that does not "
+                "allow this client to publish under %s/%s/%s/?)",
+                mid, mosquitto_reason_string(reason), (unsigned long long)n, m->cfg->mqtt_prefix,
+                m->cfg->mqtt_site, m->stand);
+    } else {
+        atomic_fetch_add(&m->published, 1);
+    }
+}
+
+/* One failed attempt or a lost connection: logged when the reason differs from the last
+ * one logged or RELOG_S passed, counted, the next attempt after the back-off. */
+static void failed(vd_mqtt *m, bool was_connected, const char *why, double *backoff, double *next_try) {
+    double now = mono_s();
+    char line[600];
+    if (was_connected)
+        snprintf(line, sizeof line, "connection to %s lost: %s", url_of(m), why);
+    else
+        snprintf(line, sizeof line, "cannot connect to %s: %s", url_of(m), why);
+    if (!was_connected) atomic_fetch_add(&m->connect_failures, 1);
+    if (was_connected || strcmp(line, m->last_logged) || now - m->last_log_t > RELOG_S) {
+        vd_warning(
+            "mqtt: %s; retrying in %.1f s (back-off doubling to %.0f s; %llu messages queued, %llu waiting "
+            "for an acknowledgement, resent after reconnecting)",
+            line, *backoff, BACKOFF_MAX_S,
+            (unsigned long long)(atomic_load(&m->head) - atomic_load(&m->tail)),
+            (unsigned long long)atomic_load(&m->inflight));
+        snprintf(m->last_logged, sizeof m->last_logged, "%s", line);
+        m->last_log_t = now;
+    }
+    *next_try = now + *backoff;
+    *backoff = fmin(*backoff * 2.0, BACKOFF_MAX_S);
+}
+
+static const char *why_of(vd_mqtt *m, int rc, int err, char *buf, size_t cap) {
+    if (m->refused_rc) /* MOSQ_ERR_CONN_REFUSED, or MOSQ_ERR_PROTOCOL for MQTT 5's reason codes */
+        snprintf(buf, cap, "the broker refused the connection: %s", reason_text(m->refused_rc));
+    else if (rc == MOSQ_ERR_ERRNO)
+        snprintf(buf, cap, "%s", err ? strerror(err) : "a system call failed");
+    else if (m->lib_error[0])
+        snprintf(buf, cap, "%s (%s)", mosquitto_strerror(rc), m->lib_error);
+    else
+        snprintf(buf, cap, "%s", mosquitto_strerror(rc));
+    return buf;
+}
+
+/* the latest status, retained; a minimal one before the first snapshot */
+static void publish_status(vd_mqtt *m) {
+    int n;
+    uint64_t seq = ++m->status_seq;
+    if (m->st_local_len)
+        n = vd_mqtt_format_status(m->st_json, VD_MQTT_STATUS_MAX * 2, m->cfg, m->stand, seq, m->st_local,
+                                  m->st_local_len);
+    else
+        n = vd_mqtt_format_status(m->st_json, VD_MQTT_STATUS_MAX * 2, m->cfg, m->stand, seq,
+                                  "state=running\n", 14);
+    if (n < 0) return;
+    int rc = mosquitto_publish(m->mosq, NULL, m->topic_status, n, m->st_json, m->cfg->mqtt_qos, true);
+    if (rc == MOSQ_ERR_SUCCESS || rc == MOSQ_ERR_NO_CONN || rc == MOSQ_ERR_CONN_LOST || rc == MOSQ_ERR_ERRNO)
+        atomic_fetch_add(&m->inflight, 1);
+}
+
+/* mosquitto_publish's errors before the message was queued inside libmosquitto; any other
+ * error comes after (the connection), and the message is resent after reconnecting */
+static bool refused_locally(int rc) {
+    return rc == MOSQ_ERR_INVAL || rc == MOSQ_ERR_NOMEM || rc == MOSQ_ERR_PAYLOAD_SIZE ||
+           rc == MOSQ_ERR_MALFORMED_UTF8 || rc == MOSQ_ERR_OVERSIZE_PACKET ||
+           rc == MOSQ_ERR_QOS_NOT_SUPPORTED || rc == MOSQ_ERR_NOT_SUPPORTED;
+}
+
+static void publish_pending(vd_mqtt *m) {
+    if (m->just_connected) {
+        m->just_connected = false;
+        vd_notice("mqtt: connected to %s as '%s'%s; publishing under %s/%s/%s/", url_of(m), m->client_id,
+                  m->ever_connected ? " again" : "", m->cfg->mqtt_prefix, m->cfg->mqtt_site, m->stand);
+        m->ever_connected = true;
+        m->last_logged[0] = '\0';
+        pthread_mutex_lock(&m->st_mu); /* the publisher may wait: the estimation thread only trylocks */
+        if (m->st_new) {
+            memcpy(m->st_local, m->st_text, m->st_len);
+            m->st_local_len = m->st_len;
+            m->st_new = false;
+        }
+        pthread_mutex_unlock(&m->st_mu);
+        publish_status(m); /* "running" over the will's "offline" */
+    }
+    pthread_mutex_lock(&m->st_mu);
+    bool fresh = m->st_new;
+    if (fresh) {
+        memcpy(m->st_local, m->st_text, m->st_len);
+        m->st_local_len = m->st_len;
+        m->st_new = false;
+    }
+    pthread_mutex_unlock(&m->st_mu);
+    if (fresh) publish_status(m);
+    while (atomic_load(&m->inflight) < VD_MQTT_WINDOW) {
+        size_t tail = atomic_load_explicit(&m->tail, memory_order_relaxed);
+        size_t head = atomic_load_explicit(&m->head, memory_order_acquire);
+        if (tail == head) break;
+        slot_hdr *s = slot_at(m, tail);
+        const char *topic = s->kind == VD_MQTT_TRACKS ? m->topic_tracks : m->topic_alarm[s->param];
+        int rc = mosquitto_publish(m->mosq, NULL, topic, (int)s->len, s + 1, m->cfg->mqtt_qos,
+                                   s->kind == VD_MQTT_ALARMS);
+        if (refused_locally(rc)) {
+            uint64_t e = atomic_fetch_add(&m->errors, 1) + 1;
+            if (e == 1 || e % 1000 == 0)
+                vd_error("mqtt: a message to %s could not be published: %s (%llu so far; dropped)", topic,
+                         mosquitto_strerror(rc), (unsigned long long)e);
+            atomic_fetch_add(&m->dropped, 1);
+        } else {
+            atomic_fetch_add(&m->inflight, 1);
+        }
+        atomic_store_explicit(&m->tail, tail + 1, memory_order_release);
+        if (rc != MOSQ_ERR_SUCCESS && !refused_locally(rc))
+            break; /* the connection: mosquitto_loop reports it */
+    }
+}
+
+static bool idle(vd_mqtt *m) {
+    pthread_mutex_lock(&m->st_mu);
+    bool st = m->st_new;
+    pthread_mutex_unlock(&m->st_mu);
+    return !st && atomic_load(&m->head) == atomic_load(&m->tail) && atomic_load(&m->inflight) == 0;
+}
+
+static void *pub_main(void *arg) {
+    vd_mqtt *m = arg;
+    double backoff = BACKOFF_FIRST_S, next_try = 0, drain_until = 0;
+    bool stopping = false, first = true;
+    for (;;) {
+        double now = mono_s();
+        if (!stopping && atomic_load(&m->stop)) {
+            stopping = true;
+            drain_until = now + m->cfg->mqtt_drain_timeout_s;
+        }
+        if (stopping && (idle(m) || (!m->sock_active && !m->connected_local) || now >= drain_until)) break;
+        if (!m->sock_active && !stopping && now >= next_try) {
+            m->lib_error[0] = '\0';
+            m->refused_rc = 0;
+            errno = 0;
+            int rc = first ? mosquitto_connect_async(m->mosq, m->cfg->mqtt_host, m->cfg->mqtt_port,
+                                                     m->cfg->mqtt_keepalive)
+                           : mosquitto_reconnect_async(m->mosq);
+            int e = errno;
+            if (rc == MOSQ_ERR_SUCCESS) {
+                m->sock_active = true;
+                first = false;
+            } else {
+                char why[400];
+                failed(m, false, why_of(m, rc, e, why, sizeof why), &backoff, &next_try);
+                if (rc != MOSQ_ERR_EAI && rc != MOSQ_ERR_ERRNO && rc != MOSQ_ERR_TLS) first = false;
+            }
+        }
+        if (m->connected_local) publish_pending(m);
+        struct pollfd p[2] = {{.fd = m->efd, .events = POLLIN}, {.fd = -1}};
+        int np = 1;
+        int sock = m->sock_active ? mosquitto_socket(m->mosq) : -1;
+        if (sock >= 0) {
+            p[1].fd = sock;
+            p[1].events = (short)(POLLIN | (mosquitto_want_write(m->mosq) ? POLLOUT : 0));
+            np = 2;
+        }
+        int timeout = 100; /* keepalive, back-off and the drain deadline are checked at least this often */
+        if (!m->sock_active && !stopping && next_try > now)
+            timeout = (int)fmin(100.0, ceil((next_try - now) * 1000.0));
+        atomic_store(&m->sleeping, 1);
+        atomic_thread_fence(memory_order_seq_cst);
+        if ((atomic_load(&m->stop) && !stopping) ||
+            (m->connected_local && atomic_load(&m->inflight) < VD_MQTT_WINDOW &&
+             atomic_load(&m->head) != atomic_load(&m->tail)))
+            timeout = 0;
+        if (poll(p, (nfds_t)np, timeout) > 0 && (p[0].revents & POLLIN)) {
+            uint64_t v;
+            ssize_t r = read(m->efd, &v, sizeof v);
+            (void)r;
+        }
+        atomic_store(&m->sleeping, 0);
+        if (m->sock_active) {
+            errno = 0;
+            int rc = mosquitto_loop(m->mosq, 0, 1);
+            int e = errno;
+            if (rc != MOSQ_ERR_SUCCESS) {
+                bool was = m->connected_local;
+                char why[400];
+                why_of(m, rc, e, why, sizeof why);
+                m->sock_active = false;
+                m->connected_local = false;
+                atomic_store(&m->connected, 0);
+                if (was) {
+                    backoff = BACKOFF_FIRST_S;
+                    failed(m, true, why, &backoff, &next_try);
+                } else {
+                    failed(m, false, why, &backoff, &next_try);
+                }
+                m->lib_error[0] = '\0';
+            } else if (m->connected_local) {
+                backoff = BACKOFF_FIRST_S;
+            }
+        }
+    }
+    size_t left = atomic_load(&m->head) - atomic_load(&m->tail);
+    uint64_t unacked = atomic_load(&m->inflight);
+    if (m->connected_local) {
+        mosquitto_disconnect(m->mosq); /* clean: the broker does not publish the will */
+        for (int i = 0; i < 10 && mosquitto_want_write(m->mosq); i++)
+            if (mosquitto_loop(m->mosq, 10, 1) != MOSQ_ERR_SUCCESS) break;
+        for (int i = 0; i < 5; i++) /* the broker closes the connection after DISCONNECT */
+            if (mosquitto_loop(m->mosq, 10, 1) != MOSQ_ERR_SUCCESS) break;
+    }
+    atomic_store(&m->connected, 0);
+    if (left || unacked)
+        vd_warning("mqtt: stopped with %zu messages unsent and %llu unacknowledged (%s; drain_timeout %g s)",
+                   left, (unsigned long long)unacked,
+                   m->connected_local ? "the broker was too slow" : "not connected",
+                   m->cfg->mqtt_drain_timeout_s);
+    else
+        vd_info("mqtt: every message acknowledged by the broker (%llu), disconnected",
+                (unsigned long long)atomic_load(&m->published));
+    return NULL;
+}
+
+/* ------------------------------------------------------------ life cycle ---- */
+
+static int read_password(const vd_config *cfg, char *pw, size_t cap, char *err, size_t ecap) {
+    const char *path = cfg->mqtt_password_file;
+    FILE *f = fopen(path, "re");
+    if (!f) {
+        snprintf(err, ecap, "outputs.mqtt.password_file %s: %s", path, strerror(errno));
+        return -1;
+    }
+    struct stat st;
+    if (fstat(fileno(f), &st) == 0 && (st.st_mode & S_IROTH))
+        vd_warning("outputs.mqtt.password_file %s is readable by every user (chmod 0600 or 0640)", path);
+    size_t n = fread(pw, 1, cap - 1, f);
+    bool more = fgetc(f) != EOF;
+    fclose(f);
+    pw[n] = '\0';
+    if (more) {
+        snprintf(err, ecap, "outputs.mqtt.password_file %s: longer than %zu bytes", path, cap - 2);
+        return -1;
+    }
+    char *nl = strpbrk(pw, "\r\n"); /* the first line is the password */
+    if (nl) *nl = '\0';
+    if (!pw[0]) {
+        snprintf(err, ecap, "outputs.mqtt.password_file %s: empty (the first line is the password)", path);
+        return -1;
+    }
+    return 0;
+}
+
+static int readable(const char *what, const char *path, char *err, size_t cap) {
+    if (!path[0]) return 0;
+    FILE *f = fopen(path, "re");
+    if (!f) {
+        snprintf(err, cap, "outputs.mqtt.%s %s: %s", what, path, strerror(errno));
+        return -1;
+    }
+    fclose(f);
+    return 0;
+}
+
+int vd_mqtt_check(const vd_config *cfg, char *err, size_t cap) {
+    if (!cfg->mqtt_url[0]) return 0;
+    char pw[512];
+    if (cfg->mqtt_password_file[0] && read_password(cfg, pw, sizeof pw, err, cap)) return -1;
+    memset(pw, 0, sizeof pw);
+    return readable("ca_file", cfg->mqtt_ca_file, err, cap) ||
+                   readable("cert_file", cfg->mqtt_cert_file, err, cap) ||
+                   readable("key_file", cfg->mqtt_key_file, err, cap)
+               ? -1
+               : 0;
+}
+
+static void op_close(vd_mqtt *m);
+
+static vd_mqtt *op_open(const vd_config *cfg, char *err, size_t cap) {
+    vd_mqtt *m = calloc(1, sizeof *m);
+    if (!m) {
+        snprintf(err, cap, "out of memory");
+        return NULL;
+    }
+    m->cfg = cfg;
+    m->efd = -1;
+    pthread_mutex_init(&m->st_mu, NULL);
+    snprintf(m->stand, sizeof m->stand, "%s",
+             cfg->mqtt_stand[0] ? cfg->mqtt_stand : vibid_stand_name(cfg->stand));
+    if (cfg->mqtt_client_id[0])
+        snprintf(m->client_id, sizeof m->client_id, "%s", cfg->mqtt_client_id);
+    else
+        snprintf(m->client_id, sizeof m->client_id, "vibidd-%s-%s", cfg->mqtt_site, m->stand);
+    snprintf(m->topic_tracks, sizeof m->topic_tracks, "%s/%s/%s/tracks", cfg->mqtt_prefix, cfg->mqtt_site,
+             m->stand);
+    snprintf(m->topic_status, sizeof m->topic_status, "%s/%s/%s/status", cfg->mqtt_prefix, cfg->mqtt_site,
+             m->stand);
+    m->topic_alarm = calloc(cfg->n_params ? cfg->n_params : 1, sizeof *m->topic_alarm);
+    m->st_text = malloc(VD_MQTT_STATUS_MAX);
+    m->st_local = malloc(VD_MQTT_STATUS_MAX);
+    m->st_json = malloc(VD_MQTT_STATUS_MAX * 2);
+    if (!m->topic_alarm || !m->st_text || !m->st_local || !m->st_json) {
+        snprintf(err, cap, "out of memory");
+        goto fail;
+    }
+    const vibid_model *mod = vibid_stand_model(cfg->stand);
+    size_t longest_name = 0;
+    for (size_t k = 0; k < cfg->n_params; k++) {
+        vibid_param_info pi;
+        vibid_model_param_info(mod, k, &pi);
+        snprintf(m->topic_alarm[k], sizeof m->topic_alarm[k], "%s/%s/%s/alarms/%s", cfg->mqtt_prefix,
+                 cfg->mqtt_site, m->stand, pi.name);
+        if (strlen(pi.name) > longest_name) longest_name = strlen(pi.name);
+        if (mosquitto_pub_topic_check(m->topic_alarm[k]) != MOSQ_ERR_SUCCESS) {
+            snprintf(err, cap, "outputs.mqtt: '%s' is not a valid MQTT topic (the parameter's name)",
+                     m->topic_alarm[k]);
+            goto fail;
+        }
+    }
+    if (mosquitto_pub_topic_check(m->topic_tracks) != MOSQ_ERR_SUCCESS ||
+        mosquitto_validate_utf8(m->topic_tracks, (int)strlen(m->topic_tracks)) != MOSQ_ERR_SUCCESS) {
+        snprintf(err, cap, "outputs.mqtt: '%s' is not a valid MQTT topic (UTF-8 without wildcards)",
+                 m->topic_tracks);
+        goto fail;
+    }
+    /* the slots: as long as the longest message this stand can produce (every number at its
+     * longest, every counter at 2^64 - 1, every flag) */
+    {
+        vd_row w;
+        memset(&w, 0, sizeof w);
+        w.t_us = INT64_MIN;
+        w.index = UINT64_MAX;
+        w.gap_samples = UINT64_MAX;
+        w.flags = 0xffu;
+        for (size_t k = 0; k < VD_MAX_PARAMS; k++)
+            w.theta[k] = w.se[k] = w.freq[k] = w.freq_se[k] = w.zeta[k] = w.zeta_se[k] = -2.225073859e-308;
+        char pname[256];
+        if (longest_name > sizeof pname - 1) longest_name = sizeof pname - 1;
+        memset(pname, '"', longest_name); /* escaped: twice as long */
+        pname[longest_name] = '\0';
+        static char probe[1 << 20];
+        int a = format_track(m, probe, sizeof probe, UINT64_MAX, UINT64_MAX, &w);
+        int b = format_alarm(m, probe, sizeof probe, UINT64_MAX, UINT64_MAX, pname, 0, &w, -2.225073859e-308,
+                             -2.225073859e-308, -2.225073859e-308);
+        if (a < 0 || b < 0) {
+            snprintf(err, cap, "outputs.mqtt: the stand's messages do not fit 1 MiB");
+            goto fail;
+        }
+        m->payload_max = (size_t)(a > b ? a : b) + 64;
+    }
+    m->stride = (sizeof(slot_hdr) + m->payload_max + 7) & ~(size_t)7;
+    m->n_slots = cfg->mqtt_queue_size;
+    m->slots = calloc(m->n_slots, m->stride);
+    if (!m->slots) {
+        snprintf(err, cap, "outputs.mqtt.queue_size %zu: out of memory for %zu messages of %zu bytes",
+                 m->n_slots, m->n_slots, m->stride);
+        goto fail;
+    }
+    m->efd = eventfd(0, EFD_CLOEXEC | EFD_NONBLOCK);
+    if (m->efd < 0) {
+        snprintf(err, cap, "eventfd: %s", strerror(errno));
+        goto fail;
+    }
+    if (cfg->mqtt_password_file[0] && read_password(cfg, m->password, sizeof m->password, err, cap))
+        goto fail;
+    mosquitto_lib_init();
+    m->lib_init = true;
+    m->mosq = mosquitto_new(m->client_id, true, m);
+    if (!m->mosq) {
+        snprintf(err, cap, "outputs.mqtt: mosquitto_new: %s", strerror(errno));
+        goto fail;
+    }
+    int rc = mosquitto_int_option(m->mosq, MOSQ_OPT_PROTOCOL_VERSION,
+                                  cfg->mqtt_protocol == 5 ? MQTT_PROTOCOL_V5 : MQTT_PROTOCOL_V311);
+    /* the last will: the stand offline, retained, until the next status replaces it */
+    char will[600];
+    size_t wl = 0;
+    {
+        out o = {will, sizeof will, 0, false};
+        put(&o, "{\"stand\":");
+        put_str(&o, m->stand);
+        put(&o, ",\"site\":");
+        put_str(&o, cfg->mqtt_site);
+        put(&o, ",\"seq\":null,\"index\":null,\"state\":\"offline\"}");
+        wl = o.off;
+    }
+    if (!rc) rc = mosquitto_will_set(m->mosq, m->topic_status, (int)wl, will, cfg->mqtt_qos, true);
+    if (!rc && cfg->mqtt_username[0])
+        rc = mosquitto_username_pw_set(m->mosq, cfg->mqtt_username, m->password[0] ? m->password : NULL);
+    if (!rc && cfg->mqtt_tls) {
+        /* no ca_file: the system's CA store (Debian's ca-certificates) */
+        rc = mosquitto_tls_set(m->mosq, cfg->mqtt_ca_file[0] ? cfg->mqtt_ca_file : NULL,
+                               cfg->mqtt_ca_file[0] ? NULL : "/etc/ssl/certs",
+                               cfg->mqtt_cert_file[0] ? cfg->mqtt_cert_file : NULL,
+                               cfg->mqtt_key_file[0] ? cfg->mqtt_key_file : NULL, NULL);
+        if (!rc) rc = mosquitto_tls_opts_set(m->mosq, 1 /* SSL_VERIFY_PEER */, NULL, NULL);
+    }
+    if (rc) {
+        snprintf(err, cap, "outputs.mqtt: setting up libmosquitto: %s%s", mosquitto_strerror(rc),
+                 cfg->mqtt_tls ? " (are ca_file, cert_file and key_file readable PEM files?)" : "");
+        goto fail;
+    }
+    mosquitto_log_callback_set(m->mosq, on_log);
+    mosquitto_connect_v5_callback_set(m->mosq, on_connect);
+    mosquitto_publish_v5_callback_set(m->mosq, on_publish);
+    vd_info(
+        "mqtt: %s as '%s' (MQTT %s, QoS %d, %s), topics %s/%s/%s/{tracks,alarms/<parameter>,status}; queue "
+        "of "
+        "%zu messages (%zu KiB)",
+        cfg->mqtt_url, m->client_id, cfg->mqtt_protocol == 5 ? "5" : "3.1.1", cfg->mqtt_qos,
+        cfg->mqtt_format ? "line protocol" : "JSON", cfg->mqtt_prefix, cfg->mqtt_site, m->stand, m->n_slots,
+        m->n_slots * m->stride / 1024);
+    return m;
+fail:
+    op_close(m);
+    return NULL;
+}
+
+static int op_start(vd_mqtt *m, char *err, size_t cap) {
+    int rc = pthread_create(&m->thread, NULL, pub_main, m);
+    if (rc) {
+        snprintf(err, cap, "cannot start the MQTT thread: %s", strerror(rc));
+        return -1;
+    }
+    m->started = true;
+    return 0;
+}
+
+static void op_drain(vd_mqtt *m) {
+    if (!m || !m->started) return;
+    atomic_store(&m->stop, 1);
+    atomic_store(&m->sleeping, 1);
+    wake(m);
+    pthread_join(m->thread, NULL);
+    m->started = false;
+}
+
+static void op_close(vd_mqtt *m) {
+    if (!m) return;
+    op_drain(m);
+    if (m->mosq) mosquitto_destroy(m->mosq);
+    if (m->lib_init) mosquitto_lib_cleanup();
+    if (m->efd >= 0) close(m->efd);
+    memset(m->password, 0, sizeof m->password);
+    pthread_mutex_destroy(&m->st_mu);
+    free(m->slots);
+    free(m->topic_alarm);
+    free(m->st_text);
+    free(m->st_local);
+    free(m->st_json);
+    free(m);
+}
+
+const vd_mqtt_ops vd_mqtt_libmosquitto = {op_open,   op_start,    op_track, op_alarm,
+                                          op_status, op_counters, op_drain, op_close};

@@ -1,0 +1,281 @@
+/* Unit tests of the MQTT output (mqtt.h) without a broker: the JSON of a track row (exact
+ * text; NaN and infinities as null; names and the site escaped), of an alarm event, of the
+ * status (numbers stay numbers, nan becomes null, text becomes strings, the index from
+ * last_index), the line-protocol payload with seq and dropped_before; the configuration
+ * (defaults, URL forms, refusals naming the field); and the queue: with no broker a queue of
+ * 5 takes 5 messages, drops and counts the rest, never waiting. */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+/* cmocka.h needs the four above first */
+#include <cmocka.h>
+
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+#include <unistd.h>
+
+#include "config.h"
+#include "estimator.h"
+#include "mqtt.h"
+
+static vd_config cfg;
+
+static const char *write_cfg(const char *name, const char *outputs) {
+    static char path[256];
+    snprintf(path, sizeof path, "/tmp/vd_test_mqtt_%d_%s.cfg", (int)getpid(), name);
+    FILE *f = fopen(path, "w");
+    fprintf(f,
+            "stand = \"%s/examples/stands/paper_example1.cfg\";\n"
+            "source = { kind = \"replay\"; file = \"x.csv\"; time_column = \"t\";\n"
+            " channels = ( { name = \"x1\"; quantity = \"displacement\"; node = 0; column = \"x1\"; },\n"
+            "  { name = \"s\"; quantity = \"base_displacement\"; node = 0; column = \"s\"; },\n"
+            "  { name = \"x2\"; quantity = \"displacement\"; node = 1; column = \"x2\"; } ); };\n"
+            "estimator = { decimation = 10; };\n%s\n",
+            VD_SOURCE_DIR, outputs);
+    fclose(f);
+    return path;
+}
+
+static int load(const char *name, const char *outputs, vd_config *c, vd_config_error *err) {
+    const char *p = write_cfg(name, outputs);
+    int rc = vd_config_load(p, c, err);
+    unlink(p);
+    return rc;
+}
+
+static int setup(void **state) {
+    (void)state;
+    vd_config_error err;
+    int rc = load("base",
+                  "outputs = { mqtt = { site = \"plant \\\"1\\\"\"; stand = \"rig1\"; queue_size = 5; "
+                  "drain_timeout = 0.0; }; };",
+                  &cfg, &err);
+    if (rc) fprintf(stderr, "%s\n", err.text);
+    return rc;
+}
+
+static int teardown(void **state) {
+    (void)state;
+    vd_config_free(&cfg);
+    return 0;
+}
+
+static vd_row sample_row(void) {
+    vd_row r;
+    memset(&r, 0, sizeof r);
+    r.t_us = 1700000000123456LL;
+    r.index = 42;
+    double th[3] = {2.5e5, 300.0, 1.5e6}, se[3] = {12.5, INFINITY, NAN};
+    for (int k = 0; k < 3; k++) {
+        r.theta[k] = th[k];
+        r.se[k] = se[k];
+    }
+    r.freq[0] = 22.7;
+    r.freq[1] = 48.3;
+    r.freq_se[0] = r.freq_se[1] = 0.01;
+    r.zeta[0] = 0.065;
+    r.zeta[1] = 0.0435;
+    r.zeta_se[0] = r.zeta_se[1] = 1e-4;
+    r.gap_samples = 3;
+    r.flags = VD_FLAG_GAP | VD_FLAG_NOT_EXCITED;
+    return r;
+}
+
+static void test_config(void **state) {
+    (void)state;
+    /* the defaults of the group */
+    assert_string_equal(cfg.mqtt_url, "mqtt://127.0.0.1:1883");
+    assert_string_equal(cfg.mqtt_host, "127.0.0.1");
+    assert_int_equal(cfg.mqtt_port, 1883);
+    assert_false(cfg.mqtt_tls);
+    assert_string_equal(cfg.mqtt_prefix, "vibid/v1");
+    assert_int_equal(cfg.mqtt_qos, 1);
+    assert_int_equal(cfg.mqtt_keepalive, 30);
+    assert_int_equal(cfg.mqtt_protocol, 5);
+    assert_int_equal(cfg.mqtt_format, 0);
+    vd_config c;
+    vd_config_error err;
+    /* no group: off */
+    assert_int_equal(load("off", "", &c, &err), 0);
+    assert_string_equal(c.mqtt_url, "");
+    vd_config_free(&c);
+    /* mqtts with an IPv6 literal and a port; relative files next to the configuration */
+    assert_int_equal(
+        load("tls",
+             "outputs = { mqtt = { url = \"mqtts://[::1]:8884\"; site = \"p\"; username = \"u\"; "
+             "password_file = \"pw\"; ca_file = \"ca.pem\"; protocol = \"3.1.1\"; format = \"line\"; }; };",
+             &c, &err),
+        0);
+    assert_true(c.mqtt_tls);
+    assert_string_equal(c.mqtt_host, "::1");
+    assert_int_equal(c.mqtt_port, 8884);
+    assert_int_equal(c.mqtt_protocol, 4);
+    assert_int_equal(c.mqtt_format, 1);
+    assert_string_equal(c.mqtt_password_file, "/tmp/pw");
+    vd_config_free(&c);
+    assert_int_equal(
+        load("tlsdef", "outputs = { mqtt = { url = \"mqtts://broker.plant\"; site = \"p\"; }; };", &c, &err),
+        0);
+    assert_int_equal(c.mqtt_port, 8883);
+    assert_string_equal(c.mqtt_host, "broker.plant");
+    vd_config_free(&c);
+    /* refusals name the field */
+    static const struct {
+        const char *outputs, *field, *sub;
+    } bad[] = {
+        {"outputs = { mqtt = { url = \"tcp://h:1883\"; site = \"p\"; }; };", "outputs.mqtt.url",
+         "expected mqtt://"},
+        {"outputs = { mqtt = { url = \"mqtt://h:0\"; site = \"p\"; }; };", "outputs.mqtt.url",
+         "outside 1..65535"},
+        {"outputs = { mqtt = { url = \"mqtt://h/x\"; site = \"p\"; }; };", "outputs.mqtt.url",
+         "after the host"},
+        {"outputs = { mqtt = { url = \"mqtt://\"; site = \"p\"; }; };", "outputs.mqtt.url", "no host"},
+        {"outputs = { mqtt = { }; };", "outputs.mqtt.site", "missing"},
+        {"outputs = { mqtt = { site = \"a/b\"; }; };", "outputs.mqtt.site", "contains '/'"},
+        {"outputs = { mqtt = { site = \"a+\"; }; };", "outputs.mqtt.site", "wildcard"},
+        {"outputs = { mqtt = { site = \"p\"; stand = \"#\"; }; };", "outputs.mqtt.stand", "wildcard"},
+        {"outputs = { mqtt = { site = \"p\"; topic_prefix = \"/v1\"; }; };", "outputs.mqtt.topic_prefix",
+         "e.g."},
+        {"outputs = { mqtt = { site = \"p\"; password_file = \"pw\"; }; };", "outputs.mqtt.password_file",
+         "needs a username"},
+        {"outputs = { mqtt = { site = \"p\"; ca_file = \"ca.pem\"; }; };", "outputs.mqtt", "mqtts://"},
+        {"outputs = { mqtt = { url = \"mqtts://h\"; site = \"p\"; cert_file = \"c.pem\"; }; };",
+         "outputs.mqtt", "both cert_file and key_file"},
+        {"outputs = { mqtt = { site = \"p\"; qos = 0; }; };", "outputs.mqtt.qos", ""},
+        {"outputs = { mqtt = { site = \"p\"; password = \"x\"; }; };", "outputs.mqtt.password",
+         "unknown setting 'password'"},
+        {"outputs = { mqtt = { site = \"p\"; format = \"xml\"; }; };", "outputs.mqtt.format", ""},
+    };
+    for (size_t i = 0; i < sizeof bad / sizeof bad[0]; i++) {
+        int rc = load("bad", bad[i].outputs, &c, &err);
+        if (rc == 0 || !strstr(err.text, bad[i].field) || !strstr(err.text, bad[i].sub))
+            fail_msg("%s: rc %d, error '%s' (want %s ... %s)", bad[i].outputs, rc, err.text, bad[i].field,
+                     bad[i].sub);
+    }
+    /* the printout reads back to the same configuration */
+    char *p = NULL;
+    size_t pn = 0;
+    FILE *o = open_memstream(&p, &pn);
+    vd_config_print(&cfg, o);
+    fclose(o);
+    assert_non_null(strstr(p, "    url = \"mqtt://127.0.0.1:1883\";\n"));
+    assert_non_null(strstr(p, "    queue_size = 5;\n"));
+    char path[256];
+    snprintf(path, sizeof path, "/tmp/vd_test_mqtt_%d_printed.cfg", (int)getpid());
+    FILE *f = fopen(path, "w");
+    fputs(p, f);
+    fclose(f);
+    vd_config c2;
+    int rc = vd_config_load(path, &c2, &err);
+    unlink(path);
+    if (rc) fail_msg("printout does not read back: %s\n%s", err.text, p);
+    assert_string_equal(c2.mqtt_site, cfg.mqtt_site);
+    assert_int_equal(c2.mqtt_queue_size, 5);
+    vd_config_free(&c2);
+    free(p);
+}
+
+static void test_track_json(void **state) {
+    (void)state;
+    char buf[4096];
+    vd_row r = sample_row();
+    int n = vd_mqtt_format_track(buf, sizeof buf, &cfg, "rig1", 7, 2, &r);
+    assert_true(n > 0);
+    assert_string_equal(buf,
+                        "{\"stand\":\"rig1\",\"site\":\"plant \\\"1\\\"\",\"seq\":7,\"index\":42,"
+                        "\"time_s\":1700000000.123456,\"params\":{\"c1\":{\"value\":250000,\"se\":12.5},"
+                        "\"d\":{\"value\":300,\"se\":null},\"c2\":{\"value\":1500000,\"se\":null}},"
+                        "\"modes\":[{\"f_hz\":22.7,\"f_hz_se\":0.01,\"zeta\":0.065,\"zeta_se\":0.0001},"
+                        "{\"f_hz\":48.3,\"f_hz_se\":0.01,\"zeta\":0.0435,\"zeta_se\":0.0001}],"
+                        "\"gap_samples\":3,\"flags\":\"GI\",\"dropped_before\":2}");
+    assert_int_equal(n, (int)strlen(buf));
+    assert_int_equal(vd_mqtt_format_track(buf, 50, &cfg, "rig1", 7, 2, &r), -1); /* refused, not cut */
+    /* a negative time */
+    r.t_us = -1500000;
+    assert_true(vd_mqtt_format_track(buf, sizeof buf, &cfg, "rig1", 1, 0, &r) > 0);
+    assert_non_null(strstr(buf, "\"time_s\":-1.500000,"));
+}
+
+static void test_alarm_json(void **state) {
+    (void)state;
+    char buf[1024];
+    vd_row r = sample_row();
+    int n = vd_mqtt_format_alarm(buf, sizeof buf, &cfg, "rig1", 3, 0, "c2", 1, &r, 1.35e6, 1.5e6, NAN);
+    assert_true(n > 0);
+    assert_string_equal(buf,
+                        "{\"stand\":\"rig1\",\"site\":\"plant \\\"1\\\"\",\"seq\":3,\"index\":42,"
+                        "\"time_s\":1700000000.123456,\"parameter\":\"c2\",\"state\":\"raised\","
+                        "\"value\":1350000,\"baseline\":1500000,\"z\":null,\"dropped_before\":0}");
+    char s[64];
+    assert_int_equal(vd_mqtt_json_string(s, sizeof s, "a\"b\\c\nd\x01"), 22);
+    assert_string_equal(s, "\"a\\\"b\\\\c\\u000ad\\u0001\"");
+}
+
+static void test_status_json(void **state) {
+    (void)state;
+    const char *text =
+        "state=running\nstand=paper_example1\nsamples=123\nsample_rate_hz=1999.5\n"
+        "latency_us_p50=nan\nalarms_active=c1,c2\nlast_index=4000\nlast_time_s=1700000000.500000\n"
+        "estimate.c1=2.5e+05\nweird=007\nminus=-0.5\nneg_inf=-inf\nempty=\n";
+    char buf[2048];
+    int n = vd_mqtt_format_status(buf, sizeof buf, &cfg, "rig1", 9, text, strlen(text));
+    assert_true(n > 0);
+    assert_string_equal(buf,
+                        "{\"stand\":\"rig1\",\"site\":\"plant \\\"1\\\"\",\"seq\":9,\"index\":4000,"
+                        "\"state\":\"running\",\"samples\":123,\"sample_rate_hz\":1999.5,"
+                        "\"latency_us_p50\":null,\"alarms_active\":\"c1,c2\",\"last_index\":4000,"
+                        "\"last_time_s\":1700000000.500000,\"estimate.c1\":2.5e+05,\"weird\":\"007\","
+                        "\"minus\":-0.5,\"neg_inf\":null,\"empty\":\"\"}");
+    /* before the first row: index null */
+    n = vd_mqtt_format_status(buf, sizeof buf, &cfg, "rig1", 1, "state=running\n", 14);
+    assert_string_equal(buf,
+                        "{\"stand\":\"rig1\",\"site\":\"plant \\\"1\\\"\",\"seq\":1,\"index\":null,"
+                        "\"state\":\"running\"}");
+}
+
+static uint64_t dropped(vd_mqtt *m, vd_snapshot *s) {
+    memset(s, 0, sizeof *s);
+    vd_mqtt_libmosquitto.counters(m, s);
+    return s->mqtt_dropped;
+}
+
+/* No broker, no thread: the queue of 5 takes 5 rows; the others are dropped and counted, each
+ * in microseconds (never a wait). */
+static void test_queue_drops(void **state) {
+    (void)state;
+    char err[512];
+    vd_mqtt *m = vd_mqtt_libmosquitto.open(&cfg, err, sizeof err);
+    if (!m) fail_msg("open: %s", err);
+    vd_row r = sample_row();
+    vd_snapshot s;
+    struct timespec t0, t1;
+    clock_gettime(CLOCK_MONOTONIC, &t0);
+    for (int i = 0; i < 12; i++) {
+        r.index = (uint64_t)i * 10;
+        vd_mqtt_libmosquitto.track(m, &r);
+    }
+    vd_mqtt_libmosquitto.alarm(m, "c2", 1, &r, 1.0, 2.0, 3.0);
+    clock_gettime(CLOCK_MONOTONIC, &t1);
+    double dt = (double)(t1.tv_sec - t0.tv_sec) + 1e-9 * (double)(t1.tv_nsec - t0.tv_nsec);
+    assert_int_equal(dropped(m, &s), 8); /* 7 rows and the alarm */
+    assert_true(s.mqtt_on);
+    assert_false(s.mqtt_connected);
+    assert_int_equal(s.mqtt_queue_fill, 5);
+    assert_int_equal(s.mqtt_queue_capacity, 5);
+    assert_true(dt < 0.5);
+    assert_true(vd_mqtt_libmosquitto.status(m, "state=running\n", 14, false));
+    vd_mqtt_libmosquitto.close(m); /* never started: nothing to drain */
+}
+
+int main(void) {
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_config),      cmocka_unit_test(test_track_json),
+        cmocka_unit_test(test_alarm_json),  cmocka_unit_test(test_status_json),
+        cmocka_unit_test(test_queue_drops),
+    };
+    return cmocka_run_group_tests(tests, setup, teardown);
+}
