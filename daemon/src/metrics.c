@@ -1,6 +1,7 @@
 /* metrics.c: see metrics.h. */
 
 #include "metrics.h"
+#include "textbuf.h"
 
 #include "estimator.h"
 #include "log.h"
@@ -31,28 +32,6 @@ const char *vd_refusal_name(vd_refusal r)
 }
 
 /* ------------------------------------------------------------- rendering ---- */
-
-typedef struct out {
-    char *buf;
-    size_t cap, off;
-    bool full;
-} out;
-
-static void put(out *o, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
-static void put(out *o, const char *fmt, ...)
-{
-    if (o->full)
-        return;
-    va_list ap;
-    va_start(ap, fmt);
-    int n = vsnprintf(o->buf + o->off, o->cap - o->off, fmt, ap);
-    va_end(ap);
-    if (n < 0 || (size_t)n >= o->cap - o->off) {
-        o->full = true;
-        return;
-    }
-    o->off += (size_t)n;
-}
 
 void vd_metrics_format_double(char *buf, size_t cap, double v)
 {
@@ -87,44 +66,44 @@ void vd_metrics_escape_label(char *dst, size_t cap, const char *src)
         dst[o] = '\0';
 }
 
-static void family(out *o, const char *name, const char *type, const char *help)
+static void family(vd_text *o, const char *name, const char *type, const char *help)
 {
-    put(o, "# HELP %s %s\n# TYPE %s %s\n", name, help, name, type);
+    vd_text_put(o, "# HELP %s %s\n# TYPE %s %s\n", name, help, name, type);
 }
 
-static void put_double(out *o, double v)
+static void put_double(vd_text *o, double v)
 {
     char b[40];
     vd_metrics_format_double(b, sizeof b, v);
-    put(o, "%s\n", b);
+    vd_text_put(o, "%s\n", b);
 }
 
 /* name{labels} value, labels "" for none (labels are already escaped) */
-static void u64(out *o, const char *name, const char *labels, uint64_t v)
+static void u64(vd_text *o, const char *name, const char *labels, uint64_t v)
 {
-    put(o, "%s%s%s%s %llu\n", name, labels[0] ? "{" : "", labels, labels[0] ? "}" : "", (unsigned long long)v);
+    vd_text_put(o, "%s%s%s%s %llu\n", name, labels[0] ? "{" : "", labels, labels[0] ? "}" : "", (unsigned long long)v);
 }
 
-static void dbl(out *o, const char *name, const char *labels, double v)
+static void dbl(vd_text *o, const char *name, const char *labels, double v)
 {
-    put(o, "%s%s%s%s ", name, labels[0] ? "{" : "", labels, labels[0] ? "}" : "");
+    vd_text_put(o, "%s%s%s%s ", name, labels[0] ? "{" : "", labels, labels[0] ? "}" : "");
     put_double(o, v);
 }
 
-static void counter(out *o, const char *name, const char *help, uint64_t v)
+static void counter(vd_text *o, const char *name, const char *help, uint64_t v)
 {
     family(o, name, "counter", help);
     u64(o, name, "", v);
 }
 
-static void gauge(out *o, const char *name, const char *help, double v)
+static void gauge(vd_text *o, const char *name, const char *help, double v)
 {
     family(o, name, "gauge", help);
     dbl(o, name, "", v);
 }
 
 /* One series per parameter: name{parameter="<p>"} v[k]. */
-static void per_param(out *o, const vd_snapshot *s, const char *name, const char *help, const double *v)
+static void per_param(vd_text *o, const vd_snapshot *s, const char *name, const char *help, const double *v)
 {
     family(o, name, "gauge", help);
     for (size_t k = 0; k < s->n_params; k++) {
@@ -135,7 +114,7 @@ static void per_param(out *o, const vd_snapshot *s, const char *name, const char
     }
 }
 
-static void per_mode(out *o, const vd_snapshot *s, const char *name, const char *help, const double *v)
+static void per_mode(vd_text *o, const vd_snapshot *s, const char *name, const char *help, const double *v)
 {
     family(o, name, "gauge", help);
     for (size_t i = 0; i < s->n_modes; i++) {
@@ -147,14 +126,14 @@ static void per_mode(out *o, const vd_snapshot *s, const char *name, const char 
 
 int vd_metrics_render(char *buf, size_t cap, const vd_snapshot *s)
 {
-    out o = {buf, cap, 0, cap == 0};
+    vd_text o = {buf, cap, 0, cap == 0};
     char a[600], b[200], c[200];
     vd_metrics_escape_label(a, 200, s->stand ? s->stand : "");
     vd_metrics_escape_label(b, sizeof b, s->source ? s->source : "");
     vd_metrics_escape_label(c, sizeof c, s->estimator ? s->estimator : "");
     family(&o, "vibid_info", "gauge",
            "Constant 1; the labels name the stand, the source kind, the configured estimator and the version.");
-    put(&o, "vibid_info{stand=\"%s\",source=\"%s\",estimator=\"%s\",version=\"%s\"} 1\n", a, b, c,
+    vd_text_put(&o, "vibid_info{stand=\"%s\",source=\"%s\",estimator=\"%s\",version=\"%s\"} 1\n", a, b, c,
         VIBID_VERSION_STRING);
     gauge(&o, "vibid_running", "1 while vibidd acquires, 0 once it stopped (end of a replay, SIGTERM).",
           s->state && strcmp(s->state, "running") == 0 ? 1.0 : 0.0);

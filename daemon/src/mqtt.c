@@ -3,6 +3,7 @@
 #include "mqtt.h"
 
 #include "log.h"
+#include "textbuf.h"
 #include "writers.h"
 
 #include <errno.h>
@@ -33,64 +34,41 @@ static double mono_s(void) {
 
 /* ------------------------------------------------------------ formatting ---- */
 
-typedef struct out {
-    char *buf;
-    size_t cap, off;
-    bool full;
-} out;
-
-static void put(out *o, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
-static void put(out *o, const char *fmt, ...) {
-    if (o->full || o->off >= o->cap) {
-        o->full = true;
-        return;
-    }
-    va_list ap;
-    va_start(ap, fmt);
-    int n = vsnprintf(o->buf + o->off, o->cap - o->off, fmt, ap);
-    va_end(ap);
-    if (n < 0 || (size_t)n >= o->cap - o->off) {
-        o->full = true;
-        return;
-    }
-    o->off += (size_t)n;
-}
-
-static void put_str(out *o, const char *s) {
-    put(o, "\"");
+static void put_str(vd_text *o, const char *s) {
+    vd_text_put(o, "\"");
     for (const unsigned char *p = (const unsigned char *)s; *p && !o->full; p++) {
         if (*p == '"' || *p == '\\')
-            put(o, "\\%c", *p);
+            vd_text_put(o, "\\%c", *p);
         else if (*p < 0x20)
-            put(o, "\\u%04x", *p);
+            vd_text_put(o, "\\u%04x", *p);
         else
-            put(o, "%c", *p);
+            vd_text_put(o, "%c", *p);
     }
-    put(o, "\"");
+    vd_text_put(o, "\"");
 }
 
 int vd_mqtt_json_string(char *buf, size_t cap, const char *s) {
-    out o = {buf, cap, 0, cap == 0};
+    vd_text o = {buf, cap, 0, cap == 0};
     put_str(&o, s);
     return o.full ? -1 : (int)o.off;
 }
 
 /* a number as the tracks CSV writes it; NaN and infinities are not JSON: null */
-static void put_num(out *o, double v) {
+static void put_num(vd_text *o, double v) {
     if (isfinite(v))
-        put(o, "%.10g", v);
+        vd_text_put(o, "%.10g", v);
     else
-        put(o, "null");
+        vd_text_put(o, "null");
 }
 
-static void put_time(out *o, int64_t t_us) {
+static void put_time(vd_text *o, int64_t t_us) {
     const char *sign = "";
     uint64_t a = (uint64_t)t_us;
     if (t_us < 0) {
         sign = "-";
         a = (uint64_t)(-(t_us + 1)) + 1u;
     }
-    put(o, "%s%llu.%06llu", sign, (unsigned long long)(a / 1000000u), (unsigned long long)(a % 1000000u));
+    vd_text_put(o, "%s%llu.%06llu", sign, (unsigned long long)(a / 1000000u), (unsigned long long)(a % 1000000u));
 }
 
 static void flag_text(unsigned flags, char out_[8]) {
@@ -104,48 +82,48 @@ static void flag_text(unsigned flags, char out_[8]) {
     out_[n] = '\0';
 }
 
-static void put_header(out *o, const vd_config *cfg, const char *stand, uint64_t seq) {
-    put(o, "{\"stand\":");
+static void put_header(vd_text *o, const vd_config *cfg, const char *stand, uint64_t seq) {
+    vd_text_put(o, "{\"stand\":");
     put_str(o, stand);
-    put(o, ",\"site\":");
+    vd_text_put(o, ",\"site\":");
     put_str(o, cfg->mqtt_site);
-    put(o, ",\"seq\":%llu", (unsigned long long)seq);
+    vd_text_put(o, ",\"seq\":%llu", (unsigned long long)seq);
 }
 
 int vd_mqtt_format_track(char *buf, size_t cap, const vd_config *cfg, const char *stand, uint64_t seq,
                          uint64_t dropped_before, const vd_row *row) {
-    out o = {buf, cap, 0, cap == 0};
+    vd_text o = {buf, cap, 0, cap == 0};
     put_header(&o, cfg, stand, seq);
-    put(&o, ",\"index\":%llu,\"time_s\":", (unsigned long long)row->index);
+    vd_text_put(&o, ",\"index\":%llu,\"time_s\":", (unsigned long long)row->index);
     put_time(&o, row->t_us);
-    put(&o, ",\"params\":{");
+    vd_text_put(&o, ",\"params\":{");
     const vibid_model *m = vibid_stand_model(cfg->stand);
     for (size_t k = 0; k < cfg->n_params; k++) {
         vibid_param_info pi;
         vibid_model_param_info(m, k, &pi);
-        if (k) put(&o, ",");
+        if (k) vd_text_put(&o, ",");
         put_str(&o, pi.name);
-        put(&o, ":{\"value\":");
+        vd_text_put(&o, ":{\"value\":");
         put_num(&o, row->theta[k]);
-        put(&o, ",\"se\":");
+        vd_text_put(&o, ",\"se\":");
         put_num(&o, row->se[k]);
-        put(&o, "}");
+        vd_text_put(&o, "}");
     }
-    put(&o, "},\"modes\":[");
+    vd_text_put(&o, "},\"modes\":[");
     for (size_t i = 0; i < cfg->n_modes; i++) {
-        put(&o, "%s{\"f_hz\":", i ? "," : "");
+        vd_text_put(&o, "%s{\"f_hz\":", i ? "," : "");
         put_num(&o, row->freq[i]);
-        put(&o, ",\"f_hz_se\":");
+        vd_text_put(&o, ",\"f_hz_se\":");
         put_num(&o, row->freq_se[i]);
-        put(&o, ",\"zeta\":");
+        vd_text_put(&o, ",\"zeta\":");
         put_num(&o, row->zeta[i]);
-        put(&o, ",\"zeta_se\":");
+        vd_text_put(&o, ",\"zeta_se\":");
         put_num(&o, row->zeta_se[i]);
-        put(&o, "}");
+        vd_text_put(&o, "}");
     }
     char fl[8];
     flag_text(row->flags, fl);
-    put(&o, "],\"gap_samples\":%llu,\"flags\":\"%s\",\"dropped_before\":%llu}",
+    vd_text_put(&o, "],\"gap_samples\":%llu,\"flags\":\"%s\",\"dropped_before\":%llu}",
         (unsigned long long)row->gap_samples, fl, (unsigned long long)dropped_before);
     return o.full ? -1 : (int)o.off;
 }
@@ -153,19 +131,19 @@ int vd_mqtt_format_track(char *buf, size_t cap, const vd_config *cfg, const char
 int vd_mqtt_format_alarm(char *buf, size_t cap, const vd_config *cfg, const char *stand, uint64_t seq,
                          uint64_t dropped_before, const char *param, int raised, const vd_row *row,
                          double value, double baseline, double z) {
-    out o = {buf, cap, 0, cap == 0};
+    vd_text o = {buf, cap, 0, cap == 0};
     put_header(&o, cfg, stand, seq);
-    put(&o, ",\"index\":%llu,\"time_s\":", (unsigned long long)row->index);
+    vd_text_put(&o, ",\"index\":%llu,\"time_s\":", (unsigned long long)row->index);
     put_time(&o, row->t_us);
-    put(&o, ",\"parameter\":");
+    vd_text_put(&o, ",\"parameter\":");
     put_str(&o, param);
-    put(&o, ",\"state\":\"%s\",\"value\":", raised ? "raised" : "cleared");
+    vd_text_put(&o, ",\"state\":\"%s\",\"value\":", raised ? "raised" : "cleared");
     put_num(&o, value);
-    put(&o, ",\"baseline\":");
+    vd_text_put(&o, ",\"baseline\":");
     put_num(&o, baseline);
-    put(&o, ",\"z\":");
+    vd_text_put(&o, ",\"z\":");
     put_num(&o, z);
-    put(&o, ",\"dropped_before\":%llu}", (unsigned long long)dropped_before);
+    vd_text_put(&o, ",\"dropped_before\":%llu}", (unsigned long long)dropped_before);
     return o.full ? -1 : (int)o.off;
 }
 
@@ -203,7 +181,7 @@ static bool is_nonfinite_word(const char *s, size_t n) {
 
 int vd_mqtt_format_status(char *buf, size_t cap, const vd_config *cfg, const char *stand, uint64_t seq,
                           const char *text, size_t len) {
-    out o = {buf, cap, 0, cap == 0};
+    vd_text o = {buf, cap, 0, cap == 0};
     put_header(&o, cfg, stand, seq);
     /* the index of the latest row, for the schema's common header */
     const char *li = NULL;
@@ -218,9 +196,9 @@ int vd_mqtt_format_status(char *buf, size_t cap, const vd_config *cfg, const cha
         p += ll + 1;
     }
     if (li && is_json_number(li, lin))
-        put(&o, ",\"index\":%.*s", (int)lin, li);
+        vd_text_put(&o, ",\"index\":%.*s", (int)lin, li);
     else
-        put(&o, ",\"index\":null");
+        vd_text_put(&o, ",\"index\":null");
     char key[256], val[1024];
     for (size_t p = 0; p < len && !o.full;) {
         const char *line = text + p, *nl = memchr(line, '\n', len - p);
@@ -235,17 +213,17 @@ int vd_mqtt_format_status(char *buf, size_t cap, const vd_config *cfg, const cha
         memcpy(val, eq + 1, vl);
         val[vl] = '\0';
         if (!strcmp(key, "stand")) continue; /* in the header (the topic's stand name) */
-        put(&o, ",");
+        vd_text_put(&o, ",");
         put_str(&o, key);
-        put(&o, ":");
+        vd_text_put(&o, ":");
         if (is_json_number(val, vl))
-            put(&o, "%s", val);
+            vd_text_put(&o, "%s", val);
         else if (is_nonfinite_word(val, vl))
-            put(&o, "null");
+            vd_text_put(&o, "null");
         else
             put_str(&o, val);
     }
-    put(&o, "}");
+    vd_text_put(&o, "}");
     return o.full ? -1 : (int)o.off;
 }
 
@@ -861,12 +839,12 @@ static vd_mqtt *op_open(const vd_config *cfg, char *err, size_t cap) {
     char will[600];
     size_t wl = 0;
     {
-        out o = {will, sizeof will, 0, false};
-        put(&o, "{\"stand\":");
+        vd_text o = {will, sizeof will, 0, false};
+        vd_text_put(&o, "{\"stand\":");
         put_str(&o, m->stand);
-        put(&o, ",\"site\":");
+        vd_text_put(&o, ",\"site\":");
         put_str(&o, cfg->mqtt_site);
-        put(&o, ",\"seq\":null,\"index\":null,\"state\":\"offline\"}");
+        vd_text_put(&o, ",\"seq\":null,\"index\":null,\"state\":\"offline\"}");
         wl = o.off;
     }
     if (!rc) rc = mosquitto_will_set(m->mosq, m->topic_status, (int)wl, will, cfg->mqtt_qos, true);
