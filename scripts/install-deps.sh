@@ -9,6 +9,8 @@ packages=(build-essential cmake ninja-build pkg-config libeigen3-dev libcmocka-d
           libsundials-dev libmodbus-dev libconfig-dev)
 # vibidd's MQTT output (outputs.mqtt, daemon/src/mqtt.c)
 packages+=(libmosquitto-dev)
+# vibidd's InfluxDB HTTP output (outputs.influx.http, daemon/src/influx_http.c)
+packages+=(libcurl4-openssl-dev)
 # Demo plots.
 packages+=(gnuplot-nox)
 if [[ "${1:-}" == "--test" ]]; then
@@ -25,6 +27,9 @@ if [[ "${1:-}" == "--test" ]]; then
   # a real MQTT broker (mosquitto, with mosquitto_passwd) and its clients (mosquitto_sub,
   # mosquitto_pub) for vibidd's MQTT tests (daemon.e2e_mqtt.*); openssl makes their CA
   packages+=(mosquitto mosquitto-clients openssl)
+  # a real InfluxDB server (1.6) for vibidd's InfluxDB HTTP tests (daemon.e2e_influx.*);
+  # curl reads what they wrote back through its query API
+  packages+=(influxdb curl)
 fi
 
 missing=()

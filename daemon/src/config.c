@@ -776,6 +776,134 @@ static int load_mqtt(ctx *c, const config_setting_t *q)
     return 0;
 }
 
+/* A tag value vibid writes: escaped on output (commas, spaces, equals signs), but a
+ * backslash at the end or a newline cannot be written in line protocol */
+static const char *influx_tag_problem(const char *v)
+{
+    size_t n = strlen(v);
+    if (strpbrk(v, "\n\r"))
+        return "contains a line break (line protocol is one point per line)";
+    if (n && v[n - 1] == '\\')
+        return "ends with a backslash (it would escape the separator after it)";
+    return NULL;
+}
+
+int vd_read_secret_file(const char *setting, const char *path, char *out, size_t cap, char *err, size_t ecap)
+{
+    FILE *f = fopen(path, "re");
+    if (!f) {
+        snprintf(err, ecap, "%s %s: %s", setting, path, strerror(errno));
+        return -1;
+    }
+    struct stat st;
+    if (fstat(fileno(f), &st) == 0 && (st.st_mode & S_IROTH))
+        vd_warning("%s %s is readable by every user (chmod 0600 or 0640)", setting, path);
+    size_t n = fread(out, 1, cap - 1, f);
+    bool more = fgetc(f) != EOF;
+    fclose(f);
+    out[n] = '\0';
+    if (more) {
+        memset(out, 0, cap);
+        snprintf(err, ecap, "%s %s: longer than %zu bytes", setting, path, cap - 2);
+        return -1;
+    }
+    char *nl = strpbrk(out, "\r\n"); /* the first line is the secret */
+    if (nl)
+        *nl = '\0';
+    if (!out[0]) {
+        snprintf(err, ecap, "%s %s: empty (the first line is the secret)", setting, path);
+        return -1;
+    }
+    return 0;
+}
+
+/* outputs.influx.http (docs/vibidd.md, "InfluxDB over HTTP"): off without the group or with
+ * url = ""; the group alone writes to database "vibid" on loopback (InfluxDB 1.x). Secrets
+ * come from files of their own, for the reasons given at load_mqtt. */
+static int load_influx_http(ctx *c, const config_setting_t *h)
+{
+    vd_config *cfg = c->cfg;
+    static const char *const hk[] = {"url",      "api",           "database",   "retention_policy", "org",
+                                     "bucket",   "username",      "password_file", "token_file",    "ca_file",
+                                     "batch_size", "batch_interval", "buffer_size", "timeout",       "drain_timeout",
+                                     NULL};
+    static const char *const apis[] = {"v1", "v2", NULL};
+    const char *S = "outputs.influx.http";
+    if (h && !config_setting_is_group(h))
+        return vibid_cfg_fail(&c->r, h, S, "must be a group { url = \"http://127.0.0.1:8086\"; database = \"vibid\"; }");
+    long long v;
+    int api = 0;
+    if (check_known(c, h, S, hk) ||
+        get_string(c, h, S, "url", h ? "http://127.0.0.1:8086" : "", cfg->influx_http_url, sizeof cfg->influx_http_url) ||
+        get_enum(c, h, S, "api", 0, apis, &api) ||
+        get_string(c, h, S, "database", "vibid", cfg->influx_http_database, sizeof cfg->influx_http_database) ||
+        get_string(c, h, S, "retention_policy", "", cfg->influx_http_rp, sizeof cfg->influx_http_rp) ||
+        get_string(c, h, S, "org", "", cfg->influx_http_org, sizeof cfg->influx_http_org) ||
+        get_string(c, h, S, "bucket", "", cfg->influx_http_bucket, sizeof cfg->influx_http_bucket) ||
+        get_string(c, h, S, "username", "", cfg->influx_http_username, sizeof cfg->influx_http_username) ||
+        get_path(c, h, S, "password_file", cfg->influx_http_password_file, sizeof cfg->influx_http_password_file) ||
+        get_path(c, h, S, "token_file", cfg->influx_http_token_file, sizeof cfg->influx_http_token_file) ||
+        get_path(c, h, S, "ca_file", cfg->influx_http_ca_file, sizeof cfg->influx_http_ca_file))
+        return -1;
+    cfg->influx_http_api = api + 1;
+    /* 5000 lines: InfluxDB's own advice for a batch; a stand's line is ~0.3-2 KB */
+    if (get_int(c, h, S, "batch_size", 5000, 1, 100000, &v))
+        return -1;
+    cfg->influx_http_batch_lines = (unsigned)v;
+    if (get_double(c, h, S, "batch_interval", 1.0, 0.01, 60.0, &cfg->influx_http_batch_interval_s))
+        return -1;
+    /* MiB; 16 MiB holds ~40 000 rows of a 6-parameter stand: ~7 min at 100 rows/s */
+    if (get_int(c, h, S, "buffer_size", 16, 1, 4096, &v))
+        return -1;
+    cfg->influx_http_buffer_mib = (unsigned)v;
+    if (get_double(c, h, S, "timeout", 10.0, 0.1, 300.0, &cfg->influx_http_timeout_s) ||
+        get_double(c, h, S, "drain_timeout", 10.0, 0.0, 300.0, &cfg->influx_http_drain_timeout_s))
+        return -1;
+    if (!cfg->influx_http_url[0])
+        return 0;
+    const char *u = cfg->influx_http_url;
+    const char *host = !strncmp(u, "http://", 7) ? u + 7 : !strncmp(u, "https://", 8) ? u + 8 : NULL;
+    if (!host || !*host || *host == '/' || *host == ':' || strpbrk(u, "?#@ \t"))
+        return vibid_cfg_fail(&c->r, config_setting_get_member(h, "url"), "outputs.influx.http.url",
+                              "'%s': expected http://HOST[:PORT][/PATH] or https://HOST[:PORT][/PATH] (the "
+                              "server's base URL, without a query, fragment or credentials)",
+                              u);
+    size_t ul = strlen(cfg->influx_http_url);
+    while (ul && cfg->influx_http_url[ul - 1] == '/')
+        cfg->influx_http_url[--ul] = '\0'; /* "/write" is appended */
+    bool tls = !strncmp(u, "https://", 8);
+    if (cfg->influx_http_ca_file[0] && !tls)
+        return vibid_cfg_fail(&c->r, config_setting_get_member(h, "ca_file"), "outputs.influx.http.ca_file",
+                              "is for TLS: the url must be https://");
+    if (cfg->influx_http_api == 1) {
+        if (!cfg->influx_http_database[0])
+            return vibid_cfg_fail(&c->r, config_setting_get_member(h, "database"), "outputs.influx.http.database",
+                                  "must not be empty (api \"v1\" writes into a database)");
+        if (cfg->influx_http_org[0] || cfg->influx_http_bucket[0] || cfg->influx_http_token_file[0])
+            return vibid_cfg_fail(&c->r, h, S,
+                                  "org, bucket and token_file belong to api = \"v2\" (InfluxDB 2.x); api \"v1\" "
+                                  "uses database, retention_policy, username and password_file");
+        if (cfg->influx_http_password_file[0] && !cfg->influx_http_username[0])
+            return vibid_cfg_fail(&c->r, config_setting_get_member(h, "password_file"),
+                                  "outputs.influx.http.password_file", "a password needs a username (outputs.influx.http.username)");
+        if (cfg->influx_http_username[0] && !cfg->influx_http_password_file[0])
+            return vibid_cfg_fail(&c->r, config_setting_get_member(h, "username"), "outputs.influx.http.username",
+                                  "a username needs its password_file");
+    } else {
+        if (!cfg->influx_http_org[0] || !cfg->influx_http_bucket[0] || !cfg->influx_http_token_file[0])
+            return vibid_cfg_fail(&c->r, h, S,
+                                  "api = \"v2\" needs org, bucket and token_file (an InfluxDB 2.x API token with "
+                                  "write permission on the bucket)");
+        if (config_setting_get_member(h, "database") || cfg->influx_http_rp[0] || cfg->influx_http_username[0] ||
+            cfg->influx_http_password_file[0])
+            return vibid_cfg_fail(&c->r, h, S,
+                                  "database, retention_policy, username and password_file belong to api = "
+                                  "\"v1\"; api \"v2\" uses org, bucket and token_file");
+        cfg->influx_http_database[0] = '\0';
+    }
+    return 0;
+}
+
 static int load_outputs(ctx *c, config_t *cf)
 {
     vd_config *cfg = c->cfg;
@@ -790,12 +918,15 @@ static int load_outputs(ctx *c, config_t *cf)
         get_bool(c, t, "outputs.tracks", "fsync", false, &cfg->fsync_on_flush))
         return -1;
     config_setting_t *i = g ? config_setting_get_member(g, "influx") : NULL;
-    static const char *const ik[] = {"path", "udp", "measurement", NULL};
+    static const char *const ik[] = {"path", "udp", "http", "measurement", "site", "stand", NULL};
     if (check_known(c, i, "outputs.influx", ik) ||
         get_path(c, i, "outputs.influx", "path", cfg->influx_path, sizeof cfg->influx_path) ||
         get_string(c, i, "outputs.influx", "udp", "", cfg->influx_udp, sizeof cfg->influx_udp) ||
         get_string(c, i, "outputs.influx", "measurement", "vibid", cfg->influx_measurement,
-                   sizeof cfg->influx_measurement))
+                   sizeof cfg->influx_measurement) ||
+        get_string(c, i, "outputs.influx", "site", "", cfg->influx_site, sizeof cfg->influx_site) ||
+        get_string(c, i, "outputs.influx", "stand", "", cfg->influx_stand, sizeof cfg->influx_stand) ||
+        load_influx_http(c, i ? config_setting_get_member(i, "http") : NULL))
         return -1;
     if (cfg->influx_udp[0]) {
         const char *colon = strrchr(cfg->influx_udp, ':');
@@ -806,6 +937,12 @@ static int load_outputs(ctx *c, config_t *cf)
                                   "'%s': expected HOST:PORT, e.g. \"127.0.0.1:8089\" or \"localhost:8089\"",
                                   cfg->influx_udp);
     }
+    if (cfg->influx_site[0] && influx_tag_problem(cfg->influx_site))
+        return vibid_cfg_fail(&c->r, config_setting_get_member(i, "site"), "outputs.influx.site", "'%s' %s",
+                              cfg->influx_site, influx_tag_problem(cfg->influx_site));
+    if (cfg->influx_stand[0] && influx_tag_problem(cfg->influx_stand))
+        return vibid_cfg_fail(&c->r, config_setting_get_member(i, "stand"), "outputs.influx.stand", "'%s' %s",
+                              cfg->influx_stand, influx_tag_problem(cfg->influx_stand));
     for (const char *p = cfg->influx_measurement; *p; p++)
         if (*p == ',' || *p == ' ' || *p == '"' || *p == '\\')
             return vibid_cfg_fail(&c->r, config_setting_get_member(i, "measurement"),
@@ -1211,11 +1348,21 @@ void vd_config_print(const vd_config *cfg, FILE *o)
     fprintf(o, "};\n");
     fprintf(o,
             "outputs = {\n  tracks = { path = \"%s\"; flush_interval = %s; fsync = %s; };\n"
-            "  influx = { path = \"%s\"; udp = \"%s\"; measurement = \"%s\"; };\n"
+            "  influx = {\n    path = \"%s\";\n    udp = \"%s\";\n    measurement = \"%s\";\n    site = \"%s\";  # \"\" = no site tag\n"
+            "    stand = \"%s\";  # \"\" = the stand's name\n    http = {\n      url = \"%s\";  # \"\" = off\n"
+            "      api = \"v%d\";\n      database = \"%s\";\n      retention_policy = \"%s\";\n      org = \"%s\";\n"
+            "      bucket = \"%s\";\n      username = \"%s\";\n      password_file = \"%s\";\n      token_file = \"%s\";\n"
+            "      ca_file = \"%s\";\n      batch_size = %u;\n      batch_interval = %s;\n      buffer_size = %u;  # MiB\n"
+            "      timeout = %s;\n      drain_timeout = %s;\n    };\n  };\n"
             "  record = { path = \"%s\"; format = \"%s\"; };\n  status = { path = \"%s\"; interval = %s; };\n"
             "  prometheus = { listen = \"%s\"; };  # \"\" = off\n",
             cfg->tracks_path, num(cfg->flush_interval_s), yes(cfg->fsync_on_flush), cfg->influx_path, cfg->influx_udp,
-            cfg->influx_measurement, cfg->record_path, cfg->record_format == VD_REC_CSV ? "csv" : "candump",
+            cfg->influx_measurement, esc(cfg->influx_site), esc(cfg->influx_stand), esc(cfg->influx_http_url),
+            cfg->influx_http_api, esc(cfg->influx_http_database), esc(cfg->influx_http_rp), esc(cfg->influx_http_org),
+            esc(cfg->influx_http_bucket), esc(cfg->influx_http_username), esc(cfg->influx_http_password_file),
+            esc(cfg->influx_http_token_file), esc(cfg->influx_http_ca_file), cfg->influx_http_batch_lines,
+            num(cfg->influx_http_batch_interval_s), cfg->influx_http_buffer_mib, num(cfg->influx_http_timeout_s),
+            num(cfg->influx_http_drain_timeout_s), cfg->record_path, cfg->record_format == VD_REC_CSV ? "csv" : "candump",
             cfg->status_path, num(cfg->status_interval_s), cfg->prom_listen);
     if (!cfg->mqtt_url[0])
         fprintf(o, "  mqtt = { url = \"\"; };  # \"\" = off\n};\n");

@@ -114,6 +114,8 @@ typedef struct vd_config {
     char influx_path[VD_PATH_MAX];
     char influx_udp[128];
     char influx_measurement[64];
+    char influx_site[64], influx_stand[64]; /* tags; influx_site "" = no site tag, influx_stand
+                                               "" = the stand's name */
     char record_path[VD_PATH_MAX];
     vd_record_format record_format;
     char status_path[VD_PATH_MAX];
@@ -139,6 +141,21 @@ typedef struct vd_config {
     int mqtt_protocol;           /* 5 (MQTT 5) or 4 (MQTT 3.1.1) */
     double mqtt_drain_timeout_s; /* at the end: longest wait for the queue to reach the broker */
 
+    /* outputs.influx.http (influx_http.h, docs/vibidd.md "InfluxDB over HTTP"); "" = off */
+    char influx_http_url[256];       /* http(s)://HOST[:PORT][/PATH], no trailing slash */
+    int influx_http_api;             /* 1: POST /write?db=&rp= (InfluxDB 1.x, basic auth);
+                                        2: POST /api/v2/write?org=&bucket= (token) */
+    char influx_http_database[128], influx_http_rp[128]; /* api 1 */
+    char influx_http_org[128], influx_http_bucket[128];  /* api 2 */
+    char influx_http_username[128];
+    char influx_http_password_file[VD_PATH_MAX], influx_http_token_file[VD_PATH_MAX],
+        influx_http_ca_file[VD_PATH_MAX];
+    unsigned influx_http_batch_lines;   /* lines per request at most */
+    double influx_http_batch_interval_s;/* a line waits at most this long for its batch */
+    unsigned influx_http_buffer_mib;    /* lines waiting for the server (the retry buffer) */
+    double influx_http_timeout_s;       /* one request, connection included */
+    double influx_http_drain_timeout_s; /* at the end: longest wait for the buffer to reach the server */
+
     /* alarms */
     bool alarms_enabled;
     double alarm_threshold, alarm_min_relative, alarm_hold_s;
@@ -163,6 +180,10 @@ void vd_config_free(vd_config *cfg);
  * or NULL for the configured one) is an error naming both. Same file: the same device and
  * inode for existing files, the same canonical directory and name otherwise (so
  * "./a.csv", "a.csv" and a symlink to it all match). Returns 0, or -1 with msg filled. */
+/* A secret (password, token) from the first line of the file path, for the setting named
+ * setting (e.g. "outputs.mqtt.password_file"); warns when every user may read the file. 0, or
+ * -1 with err naming the setting and the file (unreadable, empty, longer than cap - 2). */
+int vd_read_secret_file(const char *setting, const char *path, char *out, size_t cap, char *err, size_t ecap);
 int vd_config_check_paths(const vd_config *cfg, const char *replay, char *msg, size_t n);
 /* Prints the effective configuration (valid libconfig syntax, defaults filled in). */
 void vd_config_print(const vd_config *cfg, FILE *out);

@@ -410,12 +410,16 @@ static void run_alarms(vd_daemon *d, vd_row *row)
             vd_writers_alarm(&d->w, pi.name, 1, row, row->theta[k], a->base, a->last_z);
             if (d->mqtt)
                 d->mqtt_ops->alarm(d->mqtt, pi.name, 1, row, row->theta[k], a->base, a->last_z);
+            if (d->influx_http)
+                d->influx_http_ops->alarm(d->influx_http, pi.name, 1, row, row->theta[k], a->base, a->last_z);
         } else if (ev == VD_ALARM_CLEARED) {
             vd_notice("alarm %s cleared: %.6g is back within %g standard errors of %.6g at sample %llu", pi.name,
                       row->theta[k], a->cfg.threshold, a->base, (unsigned long long)row->index);
             vd_writers_alarm(&d->w, pi.name, 0, row, row->theta[k], a->base, a->last_z);
             if (d->mqtt)
                 d->mqtt_ops->alarm(d->mqtt, pi.name, 0, row, row->theta[k], a->base, a->last_z);
+            if (d->influx_http)
+                d->influx_http_ops->alarm(d->influx_http, pi.name, 0, row, row->theta[k], a->base, a->last_z);
         } else if (a->have_baseline && a->cfg.learn && !d->base_reported[k]) {
             vd_info("alarm baseline of %s learned: %.9g (mean standard error %.3g, %llu estimates)", pi.name,
                     a->base, a->base_se, (unsigned long long)a->n_learn);
@@ -540,6 +544,8 @@ static void take_snapshot(vd_daemon *d, const char *state, double now)
     }
     if (d->mqtt)
         d->mqtt_ops->counters(d->mqtt, s);
+    if (d->influx_http)
+        d->influx_http_ops->counters(d->influx_http, s);
 }
 
 /* The status file's text from the snapshot (key=value lines, docs/vibidd.md) into
@@ -614,6 +620,14 @@ static void format_status(vd_daemon *d, const vd_snapshot *sn)
           (unsigned long long)sn->mqtt_dropped, sn->mqtt_queue_fill, sn->mqtt_queue_capacity,
           (unsigned long long)sn->mqtt_inflight, (unsigned long long)sn->mqtt_reconnects,
           (unsigned long long)sn->mqtt_connect_failures);
+    if (sn->influx_http_on)
+        S("influx_http_ok=%d\ninflux_http_written=%llu\ninflux_http_requests=%llu\ninflux_http_failures=%llu\n"
+          "influx_http_rejected=%llu\ninflux_http_dropped=%llu\ninflux_http_waiting=%llu\n"
+          "influx_http_buffer_fill=%zu\ninflux_http_buffer_capacity=%zu\n",
+          sn->influx_http_ok ? 1 : 0, (unsigned long long)sn->influx_http_written,
+          (unsigned long long)sn->influx_http_requests, (unsigned long long)sn->influx_http_failures,
+          (unsigned long long)sn->influx_http_rejected, (unsigned long long)sn->influx_http_dropped,
+          (unsigned long long)sn->influx_http_waiting, sn->influx_http_buffer_fill, sn->influx_http_buffer_capacity);
 #undef S
     if (off > cap)
         off = cap;
@@ -750,6 +764,8 @@ static void process(vd_daemon *d, const vd_item *it)
         vd_writers_row(&d->w, &row);
         if (d->mqtt)
             d->mqtt_ops->track(d->mqtt, &row); /* queued; never waits (mqtt.h) */
+        if (d->influx_http)
+            d->influx_http_ops->row(d->influx_http, &row); /* buffered; never waits (influx_http.h) */
     }
 }
 
@@ -816,6 +832,8 @@ static void *est_main(void *arg)
 static const vd_mqtt_ops *mqtt_impl; /* vd_daemon_use_mqtt */
 
 void vd_daemon_use_mqtt(const vd_mqtt_ops *ops) { mqtt_impl = ops; }
+static const vd_influx_http_ops *influx_http_impl; /* vd_daemon_use_influx_http */
+void vd_daemon_use_influx_http(const vd_influx_http_ops *ops) { influx_http_impl = ops; }
 
 int vd_daemon_init(vd_daemon *d, vd_config *cfg, const vd_options *opt, char *err, size_t cap)
 {
@@ -893,6 +911,13 @@ int vd_daemon_init(vd_daemon *d, vd_config *cfg, const vd_options *opt, char *er
         else if (!(d->mqtt = d->mqtt_ops->open(cfg, err, cap)))
             return -1;
     }
+    if (cfg->influx_http_url[0]) {
+        d->influx_http_ops = influx_http_impl;
+        if (!d->influx_http_ops)
+            vd_warning("outputs.influx.http ignored: this program has no HTTP client (libcurl); vibidd has");
+        else if (!(d->influx_http = d->influx_http_ops->open(cfg, d->w.stand_name, err, cap)))
+            return -1;
+    }
     return 0;
 }
 
@@ -952,6 +977,14 @@ int vd_daemon_run(vd_daemon *d)
             return 1;
         }
     }
+    if (d->influx_http) {
+        char err[256];
+        if (d->influx_http_ops->start(d->influx_http, err, sizeof err)) {
+            vd_error("%s", err);
+            stop_threads(d);
+            return 1;
+        }
+    }
     vd_notify_send(&d->notify, "READY=1\nSTATUS=acquiring");
     vd_notice("running: stand '%s', %s source, %s estimator, %.6g Hz, ring %zu records", vibid_stand_name(d->cfg->stand),
               vibid_source_kind(d->src), vd_estimator_name(d->cfg->method), d->cfg->sample_rate, vd_ring_capacity(d->ring));
@@ -990,11 +1023,16 @@ int vd_daemon_run(vd_daemon *d)
     }
     (void)stop_signal;
     stop_threads(d);
-    if (d->mqtt) {
+    if (d->mqtt || d->influx_http) {
         /* the final status is handed over: publish what is queued (outputs.mqtt.drain_timeout
-         * at most), disconnect cleanly; then the status file once more, with the MQTT
-         * counters after the drain (the estimation thread is gone: this thread owns them) */
-        d->mqtt_ops->drain(d->mqtt);
+         * at most), disconnect cleanly; write what is buffered for InfluxDB
+         * (outputs.influx.http.drain_timeout at most; both drain at the same time); then the
+         * status file once more, with the counters after the drain (the estimation thread is
+         * gone: this thread owns them) */
+        if (d->influx_http)
+            d->influx_http_ops->drain(d->influx_http);
+        if (d->mqtt)
+            d->mqtt_ops->drain(d->mqtt);
         if (d->cfg->status_path[0]) {
             take_snapshot(d, "stopped", mono_s());
             format_status(d, &d->snap);
@@ -1019,6 +1057,9 @@ void vd_daemon_fini(vd_daemon *d)
     if (d->mqtt)
         d->mqtt_ops->close(d->mqtt);
     d->mqtt = NULL;
+    if (d->influx_http)
+        d->influx_http_ops->close(d->influx_http);
+    d->influx_http = NULL;
     vd_writers_close(&d->w);
     vibid_source_close(d->src);
     d->src = NULL;

@@ -17,6 +17,8 @@
  *     text the estimation thread renders at its housekeeping and nothing else.
  *   MQTT thread (outputs.mqtt only): the broker connection (mqtt.h); it takes the messages the
  *     estimation thread queues (never waiting for them) and the status text it hands over.
+ *   InfluxDB thread (outputs.influx.http only): the HTTP writes (influx_http.h); it takes the
+ *     lines the estimation thread buffers (never waiting for them).
  * Start order: config -> log -> memory lock -> ring -> estimator -> writers -> source ->
  * metrics socket -> threads -> READY=1; torn down in reverse.
  */
@@ -33,6 +35,7 @@
 #include "alarm.h"
 #include "config.h"
 #include "estimator.h"
+#include "influx_http.h"
 #include "metrics.h"
 #include "mqtt.h"
 #include "notify.h"
@@ -51,6 +54,10 @@ typedef struct vd_options {
  * vd_daemon_init. Without it (a program that links vibidd_core without libmosquitto, e.g. the
  * Python module's vibid.replay) outputs.mqtt is ignored with a warning. */
 void vd_daemon_use_mqtt(const vd_mqtt_ops *ops);
+
+/* outputs.influx.http's implementation (vibidd: vd_influx_http_curl, influx_http.h), the same
+ * way: without it outputs.influx.http is ignored with a warning. */
+void vd_daemon_use_influx_http(const vd_influx_http_ops *ops);
 
 #define VD_LAT_BUCKETS 20000   /* 1 us buckets up to 20 ms; the last one collects the rest */
 
@@ -108,6 +115,9 @@ typedef struct vd_daemon {
     const vd_mqtt_ops *mqtt_ops;
     vd_mqtt *mqtt;
     bool mqtt_pending;         /* the last status hand-over found the publisher busy: retry */
+    /* outputs.influx.http: the writer (its own thread, influx_http.h), through influx_http_ops */
+    const vd_influx_http_ops *influx_http_ops;
+    vd_influx_http *influx_http;
     char status_text[8192];    /* the status file's text, also the MQTT status */
     size_t status_len;
 } vd_daemon;

@@ -9,6 +9,7 @@
 #include "writers.h"
 #include "log.h"
 #include "metrics.h"
+#include "influx_http.h"
 #include "mqtt.h"
 
 #include <locale.h>
@@ -178,8 +179,9 @@ int main(int argc, char **argv)
             vd_config_free(&cfg);
             return 2;
         }
-        /* outputs.mqtt: the password and TLS files can be read (no connection is made) */
-        if (vd_mqtt_check(&cfg, e2, sizeof e2)) {
+        /* outputs.mqtt and outputs.influx.http: the password, token and TLS files can be read
+         * (no connection is made) */
+        if (vd_mqtt_check(&cfg, e2, sizeof e2) || vd_influx_http_check(&cfg, e2, sizeof e2)) {
             vd_error("%s", e2);
             vd_est_free(&est);
             vd_config_free(&cfg);
@@ -209,6 +211,7 @@ int main(int argc, char **argv)
     }
     static vd_daemon d;
     vd_daemon_use_mqtt(&vd_mqtt_libmosquitto); /* outputs.mqtt (mqtt.h) */
+    vd_daemon_use_influx_http(&vd_influx_http_curl); /* outputs.influx.http (influx_http.h) */
     char e3[2048];
     int rc;
     if (vd_daemon_init(&d, &cfg, &opt, e3, sizeof e3)) {

@@ -288,6 +288,27 @@ int vd_metrics_render(char *buf, size_t cap, const vd_snapshot *s)
                 "Failed MQTT connection attempts (unreachable, TLS, refused by the broker).",
                 s->mqtt_connect_failures);
     }
+    if (s->influx_http_on) {
+        gauge(&o, "vibid_influx_http_ok", "1 while the last InfluxDB write request was answered 2xx.",
+              s->influx_http_ok ? 1.0 : 0.0);
+        counter(&o, "vibid_influx_http_written_lines_total", "Lines InfluxDB accepted.", s->influx_http_written);
+        counter(&o, "vibid_influx_http_requests_total", "InfluxDB write requests answered 2xx.",
+                s->influx_http_requests);
+        counter(&o, "vibid_influx_http_failures_total",
+                "InfluxDB write requests that failed and are retried (no answer, 401, 403, 404, 408, 429, 5xx).",
+                s->influx_http_failures);
+        counter(&o, "vibid_influx_http_rejected_lines_total",
+                "Lines InfluxDB refused for good (400, 422: e.g. a field type conflict); not sent again.",
+                s->influx_http_rejected);
+        counter(&o, "vibid_influx_http_dropped_lines_total", "Lines dropped because the buffer was full.",
+                s->influx_http_dropped);
+        gauge(&o, "vibid_influx_http_waiting_lines", "Lines in the buffer, not yet written.",
+              (double)s->influx_http_waiting);
+        gauge(&o, "vibid_influx_http_buffer_fill_bytes", "Bytes of the buffer in use.",
+              (double)s->influx_http_buffer_fill);
+        gauge(&o, "vibid_influx_http_buffer_capacity_bytes", "Bytes the buffer holds (outputs.influx.http.buffer_size).",
+              (double)s->influx_http_buffer_capacity);
+    }
     return o.full ? -1 : (int)o.off;
 }
 

@@ -128,6 +128,15 @@ typedef struct vd_snapshot {
     uint64_t mqtt_reconnects, mqtt_connect_failures;
     uint64_t mqtt_inflight;         /* handed to libmosquitto, not yet acknowledged */
     size_t mqtt_queue_fill, mqtt_queue_capacity;
+    /* outputs.influx.http (influx_http.h), when configured */
+    bool influx_http_on, influx_http_ok; /* ok: the last request was answered 2xx */
+    uint64_t influx_http_written;        /* lines the server accepted (2xx) */
+    uint64_t influx_http_requests;       /* requests answered 2xx */
+    uint64_t influx_http_failures;       /* requests that failed and will be retried */
+    uint64_t influx_http_rejected;       /* lines refused for good (400, 422, ...) */
+    uint64_t influx_http_dropped;        /* lines dropped because the buffer was full */
+    uint64_t influx_http_waiting;        /* lines in the buffer, not yet written */
+    size_t influx_http_buffer_fill, influx_http_buffer_capacity; /* bytes */
 } vd_snapshot;
 
 /* The exposition text of s into buf. Returns its length, or -1 if cap is too small (the

@@ -227,28 +227,11 @@ int vd_mqtt_format_status(char *buf, size_t cap, const vd_config *cfg, const cha
     return o.full ? -1 : (int)o.off;
 }
 
-/* format "line": the InfluxDB line of writers.c with seq and dropped_before added as
- * integer fields (before the timestamp). */
+/* format "line": the InfluxDB line of writers.c with seq and dropped_before added */
 static int splice_seq(char *buf, size_t cap, int n, uint64_t seq, uint64_t dropped) {
-    if (n <= 0) return -1;
-    if (buf[n - 1] == '\n') n--;
-    char *sp = NULL;
-    for (int i = n - 1; i >= 0; i--)
-        if (buf[i] == ' ') {
-            sp = buf + i;
-            break;
-        }
-    if (!sp) return -1;
-    char ts[40], ins[80];
-    snprintf(ts, sizeof ts, "%.*s", (int)(buf + n - sp), sp);
-    int k = snprintf(ins, sizeof ins, ",seq=%llui,dropped_before=%llui", (unsigned long long)seq,
-                     (unsigned long long)dropped);
-    size_t at = (size_t)(sp - buf), tl = strlen(ts);
-    if (at + (size_t)k + tl + 1 > cap) return -1;
-    memcpy(buf + at, ins, (size_t)k);
-    memcpy(buf + at + (size_t)k, ts, tl);
-    buf[at + (size_t)k + tl] = '\0';
-    return (int)(at + (size_t)k + tl);
+    char ins[80];
+    snprintf(ins, sizeof ins, "seq=%llui,dropped_before=%llui", (unsigned long long)seq, (unsigned long long)dropped);
+    return vd_influx_add_fields(buf, cap, n, ins);
 }
 
 /* ----------------------------------------------------------------- module ---- */
@@ -687,33 +670,6 @@ static void *pub_main(void *arg) {
 
 /* ------------------------------------------------------------ life cycle ---- */
 
-static int read_password(const vd_config *cfg, char *pw, size_t cap, char *err, size_t ecap) {
-    const char *path = cfg->mqtt_password_file;
-    FILE *f = fopen(path, "re");
-    if (!f) {
-        snprintf(err, ecap, "outputs.mqtt.password_file %s: %s", path, strerror(errno));
-        return -1;
-    }
-    struct stat st;
-    if (fstat(fileno(f), &st) == 0 && (st.st_mode & S_IROTH))
-        vd_warning("outputs.mqtt.password_file %s is readable by every user (chmod 0600 or 0640)", path);
-    size_t n = fread(pw, 1, cap - 1, f);
-    bool more = fgetc(f) != EOF;
-    fclose(f);
-    pw[n] = '\0';
-    if (more) {
-        snprintf(err, ecap, "outputs.mqtt.password_file %s: longer than %zu bytes", path, cap - 2);
-        return -1;
-    }
-    char *nl = strpbrk(pw, "\r\n"); /* the first line is the password */
-    if (nl) *nl = '\0';
-    if (!pw[0]) {
-        snprintf(err, ecap, "outputs.mqtt.password_file %s: empty (the first line is the password)", path);
-        return -1;
-    }
-    return 0;
-}
-
 static int readable(const char *what, const char *path, char *err, size_t cap) {
     if (!path[0]) return 0;
     FILE *f = fopen(path, "re");
@@ -728,7 +684,9 @@ static int readable(const char *what, const char *path, char *err, size_t cap) {
 int vd_mqtt_check(const vd_config *cfg, char *err, size_t cap) {
     if (!cfg->mqtt_url[0]) return 0;
     char pw[512];
-    if (cfg->mqtt_password_file[0] && read_password(cfg, pw, sizeof pw, err, cap)) return -1;
+    if (cfg->mqtt_password_file[0] &&
+        vd_read_secret_file("outputs.mqtt.password_file", cfg->mqtt_password_file, pw, sizeof pw, err, cap))
+        return -1;
     memset(pw, 0, sizeof pw);
     return readable("ca_file", cfg->mqtt_ca_file, err, cap) ||
                    readable("cert_file", cfg->mqtt_cert_file, err, cap) ||
@@ -824,7 +782,8 @@ static vd_mqtt *op_open(const vd_config *cfg, char *err, size_t cap) {
         snprintf(err, cap, "eventfd: %s", strerror(errno));
         goto fail;
     }
-    if (cfg->mqtt_password_file[0] && read_password(cfg, m->password, sizeof m->password, err, cap))
+    if (cfg->mqtt_password_file[0] && vd_read_secret_file("outputs.mqtt.password_file", cfg->mqtt_password_file,
+                                                          m->password, sizeof m->password, err, cap))
         goto fail;
     mosquitto_lib_init();
     m->lib_init = true;

@@ -133,9 +133,11 @@ static int put_field(char *buf, size_t cap, size_t *off, int *first, const char 
 int vd_format_influx_row(char *buf, size_t cap, const vd_config *cfg, const char *stand, const vd_row *row)
 {
     size_t off = 0;
-    char tag[256];
+    char tag[256], site[256];
     vd_influx_escape_tag(tag, sizeof tag, stand);
-    if (put(buf, cap, &off, "%s,stand=%s", cfg->influx_measurement, tag))
+    vd_influx_escape_tag(site, sizeof site, cfg->influx_site);
+    /* tags in key order (InfluxDB's advice: the server sorts them otherwise) */
+    if (put(buf, cap, &off, "%s%s%s,stand=%s", cfg->influx_measurement, site[0] ? ",site=" : "", site, tag))
         return -1;
     const vibid_model *m = vibid_stand_model(cfg->stand);
     int first = 1;
@@ -167,15 +169,43 @@ int vd_format_influx_row(char *buf, size_t cap, const vd_config *cfg, const char
     return (int)off;
 }
 
+int vd_influx_add_fields(char *buf, size_t cap, int n, const char *fields)
+{
+    if (n <= 0)
+        return -1;
+    if (buf[n - 1] == '\n')
+        n--;
+    char *sp = NULL; /* the space before the timestamp: the last one (field values are numbers
+                        or quoted flag letters without spaces) */
+    for (int i = n - 1; i >= 0; i--)
+        if (buf[i] == ' ') {
+            sp = buf + i;
+            break;
+        }
+    if (!sp)
+        return -1;
+    char ts[40];
+    size_t tl = (size_t)(buf + n - sp), fl = strlen(fields), at = (size_t)(sp - buf);
+    if (tl >= sizeof ts || at + 1 + fl + tl + 1 > cap)
+        return -1;
+    memcpy(ts, sp, tl);
+    buf[at] = ',';
+    memcpy(buf + at + 1, fields, fl);
+    memcpy(buf + at + 1 + fl, ts, tl);
+    buf[at + 1 + fl + tl] = '\0';
+    return (int)(at + 1 + fl + tl);
+}
+
 int vd_format_influx_alarm(char *buf, size_t cap, const vd_config *cfg, const char *stand, const char *param,
                            int raised, const vd_row *row, double value, double baseline, double z)
 {
     size_t off = 0;
-    char tag[256], ptag[160];
+    char tag[256], ptag[160], site[256];
     vd_influx_escape_tag(tag, sizeof tag, stand);
     vd_influx_escape_tag(ptag, sizeof ptag, param);
-    if (put(buf, cap, &off, "%s_alarm,stand=%s,parameter=%s state=\"%s\",index=%llui", cfg->influx_measurement, tag,
-            ptag, raised ? "raised" : "cleared", (unsigned long long)row->index))
+    vd_influx_escape_tag(site, sizeof site, cfg->influx_site);
+    if (put(buf, cap, &off, "%s_alarm,parameter=%s%s%s,stand=%s state=\"%s\",index=%llui", cfg->influx_measurement,
+            ptag, site[0] ? ",site=" : "", site, tag, raised ? "raised" : "cleared", (unsigned long long)row->index))
         return -1;
     int first = 0;
     if (put_field(buf, cap, &off, &first, "value", "", value) ||
@@ -456,7 +486,7 @@ int vd_writers_open(vd_writers *w, const vd_config *cfg, const vibid_chanmap *ch
     w->cfg = cfg;
     w->tracks_preamble = tracks_preamble;
     w->chanmap = chanmap;
-    w->stand_name = vibid_stand_name(cfg->stand);
+    w->stand_name = cfg->influx_stand[0] ? cfg->influx_stand : vibid_stand_name(cfg->stand);
     w->udp_fd = -1;
     if (cfg->record_path[0] && cfg->record_format == VD_REC_CANDUMP) {
         vibid_drv_error de = {0};

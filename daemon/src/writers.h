@@ -100,6 +100,11 @@ int vd_format_recording_row(char *buf, size_t cap, const vibid_record *rec);
  * line each; -1 if cap is too small or a value does not fit its signal. */
 int vd_format_recording_frames(char *buf, size_t cap, const vibid_can_assembler *enc, const char *iface,
                                const vibid_record *rec);
+/* Adds fields ("a=1i,b=2i") to the end of the field set of the line buf[0..n) (a line of
+ * vd_format_influx_row or _alarm, its newline dropped): written before the timestamp, the
+ * result NUL-terminated without a newline. The new length, or -1 if cap is too small or the
+ * line has no timestamp. */
+int vd_influx_add_fields(char *buf, size_t cap, int n, const char *fields);
 /* Influx tag value escaping (commas, spaces, equals signs). */
 void vd_influx_escape_tag(char *dst, size_t cap, const char *src);
 

@@ -93,8 +93,6 @@ check_final() {
         exit bad }' "$1" || fail "final estimates not within $2 % of the truth"
 }
 
-status_val() { sed -n "s/^$1=//p" "$2"; }
-
 # data_rows FILE: track rows of a tracks file (not the "#" lines of the estimator's
 # choices, not the column header)
 data_rows() { echo $(( $(grep -vc '^#' "$1") - 1 )); }
@@ -371,7 +369,7 @@ diagnostics)
     grep 'ALARM' log | head -3
     first=$(grep -m1 '^vibid_alarm,' alarms.influx | sed 's/.*index=\([0-9]*\)i.*/\1/')
     [ -n "$first" ] || fail "no alarm raised"
-    grep -m1 '^vibid_alarm,' alarms.influx | grep -q 'parameter=c2 state="raised"' || fail "first alarm not c2"
+    grep -m1 '^vibid_alarm,' alarms.influx | grep -q '^vibid_alarm,parameter=c2,stand=paper_example1 state="raised"' || fail "first alarm not c2"
     [ "$first" -ge 80000 ] || fail "alarm at sample $first, before the change at 80000 (false alarm)"
     [ "$first" -le 86000 ] || fail "alarm at sample $first: more than 3 s after the change"
     c2_after=$(awk -F, 'END { print $7 }' tracks.csv)
@@ -748,7 +746,7 @@ sim_diagnostics)
     timeout 60 "$VIBIDD" -c v.cfg 2> log || fail "vibidd: $(cat log)"
     first=$(grep -m1 '^vibid_alarm,' alarms.influx | sed 's/.*index=\([0-9]*\)i.*/\1/')
     [ -n "$first" ] || fail "no alarm raised"
-    grep -m1 '^vibid_alarm,' alarms.influx | grep -q 'parameter=c2 state="raised"' || fail "first alarm not c2: $(head -1 alarms.influx)"
+    grep -m1 '^vibid_alarm,' alarms.influx | grep -q '^vibid_alarm,parameter=c2,stand=paper_example1 state="raised"' || fail "first alarm not c2: $(head -1 alarms.influx)"
     [ "$first" -ge 80000 ] || fail "alarm at sample $first, before the change at 80000 (false alarm)"
     [ "$first" -le 86000 ] || fail "alarm at sample $first: more than 3 s after the change"
     note "c2 alarm at sample $first (change at sample 80000); $(grep -c 'state="raised"' alarms.influx) alarm(s) raised in total"

@@ -76,7 +76,7 @@ alarms = { parameters = ( { name = "c1"; }, { name = "d1"; }, { name = "c2"; }, 
     timeout 120 "$VIBIDD" -c v.cfg 2> log || fail "vibidd: $(cat log)"
     first=$(grep -m1 '^vibid_alarm,' tracks.influx | sed 's/.*index=\([0-9]*\)i.*/\1/')
     [ -n "$first" ] || fail "no alarm raised: $(grep -i alarm log | head)"
-    grep -m1 '^vibid_alarm,' tracks.influx | grep -q 'parameter=c2 state="raised"' ||
+    grep -m1 '^vibid_alarm,' tracks.influx | grep -q '^vibid_alarm,parameter=c2,stand=[^ ]* state="raised"' ||
         fail "first alarm not c2: $(grep -m1 '^vibid_alarm,' tracks.influx)"
     [ "$first" -ge 30000 ] || fail "alarm at sample $first, before the change at 30000 (false alarm)"
     [ "$first" -le 35000 ] || fail "alarm at sample $first: more than 5 s after the change"

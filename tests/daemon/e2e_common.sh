@@ -1,7 +1,8 @@
 # e2e_common.sh: the prologue of the vibidd end-to-end scripts (e2e.sh, e2e_auto.sh,
 # e2e_ekf.sh), sourced with their arguments CASE BUILD_DIR SOURCE_DIR and a name for the
 # scratch directory. Sets CASE, BUILD, SRC, VIBIDD, SIM and W (a fresh directory, removed
-# on exit, made the working directory) and defines fail, note and column.
+# on exit, made the working directory) and defines fail, note, column, free_port,
+# status_val and wait_status.
 # usage: . e2e_common.sh NAME CASE BUILD_DIR SOURCE_DIR
 set -u
 CASE=$2
@@ -18,3 +19,20 @@ note() { echo "[$CASE] $*"; }
 
 # column NAME FILE: the column number of NAME in the tracks header (after the # lines)
 column() { grep -v '^#' "$2" | head -1 | tr ',' '\n' | grep -nx "$1" | cut -d: -f1; }
+
+# free_port: a TCP port on 127.0.0.1 that is free now (for a server the test starts)
+free_port() { python3 -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])'; }
+
+# status_val KEY [FILE]: KEY's value in a status file (default ./status); "" if absent
+status_val() { sed -n "s/^$1=//p" "${2:-status}" 2> /dev/null; }
+
+# wait_status KEY AWK_CONDITION SECONDS: until ./status's KEY satisfies the condition on v
+# (e.g. 'v >= 3'); 1 if it did not within SECONDS (default 5)
+wait_status() {
+    for _ in $(seq $((${3:-5} * 10))); do
+        v=$(status_val "$1")
+        [ -n "$v" ] && awk -v v="$v" "BEGIN { exit !($2) }" && return 0
+        sleep 0.1
+    done
+    return 1
+}

@@ -130,13 +130,13 @@ alarms = { parameters = ( { name = "c1"; }, { name = "d1"; }, { name = "c2"; }, 
     grep -q '^# forgetting: 0.9995 on the parameters' tracks.csv || fail "tracks header: $(grep '^# forg' tracks.csv)"
     first=$(grep -m1 '^vibid_alarm,' tracks.influx | sed 's/.*index=\([0-9]*\)i.*/\1/')
     [ -n "$first" ] || fail "no alarm raised: $(grep -i alarm log | head)"
-    grep -m1 '^vibid_alarm,' tracks.influx | grep -q 'parameter=c2 state="raised"' ||
+    grep -m1 '^vibid_alarm,' tracks.influx | grep -q '^vibid_alarm,parameter=c2,stand=[^ ]* state="raised"' ||
         fail "first alarm not c2 raised: $(grep -m1 '^vibid_alarm,' tracks.influx)"
     [ "$first" -ge 30000 ] || fail "alarm at sample $first, before the change at 30000 (false alarm)"
     [ "$first" -le 35000 ] || fail "alarm at sample $first: more than 5 s after the change"
     grep -q "ALARM c2: .* at sample $first," log || fail "the log lacks the c2 alarm at sample $first: $(grep ALARM log)"
     # c1, d1, d2 did not change: any alarm on them is a false one
-    other=$(grep '^vibid_alarm,' tracks.influx | grep -v 'parameter=c2 ' | head -1)
+    other=$(grep '^vibid_alarm,' tracks.influx | grep -v 'parameter=c2,' | head -1)
     [ -z "$other" ] || fail "alarm on an unchanged parameter: $other"
     # no row flagged A before the drop
     early=$(grep -v '^#' tracks.csv | awk -F, 'NR > 1 && $2 < 30000 && $NF ~ /A/ { print $2; exit }')

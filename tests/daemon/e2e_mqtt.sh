@@ -40,8 +40,6 @@ cleanup() {
 }
 trap cleanup EXIT
 
-free_port() { python3 -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])'; }
-
 # broker_conf FILE PORT [EXTRA...]: a broker on 127.0.0.1:PORT (root keeps its user: the test's
 # files are root's)
 broker_conf() {
@@ -106,17 +104,6 @@ ${3:-}
 EOF
 }
 
-status_val() { sed -n "s/^$1=//p" "${2:-status}" 2> /dev/null; }
-
-# wait_status KEY AWK_CONDITION SECONDS: until the status file's KEY satisfies the condition
-wait_status() {
-    for _ in $(seq $((${3:-5} * 10))); do
-        v=$(status_val "$1")
-        [ -n "$v" ] && awk -v v="$v" "BEGIN { exit !($2) }" && return 0
-        sleep 0.1
-    done
-    return 1
-}
 
 # check_tracks SUB_OUT TRACKS_CSV [dups]: the tracks messages against the CSV: every seq
 # 1..N (N = CSV rows; duplicates only with "dups"), each seq's payload equal to its row

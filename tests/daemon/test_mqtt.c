@@ -18,33 +18,15 @@
 #include <time.h>
 #include <unistd.h>
 
+#include "cfg_fixture.h"
 #include "config.h"
 #include "estimator.h"
 #include "mqtt.h"
 
 static vd_config cfg;
 
-static const char *write_cfg(const char *name, const char *outputs) {
-    static char path[256];
-    snprintf(path, sizeof path, "/tmp/vd_test_mqtt_%d_%s.cfg", (int)getpid(), name);
-    FILE *f = fopen(path, "w");
-    fprintf(f,
-            "stand = \"%s/examples/stands/paper_example1.cfg\";\n"
-            "source = { kind = \"replay\"; file = \"x.csv\"; time_column = \"t\";\n"
-            " channels = ( { name = \"x1\"; quantity = \"displacement\"; node = 0; column = \"x1\"; },\n"
-            "  { name = \"s\"; quantity = \"base_displacement\"; node = 0; column = \"s\"; },\n"
-            "  { name = \"x2\"; quantity = \"displacement\"; node = 1; column = \"x2\"; } ); };\n"
-            "estimator = { decimation = 10; };\n%s\n",
-            VD_SOURCE_DIR, outputs);
-    fclose(f);
-    return path;
-}
-
 static int load(const char *name, const char *outputs, vd_config *c, vd_config_error *err) {
-    const char *p = write_cfg(name, outputs);
-    int rc = vd_config_load(p, c, err);
-    unlink(p);
-    return rc;
+    return vd_test_load_outputs(name, outputs, c, err);
 }
 
 static int setup(void **state) {

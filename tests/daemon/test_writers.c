@@ -115,8 +115,15 @@ static void test_influx(void **state)
                              "zeta2=0.0435,zeta2_se=0.0001,index=42i,gap_samples=3i,flags=\"GA\" "
                              "1700000000123456000\n");
     assert_true(vd_format_influx_alarm(buf, sizeof buf, &cfg, "s", "c2", 1, &r, 1.35e6, 1.5e6, 12.0) > 0);
-    assert_string_equal(buf, "vibid_alarm,stand=s,parameter=c2 state=\"raised\",index=42i,value=1350000,"
+    assert_string_equal(buf, "vibid_alarm,parameter=c2,stand=s state=\"raised\",index=42i,value=1350000,"
                              "baseline=1500000,z=12 1700000000123456000\n");
+    /* outputs.influx.site: a tag of its own, escaped, tags in key order */
+    vd_config with_site = cfg;
+    snprintf(with_site.influx_site, sizeof with_site.influx_site, "plant 1");
+    assert_true(vd_format_influx_row(buf, sizeof buf, &with_site, "s", &r) > 0);
+    assert_true(!strncmp(buf, "vibid,site=plant\\ 1,stand=s c1=250000,", 38));
+    assert_true(vd_format_influx_alarm(buf, sizeof buf, &with_site, "s", "c2", 0, &r, 1.35e6, 1.5e6, 12.0) > 0);
+    assert_true(!strncmp(buf, "vibid_alarm,parameter=c2,site=plant\\ 1,stand=s state=\"cleared\",", 63));
 }
 
 static void test_recording_roundtrip(void **state)
