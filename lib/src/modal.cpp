@@ -22,14 +22,13 @@ struct Mode {
     double freq_hz;
     double zeta;
     Eigen::VectorXcd shape;
+    // the eigenvalue(s) of the state matrix behind the mode: root (Im > 0) of an oscillating
+    // pair, or the two real roots of an overdamped / rigid-body pair (pair = -1 otherwise)
+    Eigen::Index root = -1, pair = -1;
 };
 
-// shapes = false skips the eigenvectors (Mode::shape stays empty): the perturbed solves of
-// the standard-error propagation need only the eigenvalues, at about half the cost.
-// growth (may be null): the largest eigenvalue real part above 1e-12 of the state
-// matrix's norm (an unstable model), 0 when there is none.
-std::vector<Mode> modes_of(const MatrixXd &M, const MatrixXd &D, const MatrixXd &C, bool shapes = true,
-                           double *growth = nullptr) {
+// The state matrix of (1.6), A = [0 I; -M^-1 C  -M^-1 D] (2n x 2n).
+MatrixXd state_matrix(const MatrixXd &M, const MatrixXd &D, const MatrixXd &C) {
     const Eigen::Index n = M.rows();
     Eigen::FullPivLU<MatrixXd> lu(M);
     if (!lu.isInvertible()) throw_error(VIBID_E_NUMERICAL, "mass matrix is singular");
@@ -37,7 +36,22 @@ std::vector<Mode> modes_of(const MatrixXd &M, const MatrixXd &D, const MatrixXd 
     A.topRightCorner(n, n).setIdentity();
     A.bottomLeftCorner(n, n) = -lu.solve(C);
     A.bottomRightCorner(n, n) = -lu.solve(D);
-    Eigen::EigenSolver<MatrixXd> es(A, shapes);
+    return A;
+}
+
+// shapes = false skips the eigenvectors (Mode::shape stays empty): the perturbed solves of
+// the standard-error propagation need only the eigenvalues, at about half the cost.
+// growth (may be null): the largest eigenvalue real part above 1e-12 of the state
+// matrix's norm (an unstable model), 0 when there is none.
+// es (may be null): the eigen decomposition of the state matrix, for the caller (computed
+// with eigenvectors then, whatever shapes says).
+std::vector<Mode> modes_of(const MatrixXd &M, const MatrixXd &D, const MatrixXd &C, bool shapes = true,
+                           double *growth = nullptr, Eigen::EigenSolver<MatrixXd> *es_out = nullptr) {
+    const Eigen::Index n = M.rows();
+    const MatrixXd A = state_matrix(M, D, C);
+    Eigen::EigenSolver<MatrixXd> es_local;
+    Eigen::EigenSolver<MatrixXd> &es = es_out ? *es_out : es_local;
+    es.compute(A, shapes || es_out);
     if (es.info() != Eigen::Success) throw_error(VIBID_E_NUMERICAL, "eigen solver did not converge");
     std::vector<Mode> modes;
     std::vector<std::pair<double, Eigen::Index>> real_roots;
@@ -51,7 +65,8 @@ std::vector<Mode> modes_of(const MatrixXd &M, const MatrixXd &D, const MatrixXd 
             if (l.imag() < 0) continue;  // the conjugate describes the same mode
             const double w = std::abs(l);
             modes.push_back(Mode{w / (2.0 * M_PI), -l.real() / w,
-                                 shapes ? Eigen::VectorXcd(es.eigenvectors().col(i).head(n)) : Eigen::VectorXcd()});
+                                 shapes ? Eigen::VectorXcd(es.eigenvectors().col(i).head(n)) : Eigen::VectorXcd(), i,
+                                 -1});
         } else {
             real_roots.emplace_back(l.real(), i);
         }
@@ -71,6 +86,8 @@ std::vector<Mode> modes_of(const MatrixXd &M, const MatrixXd &D, const MatrixXd 
             md.zeta = 1.0;
         }
         if (shapes) md.shape = es.eigenvectors().col(real_roots[k + 1].second).head(n);
+        md.root = real_roots[k].second;
+        md.pair = real_roots[k + 1].second;
         modes.push_back(md);
     }
     if (static_cast<Eigen::Index>(modes.size()) != n)
@@ -100,13 +117,82 @@ void write_modes(const std::vector<Mode> &modes, std::size_t n, double *freq_hz,
     }
 }
 
-std::vector<Mode> model_modes(const vibid_model *model, const double *theta, bool shapes = true,
-                              double *growth = nullptr) {
-    const std::size_t n = model->nodes.size();
-    MatrixXd M(n, n), D(n, n), C(n, n);
+void assemble(const vibid_model *model, const double *theta, MatrixXd &M, MatrixXd &D, MatrixXd &C) {
+    const Eigen::Index n = static_cast<Eigen::Index>(model->nodes.size());
+    M.resize(n, n);
+    D.resize(n, n);
+    C.resize(n, n);
     if (vibid_model_assemble(model, theta, M.data(), D.data(), C.data(), nullptr, nullptr, nullptr) != VIBID_OK)
         throw_error(VIBID_E_NUMERICAL, "assembling the model failed: %s", vibid_last_error());
-    return modes_of(M, D, C, shapes, growth);
+}
+
+std::vector<Mode> model_modes(const vibid_model *model, const double *theta, bool shapes = true,
+                              double *growth = nullptr, Eigen::EigenSolver<MatrixXd> *es = nullptr) {
+    MatrixXd M, D, C;
+    assemble(model, theta, M, D, C);
+    return modes_of(M, D, C, shapes, growth, es);
+}
+
+// The sensitivities of every mode's frequency (rows 0..n-1) and damping ratio (rows
+// n..2n-1) to the parameters (p columns) by eigenvalue perturbation: for a simple eigenvalue
+// l of the state matrix A with right eigenvector v and left eigenvector w (w^H = the row of
+// V^-1), dl = w^H dA v (w^H v = 1 with W^H = V^-1). dA/dtheta_i comes from central
+// differences of the assembled M, D, C (exact up to rounding where they are linear in theta,
+// as stiffness and damping terms are). One eigen decomposition instead of 2p + 1: this runs
+// for every track row. false when V is too ill-conditioned for it (a defective or nearly
+// repeated eigenvalue, where the perturbation is not first order): the caller then
+// differentiates the eigenvalues numerically.
+bool modal_jacobian(const vibid_model *model, const std::vector<double> &th, const std::vector<Mode> &modes,
+                    const Eigen::EigenSolver<MatrixXd> &es, MatrixXd &J) {
+    const std::size_t n = model->nodes.size(), p = th.size();
+    const Eigen::MatrixXcd V = es.eigenvectors();
+    Eigen::PartialPivLU<Eigen::MatrixXcd> lu(V);
+    // rcond of V: below 1e-10 the eigenvector basis is nearly singular and first-order
+    // perturbation loses more digits than the numerical difference would
+    if (!(lu.rcond() > 1e-10)) return false;
+    const Eigen::MatrixXcd W = lu.inverse();  // row i: w_i^H
+    const Eigen::VectorXcd lam = es.eigenvalues();
+    J.setZero(static_cast<Eigen::Index>(2 * n), static_cast<Eigen::Index>(p));
+    std::vector<double> tp = th, tm = th;
+    MatrixXd M, D, C;
+    for (std::size_t i = 0; i < p; ++i) {
+        const double step = 1e-6 * std::max(std::fabs(th[i]), 1e-12);
+        tp[i] = th[i] + step;
+        tm[i] = th[i] - step;
+        assemble(model, tp.data(), M, D, C);
+        MatrixXd dA = state_matrix(M, D, C);
+        assemble(model, tm.data(), M, D, C);
+        dA -= state_matrix(M, D, C);
+        dA /= 2.0 * step;
+        tp[i] = tm[i] = th[i];
+        const Eigen::MatrixXcd dAV = dA.cast<std::complex<double>>() * V;
+        // dl_r = w_r^H dA v_r = sum_k W(r, k) (dA V)(k, r)
+        auto dl = [&](Eigen::Index r) { return W.row(r).transpose().cwiseProduct(dAV.col(r)).sum(); };
+        for (std::size_t j = 0; j < n; ++j) {
+            const Mode &md = modes[j];
+            double df = 0.0, dz = 0.0;
+            if (md.pair < 0) {
+                // f = |l| / 2 pi, zeta = -Re l / |l|
+                const std::complex<double> l = lam(md.root), d = dl(md.root);
+                const double w = std::abs(l), dw = (l.real() * d.real() + l.imag() * d.imag()) / w;
+                df = dw / (2.0 * M_PI);
+                dz = -d.real() / w + l.real() * dw / (w * w);
+            } else {
+                // f = sqrt(l1 l2) / 2 pi, zeta = -(l1 + l2) / (2 sqrt(l1 l2)); f = 0, zeta = 1
+                // (rigid body) does not move to first order
+                const double l1 = lam(md.root).real(), l2 = lam(md.pair).real();
+                if (l1 * l2 > 0.0) {
+                    const double d1 = dl(md.root).real(), d2 = dl(md.pair).real();
+                    const double w = std::sqrt(l1 * l2), dw = (l2 * d1 + l1 * d2) / (2.0 * w);
+                    df = dw / (2.0 * M_PI);
+                    dz = -(d1 + d2) / (2.0 * w) + (l1 + l2) * dw / (2.0 * w * w);
+                }
+            }
+            J(static_cast<Eigen::Index>(j), static_cast<Eigen::Index>(i)) = df;
+            J(static_cast<Eigen::Index>(n + j), static_cast<Eigen::Index>(i)) = dz;
+        }
+    }
+    return true;
 }
 
 // The status of an unstable model, for the API function `fn`: its outputs are written all
@@ -154,22 +240,28 @@ VIBID_API vibid_status vibid_model_modal(const vibid_model *model, const double 
             vibid_model_nominal(model, th.data());
         if (!vibid::all_finite(th.data(), p)) throw_error(VIBID_E_NONFINITE, "theta has NaN or Inf");
         double growth = 0.0;
-        const auto modes = model_modes(model, th.data(), shape_re || shape_im, &growth);
+        const bool se_wanted = cov && (freq_se || zeta_se);
+        Eigen::EigenSolver<MatrixXd> es;
+        const auto modes = model_modes(model, th.data(), shape_re || shape_im, &growth, se_wanted ? &es : nullptr);
         write_modes(modes, n, freq_hz, zeta, shape_re, shape_im);
-        if (cov && (freq_se || zeta_se)) {
+        if (se_wanted) {
             if (!vibid::all_finite(cov, p * p)) throw_error(VIBID_E_NONFINITE, "cov has NaN or Inf");
-            // First-order propagation: J (2n x p) by central differences, se^2 = diag(J cov J^T).
+            // First-order propagation: se^2 = diag(J cov J^T), J (2n x p) by eigenvalue
+            // perturbation, or by central differences of the eigenvalues where that fails.
             MatrixXd J(2 * n, p);
-            for (std::size_t i = 0; i < p; ++i) {
-                const double step = 1e-6 * std::max(std::fabs(th[i]), 1e-12);
-                std::vector<double> tp = th, tm = th;
-                tp[i] += step;
-                tm[i] -= step;
-                const auto mp = model_modes(model, tp.data(), false), mm = model_modes(model, tm.data(), false);
-                for (std::size_t j = 0; j < n; ++j) {
-                    J(static_cast<Eigen::Index>(j), static_cast<Eigen::Index>(i)) =
-                        (mp[j].freq_hz - mm[j].freq_hz) / (2 * step);
-                    J(static_cast<Eigen::Index>(n + j), static_cast<Eigen::Index>(i)) = (mp[j].zeta - mm[j].zeta) / (2 * step);
+            if (!modal_jacobian(model, th, modes, es, J)) {
+                for (std::size_t i = 0; i < p; ++i) {
+                    const double step = 1e-6 * std::max(std::fabs(th[i]), 1e-12);
+                    std::vector<double> tp = th, tm = th;
+                    tp[i] += step;
+                    tm[i] -= step;
+                    const auto mp = model_modes(model, tp.data(), false), mm = model_modes(model, tm.data(), false);
+                    for (std::size_t j = 0; j < n; ++j) {
+                        J(static_cast<Eigen::Index>(j), static_cast<Eigen::Index>(i)) =
+                            (mp[j].freq_hz - mm[j].freq_hz) / (2 * step);
+                        J(static_cast<Eigen::Index>(n + j), static_cast<Eigen::Index>(i)) =
+                            (mp[j].zeta - mm[j].zeta) / (2 * step);
+                    }
                 }
             }
             const Eigen::Index P = static_cast<Eigen::Index>(p);

@@ -410,6 +410,87 @@ static void test_modal_standard_errors(void **state) {
     vibid_model_destroy(mod);
 }
 
+/* The standard errors of a 2-DOF chain with an unknown mass (the state matrix is then not
+ * linear in theta) and of an overdamped oscillator (its modes come from a pair of real
+ * roots), against the delta method with the Jacobian of the frequencies and damping ratios
+ * differentiated numerically here, through vibid_model_modal's own values (central
+ * differences, step 1e-5 relative: truncation ~1e-10, rounding ~1e-11 relative in each
+ * derivative). vibid_model_modal gets its Jacobian by eigenvalue perturbation (one
+ * eigen decomposition per call); the two must agree to 1e-6 relative, far below anything a
+ * standard error means and far above their discretisation errors. */
+static void check_se_against_numeric(vibid_model *mod, const double *theta, const double *cov, size_t p, size_t n)
+{
+    double f[4], fse[4], z[4], zse[4];
+    assert_int_equal(vibid_model_modal(mod, theta, cov, f, fse, z, zse, NULL, NULL), VIBID_OK);
+    double J[8][4]; /* rows: f_0..f_{n-1}, z_0..z_{n-1}; columns: parameters */
+    for (size_t i = 0; i < p; ++i) {
+        double tp[4], tm[4], fp[4], fm[4], zp[4], zm[4];
+        memcpy(tp, theta, p * sizeof *tp);
+        memcpy(tm, theta, p * sizeof *tm);
+        const double h = 1e-5 * fabs(theta[i]);
+        tp[i] += h;
+        tm[i] -= h;
+        assert_int_equal(vibid_model_modal(mod, tp, NULL, fp, NULL, zp, NULL, NULL, NULL), VIBID_OK);
+        assert_int_equal(vibid_model_modal(mod, tm, NULL, fm, NULL, zm, NULL, NULL, NULL), VIBID_OK);
+        for (size_t j = 0; j < n; ++j) {
+            J[j][i] = (fp[j] - fm[j]) / (2 * h);
+            J[n + j][i] = (zp[j] - zm[j]) / (2 * h);
+        }
+    }
+    for (size_t r = 0; r < 2 * n; ++r) {
+        double v = 0;
+        for (size_t i = 0; i < p; ++i)
+            for (size_t k = 0; k < p; ++k)
+                v += J[r][i] * cov[i + p * k] * J[r][k];
+        const double se = r < n ? fse[r] : zse[r - n];
+        if (fabs(se - sqrt(v)) > 1e-6 * sqrt(v))
+            fail_msg("%s %zu: se %.12g, numeric delta method %.12g", r < n ? "f" : "zeta", r % n, se, sqrt(v));
+    }
+}
+
+static void test_modal_standard_errors_mdof(void **state)
+{
+    (void)state;
+    /* 2-DOF chain: m1 (known) - c1, d1 to ground; m2 (unknown) - c2 between the masses */
+    vibid_model *mod = vibid_model_create();
+    size_t a, b;
+    assert_int_equal(vibid_model_add_node(mod, "m1", 2.0, 0, &a), VIBID_OK);
+    assert_int_equal(vibid_model_add_node(mod, "m2", 1.5, 1, &b), VIBID_OK);
+    assert_int_equal(vibid_model_add_element(mod, "c1", VIBID_ELEMENT_SPRING, a, VIBID_GROUND, 8.0e4, 1), VIBID_OK);
+    assert_int_equal(vibid_model_add_element(mod, "d1", VIBID_ELEMENT_DAMPER, a, VIBID_GROUND, 30.0, 1), VIBID_OK);
+    assert_int_equal(vibid_model_add_element(mod, "c2", VIBID_ELEMENT_SPRING, a, b, 5.0e4, 1), VIBID_OK);
+    assert_int_equal(vibid_model_add_input(mod, "f", a, 1.0, 0, NULL), VIBID_OK);
+    assert_int_equal(vibid_model_finalize(mod), VIBID_OK);
+    vibid_model_dims dims;
+    assert_int_equal(vibid_model_get_dims(mod, &dims), VIBID_OK);
+    assert_int_equal(dims.n_params, 4);
+    double theta[4];
+    assert_int_equal(vibid_model_nominal(mod, theta), VIBID_OK);
+    /* a covariance with correlations: 1 % standard errors, rho = 0.2 between neighbours */
+    double cov[16];
+    for (size_t i = 0; i < 4; ++i)
+        for (size_t k = 0; k < 4; ++k) {
+            const double si = 0.01 * theta[i], sk = 0.01 * theta[k];
+            cov[i + 4 * k] = i == k ? si * sk : (i + 1 == k || k + 1 == i) ? 0.2 * si * sk : 0.0;
+        }
+    check_se_against_numeric(mod, theta, cov, 4, 2);
+    vibid_model_destroy(mod);
+
+    /* overdamped: zeta = 2.5, the mode from two real roots */
+    mod = vibid_model_create();
+    assert_int_equal(vibid_model_add_node(mod, "m1", 2.0, 0, &a), VIBID_OK);
+    assert_int_equal(vibid_model_add_element(mod, "d", VIBID_ELEMENT_DAMPER, a, VIBID_GROUND, 2000.0, 1), VIBID_OK);
+    assert_int_equal(vibid_model_add_element(mod, "c", VIBID_ELEMENT_SPRING, a, VIBID_GROUND, 8.0e4, 1), VIBID_OK);
+    assert_int_equal(vibid_model_add_input(mod, "f", a, 1.0, 0, NULL), VIBID_OK);
+    assert_int_equal(vibid_model_finalize(mod), VIBID_OK);
+    const double th2[2] = {2000.0, 8.0e4}, cov2[4] = {400.0, 0.3 * 20 * 800, 0.3 * 20 * 800, 640000.0};
+    double f, z;
+    assert_int_equal(vibid_model_modal(mod, th2, NULL, &f, NULL, &z, NULL, NULL, NULL), VIBID_OK);
+    assert_float_equal(z, 2000.0 / (2 * sqrt(8.0e4 * 2.0)), 1e-10);
+    check_se_against_numeric(mod, th2, cov2, 2, 1);
+    vibid_model_destroy(mod);
+}
+
 /* vibid_zoh then vibid_zoh_inverse returns A and B to rounding (1e-9 relative);
  * second_order_form then second_order_to_continuous returns M^-1 C, M^-1 D, M^-1 B. */
 static void test_discretization_round_trip(void **state) {
@@ -540,6 +621,7 @@ int main(void) {
         cmocka_unit_test(test_modal_analytic),
         cmocka_unit_test(test_modal_unstable),
         cmocka_unit_test(test_modal_standard_errors),
+        cmocka_unit_test(test_modal_standard_errors_mdof),
         cmocka_unit_test(test_discretization_round_trip),
         cmocka_unit_test(test_loader),
         cmocka_unit_test(test_loader_hold),
