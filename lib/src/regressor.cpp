@@ -42,6 +42,10 @@ struct vibid_regressor {
     // Ring of the last `width` samples' channels: slot (count - 1) % width is the newest.
     std::vector<double> window;
     unsigned long long count = 0;
+    // window offset of the sample of each age (0 = newest), set by push: a sample's value is
+    // read ~10 times per push, and a 64-bit modulo for each read was the regressor's largest
+    // cost
+    std::size_t age_offset[5] = {0, 0, 0, 0, 0};
     // Pre-filter
     bool filter_on = false;
     Biquad section[2]{};
@@ -86,8 +90,7 @@ void reset_state(vibid_regressor &g) {
 
 // Channel value of sample `age` (0 = newest, 1 = previous, ...; < g.width).
 inline double chan(const vibid_regressor &g, long channel, unsigned age) {
-    const unsigned long long slot = (g.count - 1 - age) % g.width;
-    return g.window[slot * g.n_channels + static_cast<std::size_t>(channel)];
+    return g.window[g.age_offset[age] + static_cast<std::size_t>(channel)];
 }
 
 // Value of `channel` at offset j from the centre sample (j = -2..2, j > 0 is newer).
@@ -283,6 +286,8 @@ VIBID_API vibid_status vibid_regressor_push(vibid_regressor *reg, const double *
         *ready = 0;
         return VIBID_OK;
     }
+    for (unsigned age = 0, s = static_cast<unsigned>(slot); age < reg->width; ++age, s = s ? s - 1 : reg->width - 1)
+        reg->age_offset[age] = s * reg->n_channels;
     if (reg->zoh)
         build_zoh(*reg, x, y);
     else
