@@ -232,16 +232,29 @@ auth)
     timeout 10 "$VIBIDD" -c nofile.cfg --check > /dev/null 2> check.err && fail "--check accepted a missing password file"
     grep -q 'outputs.influx.http.password_file .*pw.missing: No such file' check.err || fail "--check message: $(cat check.err)"
     config bad.cfg "url = \"$BASE\"; username = \"admin\"; password_file = \"pw.bad\"; batch_interval = 0.2; drain_timeout = 1.0;"
+    sed -i 's/^outputs = {/outputs = { prometheus = { listen = "127.0.0.1:0"; };/' bad.cfg
     timeout 60 "$VIBIDD" -c bad.cfg 2> log &
     vpid=$!
     PIDS+=("$vpid")
     wait_status influx_http_failures 'v >= 3' 15 || fail "failures with a wrong password: $(status_val influx_http_failures); $(cat log)"
     grep -q 'influx http: writing to .* failed (HTTP 401, the credentials are refused' log || fail "no clear error: $(grep influx log)"
     kill -0 $vpid || fail "vibidd exited on a wrong password: $(cat log)"
+    # the same counters on the metrics endpoint, in an exposition promtool accepts
+    curl -s "http://$(status_val metrics_listen)/metrics" > scrape.txt || fail "scrape of $(status_val metrics_listen)"
+    if command -v promtool > /dev/null; then
+        promtool check metrics < scrape.txt > promtool.out 2>&1 || fail "promtool check metrics: $(cat promtool.out)"
+    else
+        fail "promtool not found (Debian package prometheus: scripts/install-deps.sh --test)"
+    fi
+    awk '$1 == "vibid_influx_http_failures_total" && $2 >= 3 { ok = 1 } END { exit !ok }' scrape.txt ||
+        fail "vibid_influx_http_failures_total: $(grep influx_http scrape.txt)"
+    grep -q '^vibid_influx_http_ok 0$' scrape.txt || fail "vibid_influx_http_ok: $(grep influx_http_ok scrape.txt)"
     t0=$(date +%s.%N)
     kill -TERM $vpid
     wait $vpid || fail "exit status $? after SIGTERM"
     dt=$(awk -v a="$t0" -v b="$(date +%s.%N)" 'BEGIN { printf "%.1f", b - a }')
+    # a liveness bound, not a speed figure: drain_timeout is 1 s; a writer that waited for
+    # its request's own time-out (10 s) or kept retrying would take 10 s or forever
     awk -v d="$dt" 'BEGIN { exit !(d < 5) }' || fail "SIGTERM took $dt s (drain_timeout 1 s)"
     grep -q 'influx http: stopped with [0-9]* lines not written' log || fail "the unwritten lines are not reported: $(grep influx log)"
     [ "$(status_val influx_http_written)" = 0 ] || fail "written with a wrong password?"
