@@ -43,33 +43,13 @@ cleanup() {
 }
 trap cleanup EXIT
 
-# server_conf PORT [HTTPS_LINES...]: influxd's configuration in $W/influx.conf (data under
-# $W/influx, authentication on, no reporting, quiet)
+. "$SRC/tests/support/influxd_conf.sh"
+# server_conf PORT [HTTPS_LINES...]: influxd's configuration in $W/influx.conf, data under
+# $W/influx, authentication on
 server_conf() {
     local port=$1
     shift
-    cat > influx.conf << EOF
-reporting-disabled = true
-bind-address = "127.0.0.1:$(free_port)"
-[meta]
-  dir = "$W/influx/meta"
-[data]
-  dir = "$W/influx/data"
-  wal-dir = "$W/influx/wal"
-  query-log-enabled = false
-[monitor]
-  store-enabled = false
-[continuous_queries]
-  enabled = false
-[logging]
-  level = "warn"
-[http]
-  enabled = true
-  bind-address = "127.0.0.1:$port"
-  auth-enabled = true
-  log-enabled = false
-$(printf '  %s\n' "$@")
-EOF
+    influxd_conf influx.conf "$W/influx" "$port" true "$@"
 }
 
 CURL_OPTS=()

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# daemon.systemd_vm (issue 12): the hardened unit still runs the daemon, under a real
+# daemon.systemd_vm (issues 12, 14): the hardened unit still runs the daemon, under a real
 # systemd as PID 1, in the qemu (TCG) VM of the SocketCAN tests (Debian's kernel package,
 # helpers in tests/drivers/vm_kernel.sh).
 # The VM's root: this machine's systemd 252 (systemd, systemd-journald, systemctl,
@@ -26,6 +26,14 @@
 #  - tracks, raw recording (900 frames) and status file written where the unit allows;
 #    the journal has the daemon's lines (StandardError=journal) and no warning about
 #    SCHED_FIFO, mlockall or a permission.
+#  - the template vibidd@.service (installed beside it, from the same template): instances
+#    vibidd@a and vibidd@b started together, each with its own /etc/vibidd/<i>.cfg (b with
+#    another decimation), its own dynamic user, outputs in /var/lib/vibidd/<i> and
+#    /run/vibidd/<i>; 300 samples from vcan0 reach both; stop clean, /run/vibidd/<i> removed;
+#    their MQTT passwords (root-only files) reach them through the credential drop-in of
+#    docs/vibidd.md, while vibidd@c, naming its root-only file directly, is refused with
+#    "Permission denied", and vibidd@d, without a password file, is not started (a few
+#    seconds of the run).
 # Why only 300 samples: under TCG vibid-sim delivers 2 kHz of simulated time at about
 # 250 Hz, so the live sample-rate check (windows of >= 2 s and >= 200 samples; a refusal
 # needs two windows off) would rightly refuse the run with exit 2 after 400 samples; the
@@ -182,6 +190,32 @@ for want in 'stand = "stand.cfg";' 'url = "rtu:///dev/ttyS1";' '/var/lib/vibidd/
             'path = "/run/vibidd/status"; interval = 0.2;'; do
   grep -qF "$want" root/data/rtu.cfg || fail "$ex changed: '$want' not in the adapted configuration (adapt this test)"
 done
+# Many stands on one host (vibidd@.service): instances a and b, each with its own
+# configuration /etc/vibidd/<instance>.cfg, the VM's socketcan.cfg with the outputs moved into
+# the instance's directories; b with decimation 100 (3 rows from 300 samples, a: 6), so
+# that each instance is seen to run its own file. Each also publishes to MQTT (no broker in
+# the VM: connection failures are counted, drain_timeout 0) with its password, a root-only
+# file /etc/vibidd/<instance>.mqtt.password handed over by the credential drop-in of
+# docs/vibidd.md as /run/credentials/vibidd@<instance>.service/mqtt.password; instance c
+# names its root-only file directly and must be refused (the dynamic user cannot read it).
+etc=root$(dirname "$cfg")
+for i in a b c d; do
+  sed -e "s|/var/lib/vibidd/|/var/lib/vibidd/$i/|g" -e "s|/run/vibidd/|/run/vibidd/$i/|g" "root$cfg" > "$etc/$i.cfg"
+  pwf=/run/credentials/vibidd@$i.service/mqtt.password
+  [ $i = c ] && pwf=c.mqtt.password
+  sed -i "s|^\( *status = { path = \"/run/vibidd/$i/status\";.*\)$|\1\n  mqtt = { url = \"mqtt://127.0.0.1:1883\"; site = \"vm\"; stand = \"$i\"; username = \"$i\"; password_file = \"$pwf\"; drain_timeout = 0.0; };|" "$etc/$i.cfg"
+  grep -qF "path = \"/var/lib/vibidd/$i/tracks.csv\";" "$etc/$i.cfg" && grep -qF "path = \"/run/vibidd/$i/status\";" "$etc/$i.cfg" &&
+    grep -qF "password_file = \"$pwf\";" "$etc/$i.cfg" || fail "cannot adapt $cfg for instance $i"
+  [ $i = d ] && continue # d: no password file, so no credential to load
+  (umask 077 && echo "secret-$i" > "$etc/$i.mqtt.password") || fail "cannot write $etc/$i.mqtt.password"
+done
+sed -i 's|decimation = 50;|decimation = 100;|' "$etc/b.cfg"
+mkdir -p root/etc/systemd/system/vibidd@.service.d
+awk '$0 == "<!-- drop-in: mqtt-credential (vibidd@ only) -->" { want = 1; next }
+     want && /^```/ { if (inside) exit; inside = 1; next }
+     inside { print }' "$src/docs/vibidd.md" > root/etc/systemd/system/vibidd@.service.d/mqtt-credential.conf
+grep -q '^LoadCredential=mqtt.password:/etc/vibidd/%i.mqtt.password$' root/etc/systemd/system/vibidd@.service.d/mqtt-credential.conf ||
+  fail "docs/vibidd.md: no drop-in 'mqtt-credential (vibidd@ only)' with LoadCredential=mqtt.password:/etc/vibidd/%i.mqtt.password"
 
 # Stage 1: busybox in the initramfs; CAN up; everything onto a tmpfs; systemd as PID 1.
 cat > root/init <<'INIT'
@@ -278,6 +312,53 @@ for mode in default serial; do
   journalctl -u vibidd.service --after-cursor="$cur" -o cat --no-pager | grep -E 'source fault|Modbus|denied' |
     head -n 4 | sed "s/^/VIBIDRTULOG $mode /"
 done
+
+# Many stands: two instances of the template at once, each its own configuration, user and
+# directories. Alone on the host (the plain unit's state directory removed first): the
+# plain unit's StateDirectory=vibidd would contain the instances' vibidd/<instance>.
+rm -f /etc/vibidd/vibidd.cfg $d/*.conf; systemctl daemon-reload
+rm -rf /var/lib/vibidd /var/lib/private/vibidd
+systemctl start vibidd@a.service vibidd@b.service; echo "VIBID inst-start-rc $?"
+for i in a b; do
+  pid=$(systemctl show -p MainPID --value vibidd@$i.service)
+  echo "VIBIDINST $i active $(systemctl is-active vibidd@$i.service)"
+  echo "VIBIDINST $i uid $(awk '$1 == "Uid:" { print $2 }' /proc/$pid/status)"
+  echo "VIBIDINST $i config $(tr '\0' ' ' < /proc/$pid/cmdline | sed 's/.* -c \([^ ]*\).*/\1/')"
+done
+vibid-sim -c /data/stand.cfg -s /data/sim.cfg --can vcan0 --duration 0.15 2> /tmp/sim.err
+echo "VIBID inst-sim-rc $? $(tail -n 1 /tmp/sim.err)"
+for i in a b; do
+  n=0
+  until grep -q '^samples=300$' /run/vibidd/$i/status 2>/dev/null; do
+    n=$((n + 1)); [ $n -gt 60 ] && { echo "VIBID-FAIL instance $i: status never showed 300 samples"; break; }
+    sleep 0.5
+  done
+  echo "VIBIDINST $i status-samples $(sed -n 's/^samples=//p' /run/vibidd/$i/status)"
+  echo "VIBIDINST $i mqtt-connect-failures $(sed -n 's/^mqtt_connect_failures=//p' /run/vibidd/$i/status)"
+  echo "VIBIDINST $i credential $(ls -ln /run/credentials/vibidd@$i.service/mqtt.password | awk '{ print $1, $3 }')"
+done
+# c names the root-only file itself: its ExecStartPre (--check) cannot read it
+systemctl start vibidd@c.service; echo "VIBID inst-c-start-rc $?"
+echo "VIBIDINST c result $(systemctl show -p Result --value vibidd@c.service)"
+echo "VIBIDINST c exit $(systemctl show -p ExecMainStatus --value vibidd@c.service)"
+sleep 0.5 # journald gets the ExecStartPre's last lines
+journalctl -u vibidd@c.service -o cat --no-pager | sed 's/^/VIBIDCLOG /'
+systemctl reset-failed vibidd@c.service
+# d has no /etc/vibidd/d.mqtt.password: the credential drop-in must keep it from starting
+systemctl start vibidd@d.service; echo "VIBID inst-d-start-rc $?"
+echo "VIBIDINST d result $(systemctl show -p Result --value vibidd@d.service)"
+sleep 0.5
+journalctl -u vibidd@d.service -o cat --no-pager | head -n 4 | sed 's/^/VIBIDDLOG /'
+systemctl reset-failed vibidd@d.service
+systemctl stop vibidd@a.service vibidd@b.service; echo "VIBID inst-stop-rc $?"
+for i in a b; do
+  echo "VIBIDINST $i result $(systemctl show -p Result --value vibidd@$i.service)"
+  echo "VIBIDINST $i rows $(grep -v '^#' /var/lib/vibidd/$i/tracks.csv | tail -n +2 | wc -l)"
+  echo "VIBIDINST $i raw-lines $(wc -l < /var/lib/vibidd/$i/raw.log)"
+  echo "VIBIDINST $i state-dir $(readlink -f /var/lib/vibidd/$i)"
+  echo "VIBIDINST $i runtime-dir-after-stop $([ -e /run/vibidd/$i ] && echo present || echo removed)"
+done
+journalctl -b -u vibidd@a.service -u vibidd@b.service -p warning -o cat --no-pager | sed 's/^/VIBIDINSTWARN /'
 echo "VIBID-DONE uptime $(cut -d' ' -f1 /proc/uptime)"
 systemctl poweroff --force --force
 CHECK
@@ -358,5 +439,39 @@ done
   bad "RTU with the default unit: /dev/ttyS1 was not missing (PrivateDevices): $(grep '^VIBIDRTU.* default' console.txt | tr '\n' ' ')"
 [ "$(rtu serial source_timeouts)" -ge 1 ] 2>/dev/null && ! grep -Eq "^VIBIDRTULOG serial .*(No such file|denied)" console.txt ||
   bad "RTU with the serial drop-in: the port did not open: $(grep '^VIBIDRTU.* serial' console.txt | tr '\n' ' ')"
+# the two instances of vibidd@.service
+inst() { awk -v i="$1" -v k="$2" '$1 == "VIBIDINST" && $2 == i && $3 == k { $1 = $2 = $3 = ""; sub(/^ +/, ""); print; exit }' console.txt; }
+[ "$(v inst-start-rc)" = 0 ] && [ "$(v inst-stop-rc)" = 0 ] || bad "instances: start $(v inst-start-rc), stop $(v inst-stop-rc)"
+[ "$(v inst-sim-rc | cut -d' ' -f1)" = 0 ] || bad "vibid-sim for the instances failed: $(v inst-sim-rc)"
+for i in a b; do
+  want_rows=6; [ $i = b ] && want_rows=3
+  [ "$(inst $i active)" = active ] && [ "$(inst $i result)" = success ] ||
+    bad "vibidd@$i: after start $(inst $i active), after stop result $(inst $i result)"
+  [ "$(inst $i config)" = "$(dirname "$cfg")/$i.cfg" ] || bad "vibidd@$i runs with -c '$(inst $i config)', not $(dirname "$cfg")/$i.cfg"
+  [ "$(inst $i status-samples)" = 300 ] || bad "vibidd@$i: /run/vibidd/$i/status shows $(inst $i status-samples) samples (300 expected)"
+  [ "$(inst $i rows)" = $want_rows ] || bad "vibidd@$i: /var/lib/vibidd/$i/tracks.csv has $(inst $i rows) rows ($want_rows expected from its own decimation)"
+  [ "$(inst $i raw-lines)" = 900 ] || bad "vibidd@$i: /var/lib/vibidd/$i/raw.log has $(inst $i raw-lines) lines (900 expected)"
+  [ "$(inst $i state-dir)" = /var/lib/private/vibidd/$i ] || bad "vibidd@$i: state directory $(inst $i state-dir) (the dynamic user's /var/lib/private/vibidd/$i expected)"
+  [ "$(inst $i runtime-dir-after-stop)" = removed ] || bad "vibidd@$i: /run/vibidd/$i still there after stop"
+  u=$(inst $i uid)
+  [ -n "$u" ] && [ "$u" != 0 ] || bad "vibidd@$i runs as uid '$u'"
+done
+[ "$(inst a uid)" != "$(inst b uid)" ] || bad "vibidd@a and vibidd@b share the dynamic uid $(inst a uid)"
+for i in a b; do
+  [ "$(inst $i mqtt-connect-failures)" -ge 1 ] 2>/dev/null ||
+    bad "vibidd@$i: mqtt_connect_failures '$(inst $i mqtt-connect-failures)' (MQTT with its credential expected to run, failing to connect)"
+  [ "$(inst $i credential)" = "-r-------- $(inst $i uid)" ] ||
+    bad "vibidd@$i: credential /run/credentials/vibidd@$i.service/mqtt.password is '$(inst $i credential)' (-r-------- owned by uid $(inst $i uid) expected)"
+done
+[ "$(v inst-c-start-rc)" != 0 ] && [ "$(inst c result)" = exit-code ] ||
+  bad "vibidd@c with a root-only password_file: start $(v inst-c-start-rc), result $(inst c result) (refused expected)"
+[ "$(v inst-d-start-rc)" != 0 ] && [ -n "$(inst d result)" ] && [ "$(inst d result)" != success ] ||
+  bad "vibidd@d without its password file: start $(v inst-d-start-rc), result $(inst d result) (refused expected: the credential is missing)"
+grep -q '^VIBIDDLOG .*status=243/CREDENTIALS' console.txt ||
+  bad "vibidd@d: no 'status=243/CREDENTIALS' in its journal: $(grep '^VIBIDDLOG' console.txt | head -n 3)"
+grep -q '^VIBIDCLOG .*outputs.mqtt.password_file .*c.mqtt.password: Permission denied' console.txt ||
+  bad "vibidd@c: no 'Permission denied' for its password file in the journal: $(grep '^VIBIDCLOG' console.txt | head -n 5)"
+grep -Ei "^VIBIDINSTWARN .*(SCHED_FIFO|mlockall|denied|not permitted|operation not|address family)" console.txt &&
+  bad "warnings about the sandbox in the instances' journal"
 [ $ok -eq 1 ] || fail "checks failed; console: $work/console.txt"
-echo "PASS: the installed vibidd.service under systemd (PID 1) in the VM: READY after $(v started | sed 's/uptime //') s of uptime, uid $uid, no capabilities, seccomp, own user namespace, SCHED_FIFO; 300 samples from vcan0, $rows track rows, 900 frames recorded, InfluxDB UDP; reload (outputs reopened) and stop clean; hw-timestamps drop-in: CAP_NET_ADMIN, host user namespace; serial drop-in: /dev/ttyS1 opens (time-outs $(rtu serial source_timeouts)), without it no device (connect failures $(rtu default source_connect_failures)) ($((end - start)) s)"
+echo "PASS: the installed vibidd.service under systemd (PID 1) in the VM: READY after $(v started | sed 's/uptime //') s of uptime, uid $uid, no capabilities, seccomp, own user namespace, SCHED_FIFO; 300 samples from vcan0, $rows track rows, 900 frames recorded, InfluxDB UDP; reload (outputs reopened) and stop clean; hw-timestamps drop-in: CAP_NET_ADMIN, host user namespace; serial drop-in: /dev/ttyS1 opens (time-outs $(rtu serial source_timeouts)), without it no device (connect failures $(rtu default source_connect_failures)); vibidd@a and vibidd@b at once: uids $(inst a uid) and $(inst b uid), each its own /etc/vibidd/<i>.cfg, 300 samples each, $(inst a rows) and $(inst b rows) rows in /var/lib/vibidd/a and /b, status in /run/vibidd/a and /b (removed at stop), MQTT passwords as credentials; vibidd@c with a root-only password file refused ('$(grep -o '^VIBIDCLOG .*password_file.*' console.txt | head -n 1 | cut -d' ' -f2-)'), vibidd@d without its password file not started ($(grep -o 'status=243/CREDENTIALS' console.txt | head -n 1)) ($((end - start)) s)"
