@@ -35,10 +35,9 @@ fi
 
 PIDS=()
 cleanup() {
-    {
-        for p in "${PIDS[@]}"; do kill -9 "$p"; done
-        wait
-    } 2> /dev/null
+    exec 2> /dev/null # (bash's job notices of the servers killed here)
+    for p in "${PIDS[@]}"; do kill -9 "$p"; done
+    wait
     cd / && rm -rf "$W"
 }
 trap cleanup EXIT
