@@ -64,10 +64,26 @@ void sim_exc_destroy(sim_exc *e);
 /* Prepares sample interval k (sequential: 0, 1, 2, ...; a jump restarts discrete
  * components' state at k). No allocation. */
 void sim_exc_begin_sample(sim_exc *e, uint64_t k);
-/* Value and time derivative at t in [t_k, t_{k+1}] of the current interval. */
+/* Value and time derivative at t in [t_k, t_{k+1}] of the current interval; at the end of
+ * the piece (sim_exc_set_piece_end, t_{k+1} by default) the left limit. */
 void sim_exc_eval(const sim_exc *e, double t, double *v, double *dv);
+/* The first time in (after, t_{k+1}) at which the signal jumps inside the current
+ * interval (smooth: a component's window opening or closing; held: never), or INFINITY. */
+double sim_exc_next_jump(const sim_exc *e, double after);
+/* End of the piece of the interval being integrated (t_{k+1} after sim_exc_begin_sample):
+ * sim_exc_eval at t >= t_end gives the left limit there (a jump at t_end belongs to the
+ * next piece). */
+void sim_exc_set_piece_end(sim_exc *e, double t_end);
 /* Value at t_k (the sample recorded for channel output). */
 double sim_exc_sample_value(const sim_exc *e);
+/* Whether the signal that sim_exc_eval gives over the current interval [t_k, t_{k+1}) is
+ * exactly v0 + (v1 - v0) (t - t_k) / h (what the simulator's exact step integrates in
+ * closed form, sim_engine.h): returns 1 and sets v0 = value at t_k, v1 = the left limit at
+ * t_{k+1}; returns 0 (v0, v1 untouched) when it is not. Held: always 1 with v1 = v0.
+ * Smooth: 1 when every component active in the interval is PRBS, noise (interpolated
+ * linearly) or constant, and no component's window opens or closes inside (t_k, t_{k+1});
+ * 0 with any sine, triangle, sweep or stepped sine. No allocation. */
+int sim_exc_linear(const sim_exc *e, double *v0, double *v1);
 
 /* PRBS helper (exposed for tests): next bit of a Fibonacci LFSR of `order` with state
  * *state (non-zero, < 2^order). */

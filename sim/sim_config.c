@@ -204,13 +204,25 @@ int sim_config_load(const char *path, const vibid_stand *stand, const uint64_t *
     }
 
     const config_setting_t *ig = config_setting_get_member(g, "integrator");
+    const config_setting_t *kind_setting = NULL; /* where integrator.kind = "exact" was asked for */
     if (ig) {
-        static const char *const ik[] = {"rtol", "atol", "method", NULL};
+        static const char *const ik[] = {"kind", "rtol", "atol", "method", NULL};
         if (!config_setting_is_group(ig)) {
             vibid_cfg_fail(&c, ig, "simulation.integrator", "must be a group");
             goto out;
         }
         if (vibid_cfg_check_keys(&c, ig, "simulation.integrator", ik)) goto out;
+        static const char *const kinds[] = {"auto", "exact", "arkode", NULL}; /* index = sim_integrator */
+        int kind = SIM_INTEGRATOR_AUTO;
+        if ((r = vibid_cfg_enum(&c, ig, "simulation.integrator", "kind", kinds, false, &kind)) < 0) goto out;
+        cfg->integrator = (sim_integrator)kind;
+        if (r) kind_setting = config_setting_get_member(ig, "kind");
+        if (cfg->integrator == SIM_INTEGRATOR_EXACT && d.nonlinear) {
+            vibid_cfg_fail(&c, kind_setting, "simulation.integrator.kind",
+                           "\"exact\" needs a linear stand, and this one has a cubic spring: its motion has no "
+                           "closed form between samples (use \"auto\" or \"arkode\", which integrate it with ARKODE)");
+            goto out;
+        }
         if (get_num(&c, ig, "simulation.integrator", "rtol", &cfg->rtol) < 0) goto out;
         if (get_num(&c, ig, "simulation.integrator", "atol", &cfg->atol) < 0) goto out;
         static const char *const methods[] = {"fehlberg8", "dormand_prince5", NULL}; /* index = cfg->method */
@@ -315,6 +327,26 @@ int sim_config_load(const char *path, const vibid_stand *stand, const uint64_t *
         t->specs = ns;
         if (parse_exc(&c, e, p, cfg->seed, (size_t)i, &t->specs[t->n])) goto out;
         t->n++;
+    }
+
+    /* "exact" refuses a smooth input with a component that is not piecewise linear between
+     * samples: the exact step could not take a single interval of it, and a run asked to be
+     * exact must not silently run on ARKODE throughout (sim_engine.h). */
+    for (size_t i = 0; cfg->integrator == SIM_INTEGRATOR_EXACT && i < cfg->n_targets; i++) {
+        const sim_exc_target *t = &cfg->targets[i];
+        int smooth = t->is_base ? cfg->base_smooth
+                     : t->is_disturbance ? 0
+                     : t->input < SIM_MAX_CHANNELS ? cfg->input_smooth[t->input] : 1;
+        for (size_t j = 0; smooth && j < t->n; j++) {
+            sim_exc_kind k = t->specs[j].kind;
+            if (k == SIM_EXC_CONSTANT || k == SIM_EXC_PRBS || k == SIM_EXC_NOISE) continue;
+            vibid_cfg_fail(&c, kind_setting, "simulation.integrator.kind",
+                           "\"exact\" is exact for inputs held over each sample or linear between samples, and "
+                           "the %s is smooth with a %s component, which is neither (hold it: hold = \"zoh\", or "
+                           "use \"auto\", which integrates such intervals with ARKODE)",
+                           t->is_base ? "base" : "force input", sim_exc_kind_name(k));
+            goto out;
+        }
     }
 
     const config_setting_t *nl = get_list(&c, g, gp, "noise", &lerr);

@@ -4,7 +4,8 @@
  *   simulation = {
  *     seed = 1; duration = 10.0; hold = "zoh";            # or "smooth"; overrides the stand's
  *                                                          # per-input `hold` (default: the stand's)
- *     integrator = { rtol = 1e-10; atol = 1e-15; method = "fehlberg8"; };  # or "dormand_prince5"
+ *     integrator = { kind = "auto";          # or "exact" / "arkode" (sim_engine.h)
+ *                    rtol = 1e-10; atol = 1e-12; method = "fehlberg8"; };  # ARKODE's; or "dormand_prince5"
  *     excitation = ( { target = "base"; kind = "triangle"; amplitude = 1e-3; frequency = 10.0; } );
  *                    # target: "base", a force input (name or channel) or a disturbance (name),
  *                    # which then replaces the disturbance's default white drive
@@ -51,6 +52,14 @@ typedef struct sim_change {
     double value;         /* value after the change (absolute) */
 } sim_change;
 
+/* simulation.integrator.kind (sim_engine.h says what each does). */
+typedef enum sim_integrator {
+    SIM_INTEGRATOR_AUTO = 0,   /* exact step on every interval where it is exact, ARKODE elsewhere */
+    SIM_INTEGRATOR_EXACT = 1,  /* as AUTO, but a stand or excitation that would keep ARKODE in use on
+                                  every interval (cubic springs, smooth sines/sweeps/triangles) is refused */
+    SIM_INTEGRATOR_ARKODE = 2  /* ARKODE on every interval (the reference the exact step is checked against) */
+} sim_integrator;
+
 typedef enum sim_can_type { SIM_CAN_INT16 = 0, SIM_CAN_INT32 = 1, SIM_CAN_FLOAT32 = 2 } sim_can_type;
 
 typedef struct sim_can_signal {
@@ -69,7 +78,8 @@ typedef struct sim_config {
      * 0 = held over [t_k, t_k + h), (1.10)): what the engine uses. */
     int base_smooth;
     int input_smooth[SIM_MAX_CHANNELS]; /* per force input j (every input is a channel) */
-    double rtol, atol;
+    sim_integrator integrator;
+    double rtol, atol;    /* ARKODE's tolerances (relative; absolute in m and m/s) */
     int method;           /* 0 = fehlberg8 (Fehlberg 13-7-8, default), 1 = dormand_prince5 (7-4-5) */
     sim_exc_target *targets;
     size_t n_targets;

@@ -1,7 +1,28 @@
 /* sim/sim_engine.h: integration of M y'' + G(y, y') + G0(y) = F(t) (1.1) for a stand
  * (vibid_model_forces gives all forces but inertia), sampled at h = 1 / sample_rate.
  *
- * Integrator: SUNDIALS ARKODE, ERKStep (explicit Runge-Kutta, default 8th-order
+ * Two paths, chosen per sample interval (simulation.integrator.kind, sim_config.h):
+ *
+ * Exact step (linear stands, kind "auto" (default) or "exact"): with x = [y; y'],
+ * x' = A x + Bv v(t), A = [0 I; -M^-1 C  -M^-1 D], Bv = [0; M^-1 [B c_base d_base E_w]],
+ * input columns v = [u_1..u_r, s, s', w_1..w_nw]. When every input is linear over
+ * [t_k, t_{k+1}), v = v0 + dv (t - t_k) / h, the solution is closed-form:
+ *     x_{k+1} = Ad x_k + Gamma0 v0 + Gamma1 dv = Phi [x_k; v0; dv]
+ * (Ad = e^{A h}, Gamma0 = int_0^h e^{A (h - tau)} Bv dtau, Gamma1 the same weighted by
+ * tau / h), one matrix-vector product per sample, Phi from one vibid_zoh of the system
+ * augmented by the input (computed at creation and after each parameter change). Exact to
+ * rounding for held inputs (dv = 0: ZOH, (1.12)) and for PRBS / noise / constants under
+ * "smooth" (interpolated linearly: a first-order hold), with the held base's impulse and
+ * the held disturbances as below. Not exact, so integrated by ARKODE instead, are intervals
+ * with a smooth sine, triangle, sweep or stepped sine (a continuous function of t that no
+ * polynomial over the interval reproduces: holding or interpolating it would simulate a
+ * different system), a parameter ramp, or a component window opening or closing inside
+ * the interval; with kind "exact" the first of these (and a nonlinear stand) is refused at
+ * start (sim_config_load), the other two fall back per interval. sim_engine_stats counts
+ * the intervals of each path.
+ *
+ * ARKODE (nonlinear stands, the intervals above, and everything with kind "arkode"):
+ * SUNDIALS ARKODE, ERKStep (explicit Runge-Kutta, default 8th-order
  * Fehlberg-13-7-8 with embedded error estimate and adaptive steps). Why ARKODE/ERK and not
  * CVODE: the input is held over each sample interval (1.10), so the right-hand side
  * jumps at every sample boundary and the integrator must be restarted there. A
@@ -64,7 +85,9 @@ const char *sim_engine_error(const sim_engine *e);
 double sim_engine_param(const sim_engine *e, size_t i);
 
 typedef struct sim_engine_stats {
-    long steps, rhs_evals;
+    long steps, rhs_evals;           /* ARKODE's Runge-Kutta steps and right-hand-side evaluations */
+    long exact_intervals;            /* sample intervals taken by the exact step */
+    long arkode_intervals;           /* sample intervals integrated by ARKODE */
 } sim_engine_stats;
 void sim_engine_stats_get(const sim_engine *e, sim_engine_stats *s);
 

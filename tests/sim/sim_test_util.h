@@ -8,6 +8,18 @@
 #include <string.h>
 #include <unistd.h>
 
+#include "sim_config.h"
+
+/* The integrator the tests run (sim.accuracy and sim.hold run twice, ctest names
+ * sim.accuracy / sim.accuracy_arkode): VIBID_SIM_TEST_INTEGRATOR=arkode forces ARKODE on
+ * every interval; otherwise the configuration's choice stays (default "auto": the exact
+ * step wherever it is exact). Call after sim_config_load. */
+static inline void apply_test_integrator(sim_config *cfg)
+{
+    const char *s = getenv("VIBID_SIM_TEST_INTEGRATOR");
+    if (s && strcmp(s, "arkode") == 0) cfg->integrator = SIM_INTEGRATOR_ARKODE;
+}
+
 static inline const char *tmp_dir(void)
 {
     const char *d = getenv("VIBID_SIM_TMP");

@@ -31,6 +31,7 @@ static double compare_with_zoh(const char *name, const char *text, size_t n_samp
     sim_config cfg;
     char err[1024];
     if (sim_config_load(path, st, NULL, &cfg, err, sizeof err)) fail_msg("%s", err);
+    apply_test_integrator(&cfg);
     sim_engine *e = sim_engine_create(st, &cfg, err, sizeof err);
     if (!e) fail_msg("%s", err);
 
@@ -186,6 +187,7 @@ static void test_step_change(void **state)
     sim_config cfg;
     char err[1024];
     if (sim_config_load(path, st, NULL, &cfg, err, sizeof err)) fail_msg("%s", err);
+    apply_test_integrator(&cfg);
     sim_engine *e = sim_engine_create(st, &cfg, err, sizeof err);
     if (!e) fail_msg("%s", err);
     double h = 1e-3, G[2][4], Gam[2][2];

@@ -63,6 +63,7 @@ static case_result run_case(const char *name, const char *text, size_t n_samples
     sim_config cfg;
     char err[1024];
     if (sim_config_load(path, st, NULL, &cfg, err, sizeof err)) fail_msg("%s", err);
+    apply_test_integrator(&cfg);
     sim_engine *e = sim_engine_create(st, &cfg, err, sizeof err);
     if (!e) fail_msg("%s", err);
 
@@ -278,6 +279,7 @@ static void test_two_mass_chain_smooth_base(void **state)
     sim_config cfg;
     char err[1024];
     if (sim_config_load(path, st, NULL, &cfg, err, sizeof err)) fail_msg("%s", err);
+    apply_test_integrator(&cfg);
     sim_engine *e = sim_engine_create(st, &cfg, err, sizeof err);
     if (!e) fail_msg("%s", err);
     size_t sv = vibid_stand_find_channel(st, "sv");
@@ -364,6 +366,7 @@ static void test_hold_round_trip(void **state)
         sim_config cfg;
         char err[1024];
         if (sim_config_load(path, st, NULL, &cfg, err, sizeof err)) fail_msg("%s", err);
+        apply_test_integrator(&cfg);
         static const int smooth[3][4] = {{0, 1, 1, 0}, {1, 1, 1, 1}, {0, 0, 0, 0}}; /* f1 f2 f3 base */
         for (size_t j = 0; j < 3; j++) assert_int_equal(cfg.input_smooth[j], smooth[v][j]);
         assert_int_equal(cfg.base_smooth, smooth[v][3]);
@@ -400,6 +403,7 @@ static void test_held_base_rates_rejected(void **state)
     vibid_stand *st = load_stand(path);
     sim_config cfg;
     if (sim_config_load(path, st, NULL, &cfg, err, sizeof err)) fail_msg("%s", err);
+    apply_test_integrator(&cfg);
     assert_null(sim_engine_create(st, &cfg, err, sizeof err));
     print_message("rejected: %s\n", err);
     assert_non_null(strstr(err, "stand.base.hold"));
