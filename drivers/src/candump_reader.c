@@ -8,7 +8,9 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "candump_internal.h"
 #include "file_util.h"
+#include "swar.h"
 
 #define CAN_ERR_FLAG_BIT 0x20000000u
 #define CAN_ERR_MASK_BITS 0x1FFFFFFFu
@@ -170,7 +172,7 @@ static vibid_candump_kind parse_frame(const char *s, const char *end, vibid_cand
     return e->kind = VIBID_CANDUMP_FRAME;
 }
 
-vibid_candump_kind vibid_candump_parse_line(const char *line, size_t len, vibid_candump_entry *e)
+vibid_candump_kind vibid_candump_parse_line_general(const char *line, size_t len, vibid_candump_entry *e)
 {
     /* Reset what a parse sets; the 192-byte text only needs its terminator (this runs
      * once per frame on replay, where a full memset was a measurable share). */
@@ -252,6 +254,180 @@ vibid_candump_kind vibid_candump_parse_line(const char *line, size_t len, vibid_
         }
     }
     return parse_frame(fs, fe, e);
+}
+
+static bool is_digit(char c) { return (unsigned)(c - '0') < 10u; }
+
+#if VIBID_SWAR
+#define HAVE_SWAR 1
+#define BYTES VIBID_BYTES
+#define load8 vibid_load8
+#define in_range vibid_swar_in_range
+#define eight_digits vibid_swar_eight_digits
+#define eight_digits_value vibid_swar_eight_digits_value
+
+/* Eight hex digits (either case) -> four bytes, the first pair in the lowest byte (the
+ * payload's byte order on this little-endian host); false if any byte is not a hex digit. */
+static bool eight_hex(uint64_t v, uint32_t *out)
+{
+    if (v & BYTES(0x80))
+        return false;
+    uint64_t dig = in_range(v, '0', '9');
+    uint64_t let = in_range(v, 'A', 'F') | in_range(v, 'a', 'f');
+    if ((dig | let) != BYTES(0x80))
+        return false;
+    uint64_t nib = (v & BYTES(0x0F)) + (let >> 7) * 9;         /* 0..15 per byte */
+    uint64_t t = ((nib << 4) | (nib >> 8)) & UINT64_C(0x00FF00FF00FF00FF); /* pairs in even bytes */
+    t = (t | (t >> 8)) & UINT64_C(0x0000FFFF0000FFFF);
+    t = (t | (t >> 16)) & UINT64_C(0x00000000FFFFFFFF);
+    *out = (uint32_t)t;
+    return true;
+}
+#else
+#define HAVE_SWAR 0
+#endif
+
+/* The canonical line that candump -l, vibid-sim and vibidd's recorder write:
+ * "(SECONDS.FFFFFF) IFACE III#HHHH..." with 6 or 9 fraction digits, single spaces, a 3-
+ * or 8-hex-digit data frame id (no error flag) and 0..8 data bytes as hex pairs without
+ * separators. Everything the general parser does per line (skip blanks, look for
+ * DROPCOUNT, tolerate padding and suffixes, check for NUL bytes) is spent on what this
+ * form never has; the replay of a candump log is 3 lines per sample, so the saving counts.
+ * Fills *e exactly as vibid_candump_parse_line_general does for such a line (the fields it
+ * sets, the payload bytes after len zeroed) and returns true; returns false without
+ * writing to *e for any other line. Every byte it accepts is checked (a NUL is
+ * never a digit, hex digit or interface character), so no separate NUL scan is needed. */
+bool vibid_candump_parse_line_fast(const char *line, size_t len, vibid_candump_entry *e)
+{
+    const char *p = line, *end = line + len;
+    if (len < 17 || *p != '(') /* shortest: "(0.000000) a 123#" */
+        return false;
+    p++;
+    uint64_t sec = 0, frac = 0;
+    size_t nd;
+#if HAVE_SWAR
+    /* candump's own "(%010llu.%06llu) ": ten and six digits at fixed places (len >= 24
+     * covers the 8-byte loads up to line[17]). bytes 10..17 = "D.DDDDDD": the first two
+     * replaced by "00" they are the fraction as eight digits. */
+    if (len >= 24 && line[11] == '.' && line[18] == ')' && line[19] == ' ' && is_digit(line[9]) &&
+        is_digit(line[10])) {
+        uint64_t hi8 = load8(line + 1), fr8 = (load8(line + 10) & ~UINT64_C(0xFFFF)) | 0x3030u;
+        if (eight_digits(hi8) && eight_digits(fr8)) {
+            sec = (uint64_t)eight_digits_value(hi8) * 100u + (unsigned)(line[9] - '0') * 10u +
+                  (unsigned)(line[10] - '0');
+            frac = eight_digits_value(fr8);
+            nd = 6;
+            p = line + 20;
+            goto iface; /* the seconds' bound is checked there for both ways in */
+        }
+    }
+#endif
+    const char *d = p;
+    while (p < end && is_digit(*p)) {
+        sec = sec * 10 + (unsigned)(*p++ - '0');
+        if (p - d > 10)
+            return false; /* more than 10 digits: let the general parser judge */
+    }
+    if (p == d || p >= end || *p != '.')
+        return false;
+    p++;
+    d = p;
+    while (p < end && is_digit(*p) && p - d < 10)
+        frac = frac * 10 + (unsigned)(*p++ - '0');
+    nd = (size_t)(p - d);
+    if ((nd != 6 && nd != 9) || p + 1 >= end || p[0] != ')' || p[1] != ' ')
+        return false;
+    p += 2;
+#if HAVE_SWAR
+iface:
+#endif
+    if (sec > 9223372035u) /* keeps sec * 1e9 + ns inside int64, as the general parser */
+        return false;
+    const char *ifs = p;
+    while (p < end && (unsigned char)*p > ' ') /* no space, tab, control byte or NUL */
+        p++;
+    size_t iflen = (size_t)(p - ifs);
+    if (iflen == 0 || iflen >= VIBID_CAN_IFNAMSIZ || p >= end || *p != ' ')
+        return false;
+    p++;
+    const char *ids = p;
+    uint32_t id = 0;
+    int h;
+    while (p < end && (h = hexval(*p)) >= 0 && p - ids < 9) {
+        id = (id << 4) | (uint32_t)h;
+        p++;
+    }
+    size_t idlen = (size_t)(p - ids);
+    if (p >= end || *p != '#')
+        return false;
+    uint8_t flags = 0;
+    if (idlen == 3) {
+        if (id > 0x7FF)
+            return false;
+    } else if (idlen == 8) {
+        if (id > CAN_ERR_MASK_BITS) /* error frames and flag bits: general parser */
+            return false;
+        flags = VIBID_CAN_F_EXT;
+    } else {
+        return false;
+    }
+    p++;
+    size_t ndig = (size_t)(end - p);
+    if (ndig > 2 * VIBID_CAN_MAX_DLEN || (ndig & 1u))
+        return false; /* RTR, CAN FD, separators, suffixes, odd digits, trailing text */
+    uint8_t data[VIBID_CAN_MAX_DLEN] = {0};
+#if HAVE_SWAR
+    /* The payload is assembled in a register and stored once: bytes written one by one
+     * (or four at a time) and then copied as 8 would stall on store forwarding. */
+    uint64_t word = 0;
+    size_t i = 0;
+    for (; 2 * i + 8 <= ndig; i += 4) {
+        uint32_t four;
+        if (!eight_hex(load8(p + 2 * i), &four))
+            return false;
+        word |= (uint64_t)four << (8 * i);
+    }
+    for (; i < ndig / 2; i++) {
+        int hi = hexval(p[2 * i]), lo = hexval(p[2 * i + 1]);
+        if ((hi | lo) < 0)
+            return false;
+        word |= (uint64_t)(hi << 4 | lo) << (8 * i);
+    }
+    memcpy(data, &word, sizeof data);
+#else
+    for (size_t i = 0; i < ndig / 2; i++) {
+        int hi = hexval(p[2 * i]), lo = hexval(p[2 * i + 1]);
+        if ((hi | lo) < 0)
+            return false;
+        data[i] = (uint8_t)(hi << 4 | lo);
+    }
+#endif
+    vibid_can_frame *f = &e->frame;
+    f->t_ns = (int64_t)(sec * 1000000000u + (nd == 6 ? frac * 1000u : frac));
+    f->id = id;
+    f->flags = flags;
+    f->fd_flags = 0;
+    f->len = (uint8_t)(ndig / 2);
+    memcpy(f->data, data, sizeof data);
+    /* The id and '#' follow the name, so 16 bytes from ifs lie inside the line when the
+     * line is that long: one fixed-size copy instead of a call. The bytes after the NUL
+     * are as undefined as the general parser leaves them. */
+    if ((size_t)(end - ifs) >= VIBID_CAN_IFNAMSIZ)
+        memcpy(f->iface, ifs, VIBID_CAN_IFNAMSIZ);
+    else
+        memcpy(f->iface, ifs, iflen);
+    f->iface[iflen] = '\0';
+    e->dropped = e->total_drops = 0;
+    e->text[0] = '\0';
+    e->kind = VIBID_CANDUMP_FRAME;
+    return true;
+}
+
+vibid_candump_kind vibid_candump_parse_line(const char *line, size_t len, vibid_candump_entry *e)
+{
+    if (vibid_candump_parse_line_fast(line, len, e))
+        return VIBID_CANDUMP_FRAME;
+    return vibid_candump_parse_line_general(line, len, e);
 }
 
 static vibid_candump_reader *reader_new(const char *name, vibid_drv_error *err)

@@ -10,6 +10,7 @@
 #include <string.h>
 
 #include "file_util.h"
+#include "num_parse.h"
 
 struct vibid_csv_reader {
     FILE *fp;
@@ -179,6 +180,13 @@ static vibid_drv_status bad_row(vibid_csv_reader *r, vibid_drv_error *err, const
     return vibid_drv_fail(err, VIBID_DRV_E_SYNTAX, "%.100s:%lu: %s", r->name, r->lr.line, why);
 }
 
+/* A row with a NUL byte anywhere is reported as such, whatever else is wrong with it.
+ * The NUL is looked for only once the row has failed: a row that parses has none (the
+ * fast number parser accepts digits, signs, '.' and 'e' only, and a field that goes to
+ * strtod is checked before), so good rows are not scanned twice. */
+#define BAD_ROW(...)                                                                                              \
+    (memchr(text, '\0', len) ? bad_row(r, err, "NUL byte in line") : bad_row(r, err, __VA_ARGS__))
+
 vibid_drv_status vibid_csv_next(vibid_csv_reader *r, double *values, unsigned long *line,
                                 vibid_drv_error *err)
 {
@@ -196,8 +204,6 @@ vibid_drv_status vibid_csv_next(vibid_csv_reader *r, double *values, unsigned lo
         *line = r->lr.line;
     if (too_long)
         return bad_row(r, err, "line longer than %d characters", VIBID_LINE_MAX);
-    if (memchr(text, '\0', len))
-        return bad_row(r, err, "NUL byte in line");
     double tmp[VIBID_CSV_MAX_COLUMNS];
     const char *p = text, *end = text + len;
     size_t col = 0;
@@ -206,32 +212,41 @@ vibid_drv_status vibid_csv_next(vibid_csv_reader *r, double *values, unsigned lo
         const char *fe = c ? c : end;
         const char *fs = trim(p, &fe);
         if (col == r->ncols)
-            return bad_row(r, err, "more than %zu fields", r->ncols);
+            return BAD_ROW("more than %zu fields", r->ncols);
         char buf[64];
         size_t n = (size_t)(fe - fs);
         if (n == 0)
-            return bad_row(r, err, "column '%.40s' is empty", r->names[col]);
+            return BAD_ROW("column '%.40s' is empty", r->names[col]);
         if (n >= sizeof buf)
-            return bad_row(r, err, "column '%.40s': number too long", r->names[col]);
-        memcpy(buf, fs, n);
-        buf[n] = '\0';
-        char *ep;
-        double v = strtod(buf, &ep);
-        if (*ep != '\0' || ep == buf)
-            return bad_row(r, err, "column '%.40s': '%.40s' is not a number", r->names[col], buf);
-        if (!isfinite(v))
-            return bad_row(r, err, "column '%.40s': non-finite value '%.40s'", r->names[col], buf);
+            return BAD_ROW("column '%.40s': number too long", r->names[col]);
+        double v;
+        /* The exact fast parser answers for plain decimals (bit-identical to strtod,
+         * num_parse.h); strtod keeps the last word on everything else. */
+        if (!vibid_parse_decimal(fs, fe, &v)) {
+            if (memchr(fs, '\0', n))
+                return bad_row(r, err, "NUL byte in line");
+            memcpy(buf, fs, n);
+            buf[n] = '\0';
+            char *ep;
+            v = strtod(buf, &ep);
+            if (*ep != '\0' || ep == buf)
+                return BAD_ROW("column '%.40s': '%.40s' is not a number", r->names[col], buf);
+            if (!isfinite(v))
+                return BAD_ROW("column '%.40s': non-finite value '%.40s'", r->names[col], buf);
+        }
         tmp[col++] = v;
         if (!c)
             break;
         p = c + 1;
     }
     if (col != r->ncols)
-        return bad_row(r, err, "%zu fields, the header has %zu", col, r->ncols);
+        return BAD_ROW("%zu fields, the header has %zu", col, r->ncols);
     memcpy(values, tmp, col * sizeof *values);
     r->stats.rows++;
     return VIBID_DRV_OK;
 }
+
+#undef BAD_ROW
 
 void vibid_csv_stats_get(const vibid_csv_reader *r, vibid_csv_stats *stats)
 {

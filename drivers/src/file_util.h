@@ -24,7 +24,9 @@ typedef struct vibid_line_reader {
     size_t mem_len, mem_pos;
     unsigned long line;   /* number of the line last returned, 1-based */
     size_t pos, end;      /* file mode: unread bytes are chunk[pos, end) */
-    char chunk[VIBID_LINE_CHUNK + 1]; /* +1: room for the NUL after a last unterminated line */
+    /* +16: room for the NUL after a last unterminated line, and for the newline search's
+     * 16-byte loads, which may reach up to 15 bytes past the data (never past the array) */
+    char chunk[VIBID_LINE_CHUNK + 16];
     char buf[VIBID_LINE_MAX + 1];     /* cut lines and memory-mode lines are copied here */
 } vibid_line_reader;
 

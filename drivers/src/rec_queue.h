@@ -41,7 +41,12 @@ static inline vibid_record *rec_queue_push(rec_queue *q, vibid_record_kind kind)
 {
     if (q->len == q->cap)
         return NULL;
-    vibid_record *r = &q->r[(q->head + q->len++) % q->cap];
+    /* head < cap and len < cap: one conditional subtraction instead of a division (the
+     * capacity is not a constant, and a 64-bit divide per record showed in replay) */
+    size_t i = q->head + q->len++;
+    if (i >= q->cap)
+        i -= q->cap;
+    vibid_record *r = &q->r[i];
     r->kind = kind;
     r->fault = VIBID_FAULT_NONE;
     r->index = r->count = 0;
@@ -58,7 +63,8 @@ static inline const vibid_record *rec_queue_peek(const rec_queue *q)
 
 static inline void rec_queue_drop_head(rec_queue *q)
 {
-    q->head = (q->head + 1) % q->cap;
+    if (++q->head == q->cap)
+        q->head = 0;
     q->len--;
 }
 

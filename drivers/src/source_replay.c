@@ -167,17 +167,18 @@ static void set_fatal(replay *r, vibid_drv_status st, const char *text)
  * name the line at which they were detected. */
 static void drain_assembler(replay *r, unsigned long line)
 {
-    vibid_record rec;
-    while (rec_queue_space(&r->q) > 0 && vibid_can_assembler_pop(r->as, &rec)) {
-        char tmp[sizeof rec.text];
-        if (rec.kind == VIBID_REC_FAULT && line) {
-            memcpy(tmp, rec.text, sizeof tmp);
-            rec_text(&rec, "%s:%lu: %s", r->base, line, tmp);
-        } else if (rec.kind == VIBID_REC_GAP && line) {
-            memcpy(tmp, rec.text, sizeof tmp);
-            rec_text(&rec, "%s (at %s:%lu)", tmp, r->base, line);
-        }
-        rec_queue_push_copy(&r->q, &rec); /* space checked above */
+    /* Popped straight into the queue's slot: one record copy less per sample. */
+    while (rec_queue_space(&r->q) > 0 && vibid_can_assembler_pending(r->as) > 0) {
+        vibid_record *rec = rec_queue_push(&r->q, VIBID_REC_SAMPLE); /* space checked above */
+        vibid_can_assembler_pop(r->as, rec);
+        if (rec->kind == VIBID_REC_SAMPLE || !line)
+            continue;
+        char tmp[sizeof rec->text];
+        memcpy(tmp, rec->text, sizeof tmp);
+        if (rec->kind == VIBID_REC_FAULT)
+            rec_text(rec, "%s:%lu: %s", r->base, line, tmp);
+        else
+            rec_text(rec, "%s (at %s:%lu)", tmp, r->base, line);
     }
 }
 

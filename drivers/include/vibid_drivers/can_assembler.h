@@ -71,6 +71,9 @@ void vibid_can_assembler_note_drops(vibid_can_assembler *a, uint64_t dropped, co
 void vibid_can_assembler_finish(vibid_can_assembler *a);
 /* true and *rec filled while records are queued. */
 bool vibid_can_assembler_pop(vibid_can_assembler *a, vibid_record *rec);
+/* Records queued (what _pop would return before it returns false); 0 for NULL. Lets a
+ * caller pop straight into its own queue's slots instead of through a copy. */
+size_t vibid_can_assembler_pending(const vibid_can_assembler *a);
 /* The inverse of push, for recording samples as CAN frames (vibidd's candump recording):
  * the frames that carry sample rec (a SAMPLE record in this assembler's channel order),
  * one per DBC message holding channels, in the order the assembler rebuilds them (the

@@ -58,7 +58,17 @@ typedef struct vibid_record {
 static inline void vibid_record_copy(vibid_record *dst, const vibid_record *src)
 {
     size_t nv = src->n_values <= VIBID_DRV_MAX_CHANNELS ? src->n_values : VIBID_DRV_MAX_CHANNELS;
-    memcpy(dst, src, offsetof(vibid_record, values) + nv * sizeof(double));
+    /* Copies of a constant size are inlined as a few moves; a size known only at run time
+     * is a call to memcpy, which for the usual handful of channels cost more than the copy. */
+    memcpy(dst, src, offsetof(vibid_record, values));
+    switch (nv) {
+    case 0: break;
+    case 1: memcpy(dst->values, src->values, 1 * sizeof(double)); break;
+    case 2: memcpy(dst->values, src->values, 2 * sizeof(double)); break;
+    case 3: memcpy(dst->values, src->values, 3 * sizeof(double)); break;
+    case 4: memcpy(dst->values, src->values, 4 * sizeof(double)); break;
+    default: memcpy(dst->values, src->values, nv * sizeof(double)); break;
+    }
     dst->n_values = (uint32_t)nv;
     if (src->kind == VIBID_REC_SAMPLE)
         dst->text[0] = '\0';
