@@ -1,15 +1,25 @@
 // lsq.cpp: batch least squares, weighted LS and Gauss-Markov (paper (2.4), (2.11),
-// (2.12)) by Givens-accumulated QR of the augmented matrix [X Y].
+// (2.12)) by QR of the augmented matrix [X Y], accumulated block of rows by block of rows.
 //
 // Why QR of [X Y] instead of normal equations: the condition number of X^T X is the
 // square of that of X, so a stiffness of 1e6 beside a damping of 1 would lose twelve
-// digits before the solve even starts. Rotating each row into the triangular factor R
-// keeps the accuracy of an orthogonal factorisation, needs O((p+q)^2) memory
-// independent of N, and the last q x q block of R gives the residual cross-product
-// E^T S E for free (it is what is left of Y after projecting out X).
+// digits before the solve even starts. Merging rows into the triangular factor R keeps
+// the accuracy of an orthogonal factorisation, needs O((p+q)^2) memory independent of N,
+// and the last q x q block of R gives the residual cross-product E^T S E for free (it is
+// what is left of Y after projecting out X).
+//
+// Why blocks of rows and Householder reflections (rather than one Givens sweep per row):
+// a sweep of Givens rotations costs 6 flops per entry of R and walks all of R for every
+// row. Copying b rows into a scratch block A (b x (p+q), sized to stay in the L1 cache)
+// and merging [R; A] with one Householder reflection per column costs 4 flops per entry
+// of A, in long contiguous vector loops over A's columns, and touches R once per block
+// (kernels.hpp, qr_merge). The reflections keep R's diagonal >= 0 as the rotations did;
+// nothing of R is visible through the API anyway, only Theta, the covariances and the
+// rank, which do not depend on the signs of R's rows.
 #include <vibid/lsq.h>
 
 #include "api_guard.hpp"
+#include "kernels.hpp"
 
 #include <Eigen/Cholesky>
 #include <Eigen/Core>
@@ -18,6 +28,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <cstring>
 
 namespace {
 
@@ -36,49 +47,57 @@ struct RankAnalysis {
     Eigen::MatrixXd V;      // right singular vectors of the scaled R11 (only if asked)
 };
 
+// Rows per block merged into R: as many as keep the block (rows x (p + q) doubles) within
+// about 24 KiB, so that it stays in a 32 KiB L1 data cache while each column's reflection
+// reads it twice; at least 8 rows (large p + q) and at most 256 (small p + q, where more
+// rows buy nothing), a multiple of 4 so that every column of the block starts 32-byte
+// aligned relative to the first.
+Index block_rows(Index n) { return std::clamp<Index>((3072 / n) / 4 * 4, 8, 256); }
+
 }  // namespace
 
 struct vibid_lsq {
     vibid_lsq(std::size_t n_params, std::size_t n_outputs)
         : p(static_cast<Index>(n_params)),
           q(static_cast<Index>(n_outputs)),
+          bmax(block_rows(p + q)),
           R(RowMatrix::Zero(p + q, p + q)),
-          row(Eigen::VectorXd::Zero(p + q)) {}
+          block(Eigen::VectorXd::Zero(bmax * (p + q))),
+          sqrt_w(Eigen::VectorXd::Zero(bmax)),
+          kt(&vibid::kern::active()) {}
 
-    // Rotates the scratch row (already scaled by sqrt(weight)) into R. Row-major R
-    // makes each R row contiguous, which is what the rotation sweeps over.
-    void absorb_row() noexcept {
+    // Adds N rows of already validated data: X N x p, Y N x q column-major (leading
+    // dimension N), weights NULL for all 1. Block by block: copy (scaled by sqrt(weight))
+    // into the scratch block, merge into R. A zero-weight row is a zero row of the block,
+    // which the reflections leave without effect; it is not counted.
+    void absorb_rows(Index N, const double *X, const double *Y, const double *weights) noexcept {
         const Index n = p + q;
-        for (Index j = 0; j < n; ++j) {
-            const double b = row[j];
-            if (b == 0.0) continue;
-            const double a = R(j, j);
-            const double r = std::hypot(a, b);  // hypot: no overflow for large rows
-            const double c = a / r;
-            const double s = b / r;
-            R(j, j) = r;
-            double *Rj = &R(j, 0);
-            for (Index l = j + 1; l < n; ++l) {
-                const double rl = Rj[l];
-                const double xl = row[l];
-                Rj[l] = c * rl + s * xl;
-                row[l] = c * xl - s * rl;
+        double *A = block.data();
+        for (Index k0 = 0; k0 < N; k0 += bmax) {
+            const Index nb = std::min(bmax, N - k0);
+            if (!weights) {
+                for (Index i = 0; i < p; ++i)
+                    std::memcpy(A + i * bmax, X + k0 + i * N, static_cast<std::size_t>(nb) * sizeof(double));
+                for (Index j = 0; j < q; ++j)
+                    std::memcpy(A + (p + j) * bmax, Y + k0 + j * N, static_cast<std::size_t>(nb) * sizeof(double));
+                n_rows += static_cast<std::size_t>(nb);
+                sum_weights += static_cast<double>(nb);
+            } else {
+                double *sw = sqrt_w.data();
+                for (Index r = 0; r < nb; ++r) {
+                    const double w = weights[k0 + r];
+                    sw[r] = std::sqrt(w);
+                    if (w > 0.0) {
+                        ++n_rows;
+                        sum_weights += w;
+                    }
+                }
+                for (Index i = 0; i < p; ++i)
+                    for (Index r = 0; r < nb; ++r) A[r + i * bmax] = sw[r] * X[k0 + r + i * N];
+                for (Index j = 0; j < q; ++j)
+                    for (Index r = 0; r < nb; ++r) A[r + (p + j) * bmax] = sw[r] * Y[k0 + r + j * N];
             }
-        }
-    }
-
-    // Adds rows of already validated data (weights NULL: all 1).
-    template <class MX, class MY>
-    void absorb_rows(const MX &X, const MY &Y, const double *weights) noexcept {
-        for (Index k = 0; k < X.rows(); ++k) {
-            const double w = weights ? weights[k] : 1.0;
-            if (w == 0.0) continue;  // a zero weight row carries no information
-            const double sw = std::sqrt(w);
-            row.head(p).noalias() = sw * X.row(k).transpose();
-            row.tail(q).noalias() = sw * Y.row(k).transpose();
-            absorb_row();
-            ++n_rows;
-            sum_weights += w;
+            kt->qr_merge(n, R.data(), nb, A, bmax);
         }
     }
 
@@ -152,8 +171,11 @@ struct vibid_lsq {
 
     const Index p;
     const Index q;
-    RowMatrix R;          // upper-triangular factor of [X Y] (weighted / whitened)
-    Eigen::VectorXd row;  // scratch for the row being rotated in
+    const Index bmax;        // rows per merged block
+    RowMatrix R;             // upper-triangular factor of [X Y] (weighted / whitened)
+    Eigen::VectorXd block;   // bmax x (p + q) column-major scratch: the rows being merged
+    Eigen::VectorXd sqrt_w;  // bmax square roots of the block's weights
+    const vibid::kern::Table *kt;  // kernels for this CPU, fixed at create
     std::size_t n_rows = 0;
     double sum_weights = 0.0;
     double rank_tol = default_rank_tolerance;
@@ -211,7 +233,7 @@ VIBID_API vibid_status vibid_lsq_add_rows(vibid_lsq *lsq, size_t n_rows, const d
                 return VIBID_FAIL(VIBID_E_OUT_OF_RANGE, "weights[%zu] = %g is negative", k, weights[k]);
         }
     const Index n = static_cast<Index>(n_rows);
-    lsq->absorb_rows(CMap(X, n, lsq->p), CMap(Y, n, lsq->q), weights);
+    lsq->absorb_rows(n, X, Y, weights);
     return VIBID_OK;
 }
 
@@ -266,7 +288,7 @@ VIBID_API vibid_status vibid_lsq_add_correlated(vibid_lsq *lsq, size_t n_rows, c
         const Eigen::MatrixXd Yw = llt.matrixL().solve(CMap(Y, n, lsq->q));
         if (!Xw.allFinite() || !Yw.allFinite())
             vibid::throw_error(VIBID_E_NUMERICAL, "whitened rows overflowed");
-        lsq->absorb_rows(Xw, Yw, nullptr);
+        lsq->absorb_rows(n, Xw.data(), Yw.data(), nullptr);
         return VIBID_OK;
     });
 }

@@ -14,9 +14,19 @@
 // Everything the per-sample functions touch is allocated in create; they use Eigen
 // maps over the caller's arrays, column-wise vector kernels and explicit loops, never a
 // matrix-matrix product (whose blocking workspace may come from the heap).
+//
+// Cost. The Bierman update's inner loops are the kernels of kernels.hpp (one pass for
+// U^T x, one fused pass that updates U, the gain and the trace), chosen once for the CPU.
+// The per-call checks cost nothing on the accepted path: the input is not scanned before
+// the update, because every non-finite x or y entry makes the update itself fail (x
+// reaches alpha, or the innovation variance in the covariance form, y reaches the a-priori
+// error and hence Theta and V), and the result is checked anyway. Only a failed update
+// scans x and y, to report VIBID_E_NONFINITE with the offending entry rather than
+// VIBID_E_NUMERICAL; the committed state is untouched either way.
 #include <vibid/rls.h>
 
 #include "api_guard.hpp"
+#include "kernels.hpp"
 
 #include <Eigen/Core>
 
@@ -78,52 +88,6 @@ SymCheck check_symmetric(const double *a, Index n, Index &bad_i, Index &bad_j) {
     return SymCheck::ok;
 }
 
-// One Bierman measurement update (unit measurement variance) for the regressor x of
-// the state P = U D U^T, with the forgetting step P <- P / gamma folded in as
-// dscale = 1 / gamma on D. Reads (us, ds), writes (ud, dd); InPlace means ud == us and
-// dd == ds. U is p x p column-major, unit upper triangular; only its strict upper part
-// is read or written. On return b = P~ x (P~ = P / gamma, the unnormalised gain),
-// trace = trace of the new P, and the result is alpha = 1 + x^T P~ x. ok is cleared when
-// a new D entry is not positive and finite (breakdown: the caller discards the result).
-// Cost: 1.5 p^2 multiply-adds for the update plus 0.5 p^2 for the trace, which doubles
-// as a finiteness check of every new U entry (NaN or Inf makes the trace non-finite).
-template <bool InPlace>
-double bierman_update(Index p, const double *us, double *ud, const double *ds, double *dd, double dscale,
-                      const double *x, double *b, double *tmp, double &trace, bool &ok) {
-    double alpha = 1.0;
-    double tr = 0.0;
-    bool good = true;
-    for (Index j = 0; j < p; ++j) {
-        CMapV usj(us + j * p, j);
-        MapV udj(ud + j * p, j);
-        MapV bj(b, j);
-        const double fj = x[j] + usj.dot(CMapV(x, j));
-        const double dj = ds[j] * dscale;
-        const double vj = dj * fj;
-        const double alpha_new = alpha + fj * vj;
-        const double dnew = dj * (alpha / alpha_new);
-        dd[j] = dnew;
-        good = good && pos_finite(dnew);
-        const double pj = -fj / alpha;
-        if (InPlace) {
-            // The column is overwritten, but b needs its old values: keep a copy.
-            MapV tj(tmp, j);
-            tj = usj;
-            udj += pj * bj;
-            bj += vj * tj;
-        } else {
-            udj = usj + pj * bj;
-            bj += vj * usj;
-        }
-        b[j] = vj;
-        tr += dnew * (1.0 + udj.squaredNorm());
-        alpha = alpha_new;
-    }
-    ok = ok && good && pos_finite(alpha) && std::isfinite(tr);
-    trace = tr;
-    return alpha;
-}
-
 // x^T P x for P = U D U^T (the innovation variance minus 1 when nothing adapts).
 double ud_quadratic(Index p, const double *u, const double *d, const double *x) {
     double s = 0.0;
@@ -170,12 +134,14 @@ struct vibid_rls {
         Mat M;      // Bierman: U (unit upper triangular, strict upper part used); covariance form: P
         Vec D;      // Bierman: D; covariance form: scratch for the positive-definiteness check
         Mat theta;  // p x q
+        Mat V;      // q x q residual sum of squares (forgotten)
         double trace = 0.0;
     };
 
     Index p, q, m;
     vibid_rls_form form;
     double gamma, alpha;
+    double inv_gamma;  // 1 / gamma, the D scale of the forgetting step
     bool trace_bound;
     double trace_max;
 
@@ -183,7 +149,7 @@ struct vibid_rls {
     int cur = 0;
     Slot prior;
 
-    Mat V, V_work;  // q x q residual sum of squares (forgotten)
+    Mat V_work;  // q x q scratch: the residual sum of squares being built
     double n_eff = 0.0;
     unsigned long long n_samples = 0;
     double last_forgetting;
@@ -193,7 +159,12 @@ struct vibid_rls {
     Mat L, L_work;  // m x m lower Cholesky factor of the equation covariance
     Mat xw, yw;     // whitened sample, p x m and m x q
 
-    Vec b, K, tmp, e;  // p, p, p, q scratch
+    Vec b, K, work, e;  // p, p, 2p, q scratch
+    // Kernel arguments, built once (the slots never reallocate): step_out[c] reads slot c
+    // and writes slot 1 - c (first equation of a sample), step_in[c] works in place on
+    // slot c (later equations). A call sets only the forgetting, x and y.
+    vibid::kern::RlsStep step_out[2], step_in[2];
+    const vibid::kern::Table *kt;  // kernels for this CPU, fixed at create
 
     explicit vibid_rls(const vibid_rls_config &c)
         : p(static_cast<Index>(c.n_params)),
@@ -202,6 +173,7 @@ struct vibid_rls {
           form(c.form),
           gamma(c.forgetting),
           alpha(c.alpha),
+          inv_gamma(1.0 / c.forgetting),
           trace_bound(c.windup == VIBID_RLS_WINDUP_TRACE_BOUND),
           trace_max(c.trace_max),
           last_forgetting(c.forgetting) {
@@ -209,6 +181,7 @@ struct vibid_rls {
             s->M.setIdentity(p, p);
             s->D.setZero(p);
             s->theta.setZero(p, q);
+            s->V.setZero(q, q);
         }
         // Default prior: Theta = 0, P = alpha^-1 I, i.e. U = I, D = alpha^-1 (or P itself).
         if (form == VIBID_RLS_FORM_BIERMAN_UD)
@@ -216,7 +189,6 @@ struct vibid_rls {
         else
             prior.M *= 1.0 / alpha;
         prior.trace = static_cast<double>(p) / alpha;
-        V.setZero(q, q);
         V_work.setZero(q, q);
         L.setIdentity(m, m);
         L_work.setIdentity(m, m);
@@ -224,9 +196,33 @@ struct vibid_rls {
         yw.setZero(m, q);
         b.setZero(p);
         K.setZero(p);
-        tmp.setZero(p);
+        work.setZero(2 * p);
         e.setZero(q);
+        kt = &vibid::kern::active();
+        for (int k = 0; k < 2; ++k) {
+            build_step(step_out[k], slot[k], slot[1 - k]);
+            build_step(step_in[k], slot[k], slot[k]);
+        }
         reset();
+    }
+
+    void build_step(vibid::kern::RlsStep &st, Slot &from, Slot &to) {
+        st = vibid::kern::RlsStep{};
+        st.p = p;
+        st.q = q;
+        st.ld = p;
+        st.ystride = m;
+        st.us = from.M.data();
+        st.ud = to.M.data();
+        st.ds = from.D.data();
+        st.dd = to.D.data();
+        st.ths = from.theta.data();
+        st.thd = to.theta.data();
+        st.Vs = from.V.data();
+        st.Vd = to.V.data();
+        st.b = b.data();
+        st.e = e.data();
+        st.work = work.data();
     }
 
     bool bierman() const { return form == VIBID_RLS_FORM_BIERMAN_UD; }
@@ -238,7 +234,7 @@ struct vibid_rls {
         s.D = prior.D;
         s.theta = prior.theta;
         s.trace = prior.trace;
-        V.setZero();
+        s.V.setZero();
         n_eff = 0.0;
         n_samples = 0;
         last_forgetting = gamma;
@@ -262,20 +258,23 @@ struct vibid_rls {
 
     // e = y(i, :)^T - theta^T x_i (the a-priori error of equation i), q dot products.
     void prior_error(const Mat &theta, const double *xi, const double *y, Index i) {
-        CMapV xv(xi, p);
-        for (Index j = 0; j < q; ++j) e[j] = y[i + j * m] - theta.col(j).dot(xv);
+        for (Index j = 0; j < q; ++j) e[j] = y[i + j * m] - kt->dot(theta.data() + j * p, xi, p);
     }
 
-    // V_work += e e^T / s, column by column (an outer product could need a temporary).
-    void accumulate_residual(double s) {
+    // Vacc += e e^T / s, column by column (an outer product could need a temporary);
+    // returns the sum of the new entries (finiteness check, as for Theta).
+    double accumulate_residual(Mat &Vacc, double s) {
         const double inv = 1.0 / s;
-        for (Index k = 0; k < q; ++k) V_work.col(k) += (e[k] * inv) * e;
+        double sum = 0.0;
+        for (Index k = 0; k < q; ++k)
+            sum += kt->axpy_sum(q, e[k] * inv, e.data(), Vacc.data() + k * q, Vacc.data() + k * q);
+        return sum;
     }
 
     // Adaptation frozen: only the residual statistics move, with the nominal forgetting.
     bool observe(const double *xe, const double *ye) {
         const Slot &s = slot[cur];
-        V_work = gamma * V;
+        V_work = gamma * s.V;
         for (Index i = 0; i < m; ++i) {
             const double *xi = xe + i * p;
             prior_error(s.theta, xi, ye, i);
@@ -288,10 +287,10 @@ struct vibid_rls {
                 quad = CMapV(xi, p).dot(phi);
             }
             if (!pos_finite(1.0 + quad)) return false;
-            accumulate_residual(1.0 + quad);
+            accumulate_residual(V_work, 1.0 + quad);
         }
         if (!V_work.allFinite()) return false;
-        V = V_work;
+        slot[cur].V = V_work;
         n_eff = gamma * n_eff + static_cast<double>(m);
         last_forgetting = gamma;
         ++n_samples;
@@ -312,34 +311,41 @@ struct vibid_rls {
         Slot &dst = slot[1 - cur];
         const double g = forgetting_now();
         bool ok = true;
-        V_work = g * V;
+        // Sums of every new Theta and V entry: finite unless an entry is not (or the sum
+        // alone overflows, which the exact scan below tells apart).
+        double theta_sum = 0.0, v_sum = 0.0;
         for (Index i = 0; i < m && ok; ++i) {
             const double *xi = xe + i * p;
             const bool first = (i == 0);
             const Slot &from = first ? src : dst;
-            prior_error(from.theta, xi, ye, i);
-            double s;
             if (bierman()) {
-                s = first ? bierman_update<false>(p, src.M.data(), dst.M.data(), src.D.data(), dst.D.data(),
-                                                  1.0 / g, xi, b.data(), tmp.data(), dst.trace, ok)
-                          : bierman_update<true>(p, dst.M.data(), dst.M.data(), dst.D.data(), dst.D.data(), 1.0,
-                                                 xi, b.data(), tmp.data(), dst.trace, ok);
-                K = b / s;
+                // The first equation reads the committed slot and writes the other; later
+                // equations of the sample work in place on the uncommitted slot.
+                vibid::kern::RlsStep &st = first ? step_out[cur] : step_in[1 - cur];
+                st.dscale = first ? (g == gamma ? inv_gamma : 1.0 / g) : 1.0;  // no division per sample
+                st.vscale = first ? g : 1.0;
+                st.x = xi;
+                st.y = ye + i;
+                kt->bierman_step(st);
+                ok = ok && st.ok;
+                dst.trace = st.trace;
+                theta_sum = st.theta_sum;
+                v_sum = st.v_sum;
             } else {
-                s = covariance_update(p, from.M.data(), dst.M.data(), first ? g : 1.0, xi, b.data(), K.data(),
-                                      dst.trace, ok);
+                prior_error(from.theta, xi, ye, i);
+                if (first) dst.V = g * src.V;
+                const double s = covariance_update(p, from.M.data(), dst.M.data(), first ? g : 1.0, xi, b.data(),
+                                                   K.data(), dst.trace, ok);
+                theta_sum = 0.0;
+                for (Index j = 0; j < q; ++j)
+                    theta_sum += kt->axpy_sum(p, e[j], K.data(), from.theta.data() + j * p, dst.theta.data() + j * p);
+                v_sum = accumulate_residual(dst.V, s);
             }
-            for (Index j = 0; j < q; ++j) {
-                if (first)
-                    dst.theta.col(j) = src.theta.col(j) + e[j] * K;
-                else
-                    dst.theta.col(j) += e[j] * K;
-            }
-            accumulate_residual(s);
         }
-        if (!ok || !dst.theta.allFinite() || !V_work.allFinite()) return false;
+        if (!ok) return false;
+        if (!std::isfinite(theta_sum) && !dst.theta.allFinite()) return false;
+        if (!std::isfinite(v_sum) && !dst.V.allFinite()) return false;
         cur = 1 - cur;
-        V = V_work;
         n_eff = g * n_eff + static_cast<double>(m);
         last_forgetting = g;
         ++n_samples;
@@ -510,36 +516,33 @@ VIBID_API vibid_status vibid_rls_set_equation_covariance(vibid_rls *rls, const d
     });
 }
 
+// Real-time path: nothing here throws or allocates, so there is no exception guard (its
+// entry bookkeeping is a thread-local store and restore per call).
 VIBID_API vibid_status vibid_rls_update(vibid_rls *rls, const double *x, const double *y) {
     const char *const fn = __func__;
-    VIBID_GUARD({
-        if (!rls) return RLS_FAIL(VIBID_E_NULL_ARGUMENT, "rls is NULL");
-        if (!x) return RLS_FAIL(VIBID_E_NULL_ARGUMENT, "x is NULL");
-        if (!y) return RLS_FAIL(VIBID_E_NULL_ARGUMENT, "y is NULL");
-        const size_t nx = static_cast<size_t>(rls->p * rls->m), ny = static_cast<size_t>(rls->m * rls->q);
-        size_t bad = first_nonfinite(x, nx);
-        if (bad < nx) return RLS_FAIL(VIBID_E_NONFINITE, "x[%zu] = %g is not finite", bad, x[bad]);
-        bad = first_nonfinite(y, ny);
-        if (bad < ny) return RLS_FAIL(VIBID_E_NONFINITE, "y[%zu] = %g is not finite", bad, y[bad]);
-        const double *xe = x, *ye = y;
-        if (rls->whiten) {
-            rls->whiten_sample(x, y);
-            xe = rls->xw.data();
-            ye = rls->yw.data();
-        }
-        if (rls->adapt) {
-            if (!rls->adapt_sample(xe, ye)) {
-                const vibid_rls::Slot &s = rls->state();
-                return RLS_FAIL(VIBID_E_NUMERICAL,
-                                  "sample rejected: the update would leave P not positive definite or not "
-                                  "finite (trace(P) = %g now); estimator unchanged",
-                                  s.trace);
-            }
-        } else if (!rls->observe(xe, ye)) {
-            return RLS_FAIL(VIBID_E_NUMERICAL, "sample rejected: residual statistics overflow; estimator unchanged");
-        }
-        return VIBID_OK;
-    });
+    if (!rls) return RLS_FAIL(VIBID_E_NULL_ARGUMENT, "rls is NULL");
+    if (!x) return RLS_FAIL(VIBID_E_NULL_ARGUMENT, "x is NULL");
+    if (!y) return RLS_FAIL(VIBID_E_NULL_ARGUMENT, "y is NULL");
+    const double *xe = x, *ye = y;
+    if (rls->whiten) {
+        rls->whiten_sample(x, y);
+        xe = rls->xw.data();
+        ye = rls->yw.data();
+    }
+    // Optimistic: update first, classify a failure after (see the file comment). A
+    // failed update has not touched the committed state.
+    if (rls->adapt ? rls->adapt_sample(xe, ye) : rls->observe(xe, ye)) return VIBID_OK;
+    const size_t nx = static_cast<size_t>(rls->p * rls->m), ny = static_cast<size_t>(rls->m * rls->q);
+    size_t bad = first_nonfinite(x, nx);
+    if (bad < nx) return RLS_FAIL(VIBID_E_NONFINITE, "x[%zu] = %g is not finite", bad, x[bad]);
+    bad = first_nonfinite(y, ny);
+    if (bad < ny) return RLS_FAIL(VIBID_E_NONFINITE, "y[%zu] = %g is not finite", bad, y[bad]);
+    if (rls->adapt)
+        return RLS_FAIL(VIBID_E_NUMERICAL,
+                        "sample rejected: the update would leave P not positive definite or not "
+                        "finite (trace(P) = %g now); estimator unchanged",
+                        rls->state().trace);
+    return RLS_FAIL(VIBID_E_NUMERICAL, "sample rejected: residual statistics overflow; estimator unchanged");
 }
 
 VIBID_API vibid_status vibid_rls_set_adaptation(vibid_rls *rls, int enabled) {
@@ -617,7 +620,7 @@ VIBID_API vibid_status vibid_rls_residual_covariance(const vibid_rls *rls, doubl
         const double dof = rls->n_eff - static_cast<double>(rls->p);
         if (!(dof > 0.0))
             return RLS_FAIL(VIBID_E_INSUFFICIENT_DATA, "n_eff = %g not above n_params = %td", rls->n_eff, rls->p);
-        MapM(Sigma_e, rls->q, rls->q) = rls->V / dof;
+        MapM(Sigma_e, rls->q, rls->q) = rls->state().V / dof;
         return VIBID_OK;
     });
 }
@@ -643,7 +646,7 @@ VIBID_API vibid_status vibid_rls_stderr(const vibid_rls *rls, double *stderr_out
                 pii = s.M(i, i);
             }
             // A covariance-form P that lost definiteness has no standard error: NaN says so.
-            for (Index j = 0; j < q; ++j) out(i, j) = std::sqrt(pii * rls->V(j, j) / dof);
+            for (Index j = 0; j < q; ++j) out(i, j) = std::sqrt(pii * s.V(j, j) / dof);
         }
         return VIBID_OK;
     });

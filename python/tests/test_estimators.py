@@ -54,7 +54,7 @@ def test_least_squares_equals_lstsq(lsdata):
     th = ls.solve()
     assert th.shape == (P, Q)
     ref = np.linalg.lstsq(X, Y, rcond=None)[0]
-    # Givens QR (libvibid) and LAPACK's SVD-based lstsq are both backward stable solutions
+    # Householder QR (libvibid) and LAPACK's SVD-based lstsq are both backward stable solutions
     # of the same problem: each is the exact solution for data perturbed by ~eps, so they
     # differ by about eps * (cond(X) + cond(X)^2 |r| / (|X| |theta|)) ~ 1e-15 here
     # (cond 1.08, residual 1e-3 of Y; measured 2.2e-15). 1e-10 leaves five orders for the

@@ -9,14 +9,16 @@
  *         covariance (Gauss-Markov).
  *
  * The accumulator never stores X: it keeps the upper-triangular factor R of the
- * (weighted) augmented matrix [X Y], (p + q) x (p + q), updated row by row with Givens
- * rotations (an orthogonal, QR-based method: X^T X is never formed or inverted). The
+ * (weighted) augmented matrix [X Y], (p + q) x (p + q), into which blocks of up to 256
+ * rows are merged with Householder reflections (an orthogonal, QR-based method: X^T X
+ * is never formed or inverted). The
  * estimate is a triangular solve with R; the numerical rank is read from the singular
  * values of R's regressor block after scaling its columns to unit norm, so that
  * parameters of very different magnitude (a stiffness of 1e6 N/m beside a damping of
  * 300 N s/m) do not look rank-deficient.
  *
- * Memory: (p + q)^2 + O(p + q) doubles, allocated in vibid_lsq_create.
+ * Memory: (p + q)^2 + b (p + q) + O(p + q) doubles, b = the rows per block (8..256,
+ * about 3072 / (p + q)), allocated in vibid_lsq_create.
  * Cost: vibid_lsq_add_rows costs about 2 (p + q)^2 flops per row and allocates nothing;
  * vibid_lsq_solve costs O(p^3 + p^2 q) and may allocate.
  */
