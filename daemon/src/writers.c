@@ -130,6 +130,17 @@ static int put_field(char *buf, size_t cap, size_t *off, int *first, const char 
     return rc;
 }
 
+/* A sample time in us as line protocol's ns, saturated at the ends of int64 (a time beyond
+ * the year 2262 cannot be written; the MQTT module's slot sizing probes with INT64_MIN) */
+static long long ns_of_us(int64_t t_us)
+{
+    if (t_us > INT64_MAX / 1000)
+        return INT64_MAX;
+    if (t_us < INT64_MIN / 1000)
+        return INT64_MIN;
+    return (long long)t_us * 1000LL;
+}
+
 int vd_format_influx_row(char *buf, size_t cap, const vd_config *cfg, const char *stand, const vd_row *row)
 {
     size_t off = 0;
@@ -164,7 +175,7 @@ int vd_format_influx_row(char *buf, size_t cap, const vd_config *cfg, const char
     char fl[8];
     flag_text(row->flags, fl);
     if (put(buf, cap, &off, "%sindex=%llui,gap_samples=%llui,flags=\"%s\" %lld\n", first ? " " : ",",
-            (unsigned long long)row->index, (unsigned long long)row->gap_samples, fl, (long long)row->t_us * 1000LL))
+            (unsigned long long)row->index, (unsigned long long)row->gap_samples, fl, ns_of_us(row->t_us)))
         return -1;
     return (int)off;
 }
@@ -211,7 +222,7 @@ int vd_format_influx_alarm(char *buf, size_t cap, const vd_config *cfg, const ch
     if (put_field(buf, cap, &off, &first, "value", "", value) ||
         put_field(buf, cap, &off, &first, "baseline", "", baseline) || put_field(buf, cap, &off, &first, "z", "", z))
         return -1;
-    if (put(buf, cap, &off, " %lld\n", (long long)row->t_us * 1000LL))
+    if (put(buf, cap, &off, " %lld\n", ns_of_us(row->t_us)))
         return -1;
     return (int)off;
 }
