@@ -788,6 +788,19 @@ static const char *influx_tag_problem(const char *v)
     return NULL;
 }
 
+int vd_check_readable_file(const char *setting, const char *path, char *err, size_t cap)
+{
+    if (!path[0])
+        return 0;
+    FILE *f = fopen(path, "re");
+    if (!f) {
+        snprintf(err, cap, "%s %s: %s", setting, path, strerror(errno));
+        return -1;
+    }
+    fclose(f);
+    return 0;
+}
+
 int vd_read_secret_file(const char *setting, const char *path, char *out, size_t cap, char *err, size_t ecap)
 {
     FILE *f = fopen(path, "re");

@@ -183,6 +183,9 @@ void vd_config_free(vd_config *cfg);
 /* A secret (password, token) from the first line of the file path, for the setting named
  * setting (e.g. "outputs.mqtt.password_file"); warns when every user may read the file. 0, or
  * -1 with err naming the setting and the file (unreadable, empty, longer than cap - 2). */
+/* The file path, named by setting, can be opened for reading ("" is no file: 0). 0, or -1
+ * with err naming the setting, the file and errno (vibidd --check of TLS and CA files). */
+int vd_check_readable_file(const char *setting, const char *path, char *err, size_t cap);
 int vd_read_secret_file(const char *setting, const char *path, char *out, size_t cap, char *err, size_t ecap);
 int vd_config_check_paths(const vd_config *cfg, const char *replay, char *msg, size_t n);
 /* Prints the effective configuration (valid libconfig syntax, defaults filled in). */

@@ -458,17 +458,6 @@ static void *writer_main(void *arg) {
 
 /* ------------------------------------------------------------ life cycle ---- */
 
-static int readable(const char *setting, const char *path, char *err, size_t cap) {
-    if (!path[0]) return 0;
-    FILE *f = fopen(path, "re");
-    if (!f) {
-        snprintf(err, cap, "%s %s: %s", setting, path, strerror(errno));
-        return -1;
-    }
-    fclose(f);
-    return 0;
-}
-
 static int read_secret(const vd_config *cfg, char *out, size_t cap, char *err, size_t ecap) {
     out[0] = '\0';
     if (cfg->influx_http_api == 2)
@@ -484,7 +473,7 @@ int vd_influx_http_check(const vd_config *cfg, char *err, size_t cap) {
     char s[512];
     int rc = read_secret(cfg, s, sizeof s, err, cap);
     memset(s, 0, sizeof s);
-    return rc ? -1 : readable("outputs.influx.http.ca_file", cfg->influx_http_ca_file, err, cap);
+    return rc ? -1 : vd_check_readable_file("outputs.influx.http.ca_file", cfg->influx_http_ca_file, err, cap);
 }
 
 static void op_close(vd_influx_http *h);

@@ -670,17 +670,6 @@ static void *pub_main(void *arg) {
 
 /* ------------------------------------------------------------ life cycle ---- */
 
-static int readable(const char *what, const char *path, char *err, size_t cap) {
-    if (!path[0]) return 0;
-    FILE *f = fopen(path, "re");
-    if (!f) {
-        snprintf(err, cap, "outputs.mqtt.%s %s: %s", what, path, strerror(errno));
-        return -1;
-    }
-    fclose(f);
-    return 0;
-}
-
 int vd_mqtt_check(const vd_config *cfg, char *err, size_t cap) {
     if (!cfg->mqtt_url[0]) return 0;
     char pw[512];
@@ -688,9 +677,9 @@ int vd_mqtt_check(const vd_config *cfg, char *err, size_t cap) {
         vd_read_secret_file("outputs.mqtt.password_file", cfg->mqtt_password_file, pw, sizeof pw, err, cap))
         return -1;
     memset(pw, 0, sizeof pw);
-    return readable("ca_file", cfg->mqtt_ca_file, err, cap) ||
-                   readable("cert_file", cfg->mqtt_cert_file, err, cap) ||
-                   readable("key_file", cfg->mqtt_key_file, err, cap)
+    return vd_check_readable_file("outputs.mqtt.ca_file", cfg->mqtt_ca_file, err, cap) ||
+                   vd_check_readable_file("outputs.mqtt.cert_file", cfg->mqtt_cert_file, err, cap) ||
+                   vd_check_readable_file("outputs.mqtt.key_file", cfg->mqtt_key_file, err, cap)
                ? -1
                : 0;
 }

@@ -2,7 +2,7 @@
 # e2e_ekf.sh), sourced with their arguments CASE BUILD_DIR SOURCE_DIR and a name for the
 # scratch directory. Sets CASE, BUILD, SRC, VIBIDD, SIM and W (a fresh directory, removed
 # on exit, made the working directory) and defines fail, note, column, free_port,
-# status_val and wait_status.
+# status_val, wait_status and make_ca.
 # usage: . e2e_common.sh NAME CASE BUILD_DIR SOURCE_DIR
 set -u
 CASE=$2
@@ -35,4 +35,17 @@ wait_status() {
         sleep 0.1
     done
     return 1
+}
+
+# make_ca: in the working directory, two self-signed CAs (ca.pem/ca.key, other.pem/other.key)
+# and a server certificate for 127.0.0.1 signed by ca (server.pem/server.key), with openssl
+make_ca() {
+    for ca in ca other; do
+        openssl req -x509 -newkey rsa:2048 -nodes -keyout $ca.key -out $ca.pem -days 2 -subj "/CN=vibid test $ca" 2> /dev/null ||
+            fail "openssl: CA"
+    done
+    openssl req -newkey rsa:2048 -nodes -keyout server.key -out server.csr -subj "/CN=127.0.0.1" 2> /dev/null || fail "openssl: csr"
+    printf 'subjectAltName=IP:127.0.0.1\n' > san.ext
+    openssl x509 -req -in server.csr -CA ca.pem -CAkey ca.key -CAcreateserial -out server.pem -days 2 -extfile san.ext 2> /dev/null ||
+        fail "openssl: server certificate"
 }

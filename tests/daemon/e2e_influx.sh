@@ -154,17 +154,6 @@ print(f"{len(pts)} points of {len(rows)} rows, values equal; {dropped_total} dro
 PYEOF
 }
 
-make_ca() {
-    for ca in ca other; do
-        openssl req -x509 -newkey rsa:2048 -nodes -keyout $ca.key -out $ca.pem -days 2 -subj "/CN=vibid test $ca" 2> /dev/null ||
-            fail "openssl: CA"
-    done
-    openssl req -newkey rsa:2048 -nodes -keyout server.key -out server.csr -subj "/CN=127.0.0.1" 2> /dev/null || fail "openssl: csr"
-    printf 'subjectAltName=IP:127.0.0.1\n' > san.ext
-    openssl x509 -req -in server.csr -CA ca.pem -CAkey ca.key -CAcreateserial -out server.pem -days 2 -extfile san.ext 2> /dev/null ||
-        fail "openssl: server certificate"
-}
-
 PORT=$(free_port)
 BASE=http://127.0.0.1:$PORT
 GOOD="url = \"$BASE\"; username = \"admin\"; password_file = \"pw.good\"; batch_interval = 0.2;"

@@ -253,14 +253,7 @@ acl)
 tls)
     $GEN "$STAND" --duration 10 --noise 0.001 --seed 24 --csv cap.csv 2> /dev/null || fail "generator"
     PORT=$(free_port)
-    for ca in ca other; do
-        openssl req -x509 -newkey rsa:2048 -nodes -keyout $ca.key -out $ca.pem -days 2 -subj "/CN=vibid test $ca" 2> /dev/null ||
-            fail "openssl: CA"
-    done
-    openssl req -newkey rsa:2048 -nodes -keyout server.key -out server.csr -subj "/CN=127.0.0.1" 2> /dev/null || fail "openssl: csr"
-    printf 'subjectAltName=IP:127.0.0.1\n' > san.ext
-    openssl x509 -req -in server.csr -CA ca.pem -CAkey ca.key -CAcreateserial -out server.pem -days 2 -extfile san.ext 2> /dev/null ||
-        fail "openssl: server certificate"
+    make_ca
     broker_conf b.conf "$PORT" "allow_anonymous true" "cafile $W/ca.pem" "certfile $W/server.pem" "keyfile $W/server.key"
     start_broker b.conf "$PORT"
     start_sub sub.out "" -p "$PORT" --cafile ca.pem
