@@ -722,6 +722,23 @@ static void housekeeping(vd_daemon *d, bool final)
     }
 }
 
+/* The pending row: its estimate and modes (vd_est_finish_row), the alarms, and out to
+ * every output. Called when the estimation thread has no record waiting, before a record
+ * that may start the next row (process), and at the end. */
+static void finish_row(vd_daemon *d)
+{
+    vd_row *row = &d->row;
+    d->row_pending = false;
+    vd_est_finish_row(&d->est, row);
+    note_plausibility(d, row);
+    run_alarms(d, row);
+    vd_writers_row(&d->w, row);
+    if (d->mqtt)
+        d->mqtt_ops->track(d->mqtt, row); /* queued; never waits (mqtt.h) */
+    if (d->influx_http)
+        d->influx_http_ops->row(d->influx_http, row); /* buffered; never waits (influx_http.h) */
+}
+
 static void process(vd_daemon *d, const vd_item *it)
 {
     const vibid_record *rec = &it->rec;
@@ -739,15 +756,19 @@ static void process(vd_daemon *d, const vd_item *it)
             d->rate = NULL;
         }
     }
+    /* a pending row goes out before anything that may start the next one or write
+     * something of its own (a fault, a gap): the outputs' order stays the samples' */
+    if (d->row_pending && vd_est_row_due(&d->est, rec))
+        finish_row(d);
     if (rec->kind == VIBID_REC_FAULT) {
         handle_fault(d, rec);
         return;
     }
     if (rec->kind == VIBID_REC_GAP)
         handle_gap_log(d, rec);
-    vd_row row;
-    int due = vd_est_record(&d->est, rec, &row);
+    int due = vd_est_record(&d->est, rec, &d->row);
     if (rec->kind == VIBID_REC_SAMPLE) {
+        /* the estimate is updated with this sample (pushed; a due row's state kept) */
         if (d->measure_latency) {
             int64_t lat = (mono_ns() - it->t_rx_ns) / 1000;
             if (lat < 0)
@@ -759,13 +780,9 @@ static void process(vd_daemon *d, const vd_item *it)
         vd_writers_sample(&d->w, rec);
     }
     if (due) {
-        note_plausibility(d, &row);
-        run_alarms(d, &row);
-        vd_writers_row(&d->w, &row);
-        if (d->mqtt)
-            d->mqtt_ops->track(d->mqtt, &row); /* queued; never waits (mqtt.h) */
-        if (d->influx_http)
-            d->influx_http_ops->row(d->influx_http, &row); /* buffered; never waits (influx_http.h) */
+        d->row_pending = true;
+        if (!d->est.twin) /* no twin: the estimator's state moves on with the next sample */
+            finish_row(d);
     }
 }
 
@@ -801,6 +818,11 @@ static void *est_main(void *arg)
                 housekeeping(d, false);
             continue;
         }
+        /* nothing waits: the time for a pending row */
+        if (d->row_pending) {
+            finish_row(d);
+            continue;
+        }
         /* empty: finished, or sleep until the producer wakes us (bounded by 50 ms) */
         if (atomic_load(&d->acq_done) && !vd_ring_peek(d->ring))
             break;
@@ -819,6 +841,8 @@ static void *est_main(void *arg)
         }
         atomic_store(&d->consumer_sleeping, 0);
     }
+    if (d->row_pending)
+        finish_row(d);
     housekeeping(d, true);
     atomic_store(&d->est_done, 1);
     /* End of a replay: wake the main thread now instead of at its next 100 ms tick

@@ -72,6 +72,8 @@ typedef struct vd_daemon {
                                   in a full ring by design) */
     vd_ring *ring;
     vd_est est;
+    vd_row row;                /* the due row, until finished (finish_row in daemon.c) */
+    bool row_pending;
     vd_writers w;
     vd_alarm alarm[VD_MAX_PARAMS];
     bool base_reported[VD_MAX_PARAMS];

@@ -53,10 +53,16 @@ int vd_est_init(vd_est *e, const vd_config *cfg, char *err, size_t cap)
     e->cov = calloc(e->p * e->p, sizeof *e->cov);
     if (!e->cov) {
         snprintf(err, cap, "estimator: out of memory");
-        vibid_ident_destroy(e->ident);
-        e->ident = NULL;
+        vd_est_free(e);
         return -1;
     }
+    /* A twin takes each row's estimator state at its sample, so that the row's estimate
+     * (30-100 us) is computed while no sample waits (estimator.h). LS and the state-space
+     * estimators (also the one the automatic choice makes for a stand not fully measured)
+     * have none: their rows are computed at their sample, as they were before. */
+    e->twin = vibid_ident_twin_create(e->ident);
+    if (!e->twin)
+        snprintf(e->twin_why, sizeof e->twin_why, "%s", vibid_last_error());
     return 0;
 }
 
@@ -89,10 +95,14 @@ void vd_est_log_choices(const vd_est *e)
         vd_info("%.*s", len, line);
         line = rest;
     }
+    if (!e->twin)
+        vd_info("track rows: estimated at their sample, later samples wait for them (%s)", e->twin_why);
 }
 
 void vd_est_free(vd_est *e)
 {
+    vibid_ident_destroy(e->twin);
+    e->twin = NULL;
     vibid_ident_destroy(e->ident);
     e->ident = NULL;
     free(e->cov);
@@ -171,7 +181,9 @@ static void note_new_choices(vd_est *e)
     }
 }
 
-static void fill_row(vd_est *e, const vibid_record *rec, uint64_t rel, vd_row *row)
+/* The part of a row that belongs to its sample: time, index, gaps, and the estimator's
+ * state (into the twin). Allocation-free with a twin. */
+static void start_row(vd_est *e, const vibid_record *rec, uint64_t rel, vd_row *row)
 {
     const vd_config *cfg = e->cfg;
     memset(row, 0, sizeof *row);
@@ -184,8 +196,17 @@ static void fill_row(vd_est *e, const vibid_record *rec, uint64_t rel, vd_row *r
     e->gap_since_row = 0;
     for (size_t k = 0; k < VD_MAX_PARAMS; k++)
         row->theta[k] = row->se[k] = row->freq[k] = row->freq_se[k] = row->zeta[k] = row->zeta_se[k] = NAN;
+    row->sync_status = e->twin ? (int)vibid_ident_twin_sync(e->twin, e->ident) : (int)VIBID_OK;
+    if (row->sync_status != VIBID_OK) /* cannot happen: twin_create checked the form */
+        snprintf(e->why, sizeof e->why, "twin: %s", vibid_last_error());
+}
+
+void vd_est_finish_row(vd_est *e, vd_row *row)
+{
     note_new_choices(e);
-    vibid_status st = vibid_ident_estimate(e->ident, row->theta, row->se, NULL);
+    vibid_ident *from = e->twin ? e->twin : e->ident;
+    vibid_status st = row->sync_status != VIBID_OK ? (vibid_status)row->sync_status
+                                                   : vibid_ident_estimate(from, row->theta, row->se, NULL);
     row->est_status = (int)st;
     if (st != VIBID_OK) {
         for (size_t k = 0; k < e->p; k++)
@@ -193,7 +214,7 @@ static void fill_row(vd_est *e, const vibid_record *rec, uint64_t rel, vd_row *r
         row->flags |= VD_FLAG_NOEST;
         e->est_errors++;
     } else {
-        const double *cov = vibid_ident_covariance(e->ident, e->cov) == VIBID_OK ? e->cov : NULL;
+        const double *cov = vibid_ident_covariance(from, e->cov) == VIBID_OK ? e->cov : NULL;
         vibid_status ms = vibid_model_modal(e->model, row->theta, cov, row->freq, cov ? row->freq_se : NULL,
                                             row->zeta, cov ? row->zeta_se : NULL, NULL, NULL);
         if (ms != VIBID_OK && ms != VIBID_E_UNSTABLE) {
@@ -206,7 +227,7 @@ static void fill_row(vd_est *e, const vibid_record *rec, uint64_t rel, vd_row *r
             snprintf(unstable_why, sizeof unstable_why, "%s", vibid_last_error());
         check_plausible(e, row, ms == VIBID_E_UNSTABLE ? unstable_why : NULL);
         vibid_ident_quality q;
-        if (vibid_ident_get_quality(e->ident, &q, NULL) == VIBID_OK) {
+        if (vibid_ident_get_quality(from, &q, NULL) == VIBID_OK) {
             if (q.flags & VIBID_QUALITY_SE_INVALID)
                 row->flags |= VD_FLAG_SE_INVALID;
             if (q.flags & VIBID_QUALITY_NOT_EXCITED)
@@ -254,6 +275,11 @@ int vd_est_record(vd_est *e, const vibid_record *rec, vd_row *row)
     e->next_emit = e->first_index + next;
     if (e->samples < e->cfg->warmup_samples)
         return 0;
-    fill_row(e, rec, rel, row);
+    start_row(e, rec, rel, row);
     return 1;
+}
+
+int vd_est_row_due(const vd_est *e, const vibid_record *rec)
+{
+    return rec->kind != VIBID_REC_SAMPLE || !e->started || rec->index >= e->next_emit;
 }

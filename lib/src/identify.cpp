@@ -90,6 +90,17 @@ struct vibid_ident {
     std::vector<double> pilot;       // pilot_len samples x n_channels, sample-major
     std::size_t pilot_len = 0, pilot_count = 0;
 
+    // Deferred estimates (vibid_ident_twin_*). Every reset and every replacement by the
+    // pilot starts a new generation: the estimate memory above (last_theta) belongs to one.
+    unsigned long long generation = 0;
+    // A twin: the identification it copies, the generation it copied last, and for RLS
+    // the RLS outputs at the copy (p_reg x q, p_reg x p_reg, q x q; sig_ok: the residual
+    // covariance existed).
+    const vibid_ident *twin_of = nullptr;
+    unsigned long long synced_generation = 0;
+    std::vector<double> frozen_theta, frozen_P, frozen_sig;
+    bool frozen_sig_ok = false;
+
     vibid_ident() = default;
     vibid_ident(const vibid_ident &) = delete;
     vibid_ident &operator=(const vibid_ident &) = delete;
@@ -690,6 +701,7 @@ VIBID_API vibid_status vibid_ident_reset(vibid_ident *ident) {
         ident->prior_count = 0;
         ident->pilot_count = 0;  // a pilot not yet over starts again
         ident->have_cov = false;
+        ++ident->generation;
         return VIBID_OK;);
 }
 
@@ -792,11 +804,15 @@ constexpr const char *kPilotPlaceholder = "pre-filter: (a pilot candidate)\n";
 // block IV keeps the last estimate in weakly informed directions, the covariance is kept
 // for vibid_ident_covariance), so the pilot's own estimates would make the run differ from
 // one configured with the chosen cutoff from the start. The state is put back afterwards.
+// Nor does the pilot read that memory: it estimates as if no estimate had been asked for
+// before, so its choice depends on the samples alone, not on how often a caller asked
+// for estimates during it (and a caller whose estimates run on a twin chooses alike).
 vibid_status estimate_without_trace(vibid_ident &id, double *theta, double *se) {
     const bool have_theta = id.have_theta, have_cov = id.have_cov;
     const std::vector<double> last_theta = id.last_theta, cov = id.cov;
     const vibid_ident_quality quality = id.quality;
     const std::vector<unsigned> param_flags = id.param_flags;
+    id.have_theta = false;
     const vibid_status s = vibid_ident_estimate(&id, theta, se, nullptr);
     id.have_theta = have_theta;
     id.have_cov = have_cov;
@@ -901,6 +917,7 @@ void tune_prefilter(vibid_ident &id) {
                           cand[best_k], n_pilot, fmax, scores.c_str());
             const std::size_t at = best->description.find(kPilotPlaceholder);
             if (at != std::string::npos) best->description.replace(at, std::strlen(kPilotPlaceholder), why);
+            best->generation = id.generation + 1;  // a twin forgets the old estimator's memory
             id = std::move(*best);
             return;
         }
@@ -917,6 +934,8 @@ void tune_prefilter(vibid_ident &id) {
 // that ends the pre-filter pilot: tune_prefilter).
 VIBID_API vibid_status vibid_ident_push(vibid_ident *ident, const double *channels) {
     if (!ident || !channels) return VIBID_FAIL(VIBID_E_NULL_ARGUMENT, "ident and channels are required");
+    if (ident->twin_of)
+        return VIBID_FAIL(VIBID_E_STATE, "a twin takes no samples: push them into the identification it copies");
     if (ident->pilot_count >= ident->pilot_len) return push_sample(ident, channels);
     std::copy(channels, channels + ident->n_channels, ident->pilot.data() + ident->pilot_count * ident->n_channels);
     ++ident->pilot_count;
@@ -1078,10 +1097,19 @@ VIBID_API vibid_status vibid_ident_estimate(vibid_ident *ident, double *theta, d
             // Too few blocks for a covariance (early in a run), or the halves disagree.
             if (!cov_reg.allFinite() || !(res.z_max <= 4.0)) qual.flags |= VIBID_QUALITY_SE_INVALID;
         } else {
-            check_status(vibid_rls_theta(id.rls.get(), Th.data()), "recursive least squares");
             MatrixXd Pm(pr, pr), Sig(q, q);
-            check_status(vibid_rls_covariance(id.rls.get(), Pm.data()), "rls covariance");
-            if (vibid_rls_residual_covariance(id.rls.get(), Sig.data()) == VIBID_OK)
+            bool sig_ok;
+            if (id.twin_of) {  // the RLS outputs as copied (vibid_ident_twin_sync)
+                Th = Eigen::Map<const MatrixXd>(id.frozen_theta.data(), pr, q);
+                Pm = Eigen::Map<const MatrixXd>(id.frozen_P.data(), pr, pr);
+                Sig = Eigen::Map<const MatrixXd>(id.frozen_sig.data(), q, q);
+                sig_ok = id.frozen_sig_ok;
+            } else {
+                check_status(vibid_rls_theta(id.rls.get(), Th.data()), "recursive least squares");
+                check_status(vibid_rls_covariance(id.rls.get(), Pm.data()), "rls covariance");
+                sig_ok = vibid_rls_residual_covariance(id.rls.get(), Sig.data()) == VIBID_OK;
+            }
+            if (sig_ok)
                 for (std::size_t j = 0; j < q; ++j)
                     for (std::size_t l = 0; l < q; ++l)
                         cov_reg.block(j * pr, l * pr, pr, pr) = Sig(j, l) * Pm;
@@ -1180,6 +1208,70 @@ VIBID_API vibid_status vibid_ident_estimate(vibid_ident *ident, double *theta, d
         out.rcond = li.rcond;
         if (info) *info = out;
         return VIBID_OK;);
+}
+
+VIBID_API vibid_ident *vibid_ident_twin_create(const vibid_ident *ident) {
+    return vibid::guard_create<vibid_ident>(__func__, [&] {
+        if (!ident) throw_error(VIBID_E_NULL_ARGUMENT, "ident is NULL");
+        if (ident->twin_of) throw_error(VIBID_E_STATE, "ident is itself a twin");
+        if (!ident->biv && !ident->rls)
+            throw_error(VIBID_E_STATE, "no twin for the %s estimator: deferred estimates need IV, AUTO or RLS "
+                                       "(estimate this identification itself)",
+                        ident->ekf ? "state-space" : "batch least-squares");
+        // The same form: create makes the same estimator objects (block statistics and
+        // their discretization check, or an RLS) with the same shapes. No pilot: a twin
+        // takes no samples.
+        std::unique_ptr<vibid_ident> t = create_ident(&ident->model, &ident->requested, true);
+        t->pilot_len = t->pilot_count = 0;
+        std::vector<double>().swap(t->pilot);
+        t->twin_of = ident;
+        t->synced_generation = ident->generation;
+        if (t->rls) {
+            t->frozen_theta.assign(t->p_reg * t->q, 0.0);
+            t->frozen_P.assign(t->p_reg * t->p_reg, 0.0);
+            t->frozen_sig.assign(t->q * t->q, 0.0);
+        }
+        return t.release();
+    });
+}
+
+// Real-time path: copies into storage sized at create (same-shape Eigen and vector
+// assignments do not allocate); no exceptions.
+VIBID_API vibid_status vibid_ident_twin_sync(vibid_ident *twin, const vibid_ident *ident) {
+    if (!twin || !ident) return VIBID_FAIL(VIBID_E_NULL_ARGUMENT, "twin and ident are required");
+    if (twin->twin_of != ident)
+        return VIBID_FAIL(VIBID_E_STATE, "twin was not made by vibid_ident_twin_create for this identification");
+    const vibid_ident &s = *ident;
+    vibid_ident &t = *twin;
+    if (t.p_reg != s.p_reg || t.q != s.q || t.m != s.m || !t.biv != !s.biv || !t.half != !s.half || !t.rls != !s.rls)
+        return VIBID_FAIL(VIBID_E_STATE, "the identification changed its form since the twin was made");
+    if (s.generation != t.synced_generation) {
+        // reset, or replaced by the pilot: its estimate memory starts afresh
+        t.have_theta = t.have_cov = false;
+        t.synced_generation = s.generation;
+    }
+    t.cfg = s.cfg;
+    t.n_built = s.n_built;
+    t.n_samples = s.n_samples;
+    t.n_rows = s.n_rows;
+    t.has_prior = s.has_prior;
+    t.auto_prior = s.auto_prior;
+    t.prior_done = s.prior_done;
+    t.prior_count = s.prior_count;
+    t.prior_len = s.prior_len;
+    if (s.biv) *t.biv = *s.biv;
+    if (s.half) {
+        *t.half->biv = *s.half->biv;
+        t.half->n_samples = s.half->n_samples;
+        t.half->n_rows = s.half->n_rows;
+    }
+    if (s.rls) {
+        vibid_status st = vibid_rls_theta(s.rls.get(), t.frozen_theta.data());
+        if (st == VIBID_OK) st = vibid_rls_covariance(s.rls.get(), t.frozen_P.data());
+        if (st != VIBID_OK) return st;
+        t.frozen_sig_ok = vibid_rls_residual_covariance(s.rls.get(), t.frozen_sig.data()) == VIBID_OK;
+    }
+    return VIBID_OK;
 }
 
 VIBID_API vibid_status vibid_ident_get_quality(const vibid_ident *ident, vibid_ident_quality *q, unsigned *param_flags) {

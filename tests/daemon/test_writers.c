@@ -198,6 +198,7 @@ static void test_estimator_gap(void **state)
         rec.values[1] = 1e-3 * sin(31 * t);
         rec.values[2] = 1e-3 * sin(300 * t);
         if (vd_est_record(&e, &rec, &row)) {
+            vd_est_finish_row(&e, &row);
             idx[rows] = row.index;
             flags[rows] = row.flags;
             gaps[rows] = row.gap_samples;

@@ -13,8 +13,10 @@
 // Covered: the state-space estimator (EKF) from its start window on (run_ekf);
 // central differences (displacement, acceleration, cubic spring, unknown
 // input gain; with and without the pre-filter) and ZOH (1.16); the LS, IV and RLS
-// estimators; the NaN gap path of every push. The estimates are not checked here
-// (tests/model/test_model.c does that), only that the calls succeed and allocate nothing.
+// estimators; the NaN gap path of every push; the twin's sync (deferred estimates) of the
+// IV, RLS and automatic estimators, also across the pilot's replacement of the estimator.
+// The estimates are not checked here (tests/model/test_model.c and tests/ident/test_twin.c
+// do that), only that the calls succeed and allocate nothing.
 
 // Must see the same Eigen inline functions as the library objects (compiled -UNDEBUG):
 // see tests/lib/rt_no_alloc.cpp.
@@ -169,11 +171,15 @@ void run_ident(const vibid_model *m, vibid_estimator est, double prefilter_hz) {
     for (std::size_t k = 0; k < nk; ++k)
         for (std::size_t c = 0; c < nc; ++c) block[k + c * nk] = value(k + 1000, c);
     std::size_t bad_status = 0;
+    // deferred estimates: the twin's sync copies without allocating (LS has no twin)
+    vibid_ident *twin = est == VIBID_ESTIMATOR_LS ? nullptr : vibid_ident_twin_create(id);
+    if (est != VIBID_ESTIMATOR_LS) assert_non_null(twin);
     arm();
     for (std::size_t k = 0; k < 600; ++k) {
         for (std::size_t c = 0; c < nc; ++c) ch[c] = value(k, c);
         if (k == 300) ch[nc - 1] = INFINITY;
         if (vibid_ident_push(id, ch.data()) != (k == 300 ? VIBID_E_NONFINITE : VIBID_OK)) ++bad_status;
+        if (twin && k % 100 == 99 && vibid_ident_twin_sync(twin, id) != VIBID_OK) ++bad_status;
     }
     if (vibid_ident_push_block(id, nk, block.data()) != VIBID_OK) ++bad_status;
     if (vibid_ident_push(id, nullptr) != VIBID_E_NULL_ARGUMENT) ++bad_status;
@@ -186,6 +192,13 @@ void run_ident(const vibid_model *m, vibid_estimator est, double prefilter_hz) {
     const vibid_status s = vibid_ident_estimate(id, theta.data(), nullptr, &info);
     assert_true(s == VIBID_OK || s == VIBID_E_NOT_IDENTIFIABLE || s == VIBID_E_NUMERICAL);
     if (s == VIBID_OK) assert_true(info.n_samples == 599 + nk);
+    if (twin) {  // synced last at sample 599: it answers as the identification did then
+        std::vector<double> tt(p);
+        const vibid_status ts = vibid_ident_estimate(twin, tt.data(), nullptr, &info);
+        assert_true(ts == VIBID_OK || ts == VIBID_E_NOT_IDENTIFIABLE || ts == VIBID_E_NUMERICAL);
+        if (ts == VIBID_OK) assert_true(info.n_samples == 599);
+    }
+    vibid_ident_destroy(twin);
     vibid_ident_destroy(id);
 }
 
@@ -205,9 +218,13 @@ void test_ident_pilot_no_alloc(void **state) {
     std::vector<double> ch(nc);
     const std::size_t pilot = 4096;
     std::size_t bad_status = 0, allocs_pilot = 0, allocs_after = 0;
+    vibid_ident *twin = vibid_ident_twin_create(id);
+    assert_non_null(twin);
     auto push = [&](std::size_t k) {
         for (std::size_t c = 0; c < nc; ++c) ch[c] = value(k, c);
         if (vibid_ident_push(id, ch.data()) != VIBID_OK) ++bad_status;
+        // and a twin's sync, before and after the pilot replaced the estimator
+        if (k % 200 == 199 && vibid_ident_twin_sync(twin, id) != VIBID_OK) ++bad_status;
     };
     arm();
     for (std::size_t k = 0; k + 1 < pilot; ++k) push(k);
@@ -226,6 +243,7 @@ void test_ident_pilot_no_alloc(void **state) {
     char why[4096];
     assert_int_equal(vibid_ident_describe(id, why, sizeof why, nullptr), VIBID_OK);
     assert_true(std::strstr(why, "(automatic, from the data") || std::strstr(why, "pre-filter after the first"));
+    vibid_ident_destroy(twin);
     vibid_ident_destroy(id);
     vibid_model_destroy(m);
 }
