@@ -72,7 +72,6 @@ struct vibid_can_assembler {
     vibid_can_assembler_stats st;
     int64_t last_sample_t;
     bool have_last_t;
-    double jm, jm2; /* Welford */
 };
 
 static vibid_record *push_rec(vibid_can_assembler *a, vibid_record_kind kind)
@@ -329,21 +328,8 @@ static void emit_sample(vibid_can_assembler *a)
     memcpy(r->values, a->values, a->map->n * sizeof(double));
     a->st.samples++;
     a->current_done = true;
-    if (a->have_last_t) {
-        double dt = (double)(a->t_ns - a->last_sample_t) * 1e-9;
-        vibid_jitter_stats *j = &a->st.jitter;
-        j->n++;
-        double d = dt - a->jm;
-        a->jm += d / (double)j->n;
-        a->jm2 += d * (dt - a->jm);
-        if (j->n == 1 || dt < j->min_s)
-            j->min_s = dt;
-        if (j->n == 1 || dt > j->max_s)
-            j->max_s = dt;
-        j->mean_s = a->jm;
-        /* std_s is derived from jm2 when the stats are read (a sqrt per sample was a
-         * measurable share of replay); the value is the same. */
-    }
+    if (a->have_last_t)
+        vibid_jitter_add(&a->st.jitter, (double)(a->t_ns - a->last_sample_t) * 1e-9);
     a->last_sample_t = a->t_ns;
     a->have_last_t = true;
 }
@@ -633,7 +619,7 @@ void vibid_can_assembler_stats_get(const vibid_can_assembler *a, vibid_can_assem
 {
     if (a && s) {
         *s = a->st;
-        s->jitter.std_s = s->jitter.n > 1 ? sqrt(a->jm2 / (double)(s->jitter.n - 1)) : 0.0;
+        vibid_jitter_finish(&s->jitter);
     }
 }
 

@@ -42,6 +42,7 @@ void vibid_source_stats_get(const vibid_source *src, vibid_source_stats *st)
     memset(st, 0, sizeof *st);
     if (src)
         src->ops->stats(src, st);
+    vibid_jitter_finish(&st->jitter);
 }
 
 const vibid_chanmap *vibid_source_channels(const vibid_source *src) { return src ? &src->chanmap : NULL; }
@@ -56,26 +57,15 @@ void vibid_source_close(vibid_source *src)
     free(src);
 }
 
+void vibid_jitter_finish(vibid_jitter_stats *j) { j->std_s = j->n > 1 ? sqrt(j->m2_s2 / (double)(j->n - 1)) : 0.0; }
+
 void vibid_source_stats_count(vibid_source_stats *st, const vibid_record *rec, int64_t *last_t_ns)
 {
     switch (rec->kind) {
     case VIBID_REC_SAMPLE: {
         st->samples++;
-        if (st->samples > 1) {
-            /* Welford on the intervals; mean and M2 kept in mean_s/std_s slots. */
-            vibid_jitter_stats *j = &st->jitter;
-            double dt = (double)(rec->t_ns - *last_t_ns) * 1e-9;
-            double m2 = j->n > 1 ? j->std_s * j->std_s * (double)(j->n - 1) : 0.0;
-            j->n++;
-            double d = dt - j->mean_s;
-            j->mean_s += d / (double)j->n;
-            m2 += d * (dt - j->mean_s);
-            j->std_s = j->n > 1 ? sqrt(m2 / (double)(j->n - 1)) : 0.0;
-            if (j->n == 1 || dt < j->min_s)
-                j->min_s = dt;
-            if (j->n == 1 || dt > j->max_s)
-                j->max_s = dt;
-        }
+        if (st->samples > 1)
+            vibid_jitter_add(&st->jitter, (double)(rec->t_ns - *last_t_ns) * 1e-9);
         *last_t_ns = rec->t_ns;
         break;
     }

@@ -81,7 +81,27 @@ typedef struct vibid_jitter_stats {
     uint64_t n;               /* intervals seen */
     double mean_s, std_s;     /* mean and standard deviation of the interval, s */
     double min_s, max_s;
+    double m2_s2;             /* sum of squared deviations from the running mean (Welford's
+                                 M2), s^2: std_s is derived from it where the statistics are
+                                 read (vibid_jitter_finish), not per sample */
 } vibid_jitter_stats;
+
+/* Adds one interval dt (s): Welford's update, no square root (a sqrt per sample was a
+ * measurable share of replay). */
+static inline void vibid_jitter_add(vibid_jitter_stats *j, double dt)
+{
+    j->n++;
+    const double d = dt - j->mean_s;
+    j->mean_s += d / (double)j->n;
+    j->m2_s2 += d * (dt - j->mean_s);
+    if (j->n == 1 || dt < j->min_s)
+        j->min_s = dt;
+    if (j->n == 1 || dt > j->max_s)
+        j->max_s = dt;
+}
+
+/* Sets std_s from m2_s2 (sample standard deviation; 0 below two intervals). */
+void vibid_jitter_finish(vibid_jitter_stats *j);
 
 #ifdef __cplusplus
 }
