@@ -23,6 +23,7 @@
 #include "sim_config.h"
 #include "sim_engine.h"
 
+#include "bench_stands.h"
 #include "chain_stand.h" /* tests/ident: the stand of ident.default */
 
 #define H (1.0 / 2000.0)
@@ -32,44 +33,6 @@ static double now_s(void)
     struct timespec ts;
     clock_gettime(CLOCK_MONOTONIC, &ts);
     return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
-}
-
-static vibid_model *example1(void)
-{
-    vibid_model *m = vibid_model_create();
-    size_t a, b;
-    vibid_model_add_node(m, "m1", 10.0, 0, &a);
-    vibid_model_add_node(m, "m2", 20.0, 0, &b);
-    vibid_model_add_element(m, "c1", VIBID_ELEMENT_SPRING, a, b, 2.5e5, 1);
-    vibid_model_add_element(m, "d", VIBID_ELEMENT_DAMPER, a, b, 300.0, 1);
-    vibid_model_add_element(m, "c2", VIBID_ELEMENT_SPRING, b, VIBID_BASE, 1.5e6, 1);
-    vibid_model_set_measured(m, a, VIBID_MEASURE_DISPLACEMENT);
-    vibid_model_set_measured(m, b, VIBID_MEASURE_DISPLACEMENT);
-    vibid_model_set_measured(m, VIBID_BASE, VIBID_MEASURE_DISPLACEMENT);
-    vibid_model_finalize(m);
-    return m;
-}
-
-static vibid_model *chain3(void)
-{
-    vibid_model *m = vibid_model_create();
-    size_t n[3];
-    const char *names[3] = {"m1", "m2", "m3"};
-    for (int i = 0; i < 3; i++) {
-        vibid_model_add_node(m, names[i], 1.0 + 0.5 * i, 0, &n[i]);
-        vibid_model_set_measured(m, n[i], VIBID_MEASURE_DISPLACEMENT | VIBID_MEASURE_ACCELERATION);
-    }
-    vibid_model_add_element(m, "k1", VIBID_ELEMENT_SPRING, n[0], VIBID_GROUND, 4e4, 1);
-    vibid_model_add_element(m, "d1", VIBID_ELEMENT_DAMPER, n[0], VIBID_GROUND, 20, 1);
-    vibid_model_add_element(m, "k2", VIBID_ELEMENT_SPRING, n[1], n[0], 3e4, 1);
-    vibid_model_add_element(m, "d2", VIBID_ELEMENT_DAMPER, n[1], n[0], 15, 1);
-    vibid_model_add_element(m, "k3", VIBID_ELEMENT_SPRING, n[2], n[1], 2e4, 1);
-    vibid_model_add_element(m, "d3", VIBID_ELEMENT_DAMPER, n[2], n[1], 10, 1);
-    size_t in;
-    vibid_model_add_input(m, "f", n[2], 1.0, 0, &in);
-    vibid_model_set_hold(m, in, VIBID_HOLD_ZOH);
-    vibid_model_finalize(m);
-    return m;
 }
 
 static void die(const char *what)
@@ -188,7 +151,7 @@ int main(int argc, char **argv)
     struct {
         const char *name;
         vibid_model *m;
-    } stands[2] = {{"example 1 (p = 3)", example1()}, {"chain 3 DOF (p = 6)", chain3()}};
+    } stands[2] = {{"example 1 (p = 3)", bench_example1()}, {"chain 3 DOF (p = 6)", bench_chain3()}};
     printf("%-22s %-44s %12s %12s %9s\n", "stand", "estimator", "ns/sample", "estimate us", "ratio");
     for (int s = 0; s < 2; s++) {
         vibid_ident_config rls, aut, aut_f;

@@ -6,8 +6,11 @@
 // roll-back, no residual statistics). The ratio Bierman / lean is the figure of issue 15
 // (target: at most 1.2).
 //
+// A second table times whole samples of m equations with one output (the structured form:
+// example 1 has p = 3, m = 2), Bierman against the lean RLS doing its m updates.
+//
 // Usage: bench_rls [scale [p]]   scale multiplies the number of updates timed (default 1);
-// p, if given, restricts the table to that number of parameters.
+// p, if given, restricts the tables to that number of parameters.
 // The variants of one cell are timed in turn, kRepeats rounds; each figure is the best
 // round of the thread's CPU time (the machine is shared: CPU time leaves out the time other
 // processes hold the core, the minimum is the least disturbed round, and interleaving the
@@ -28,6 +31,7 @@
 #include <cstdlib>
 #include <random>
 #include <time.h>
+#include <utility>
 #include <vector>
 
 namespace {
@@ -80,13 +84,15 @@ double ns_per_call(long n, const F &call) {
     return (thread_ns() - t0) / static_cast<double>(n);
 }
 
-vibid_rls *make(const Data &d, vibid_rls_form form, vibid_rls_windup windup) {
+// d holds p x m regressors and m targets per sample when m > 1 (q = 1).
+vibid_rls *make(const Data &d, vibid_rls_form form, vibid_rls_windup windup, int m = 1) {
     vibid_rls_config cfg;
-    vibid_rls_config_init(&cfg, static_cast<size_t>(d.p), static_cast<size_t>(d.q));
+    vibid_rls_config_init(&cfg, static_cast<size_t>(d.p / m), static_cast<size_t>(d.q / m));
+    cfg.n_equations = static_cast<size_t>(m);
     cfg.form = form;
     cfg.alpha = 1e-2;
     cfg.windup = windup;
-    cfg.trace_max = d.p / cfg.alpha;
+    cfg.trace_max = d.p / m / cfg.alpha;
     vibid_rls *rls = vibid_rls_create(&cfg);
     if (!rls) {
         std::fprintf(stderr, "vibid_rls_create: %s\n", vibid_last_error());
@@ -145,6 +151,36 @@ int main(int argc, char **argv) {
             std::fflush(stdout);
             for (vibid_rls *e : {bier, bound, cov}) vibid_rls_destroy(e);
         }
+    }
+    // The structured form's shapes: m equations per sample with one output (example 1:
+    // p = 3, m = 2; a 3-DOF chain: p = 6, m = 3). The yardstick does its m updates.
+    std::printf("\nseveral equations per sample, q = 1: ns per sample (m equations)\n");
+    std::printf("%4s %3s | %9s | %9s | %8s\n", "p", "m", "Bierman", "lean Eigen", "B/lean");
+    for (const auto &[p, m] : {std::pair<int, int>{3, 2}, {4, 2}, {6, 3}}) {
+        if (only_p && p != only_p) continue;
+        const Data d(p * m, m);
+        const long n = std::clamp(static_cast<long>(scale * 1e7 / (m * (p * p + 8 * p + 4 * p))), 5000L, 2000000L);
+        vibid_rls *bier = make(d, VIBID_RLS_FORM_BIERMAN_UD, VIBID_RLS_WINDUP_NONE, m);
+        LeanRls lean(p, 1, 1e-2);
+        const auto lean_sample = [&](long k) {
+            for (int i = 0; i < m; ++i) lean.update(d.xs(k) + i * p, d.ys(k) + i);
+        };
+        for (long k = 0; k < kSamples; ++k) {
+            failures += vibid_rls_update(bier, d.xs(k), d.ys(k)) != VIBID_OK;
+            lean_sample(k);
+        }
+        double best[2] = {1e300, 1e300};
+        for (int r = 0; r < kRepeats; ++r) {
+            long bad = 0;
+            best[0] = std::min(best[0], ns_per_call(n, [&](long k) {
+                                   bad += vibid_rls_update(bier, d.xs(k), d.ys(k)) != VIBID_OK;
+                               }));
+            failures += bad;
+            best[1] = std::min(best[1], ns_per_call(n, lean_sample));
+        }
+        if (!lean.theta.allFinite()) std::fprintf(stderr, "lean yardstick diverged\n");
+        std::printf("%4d %3d | %9.1f | %9.1f | %8.2f\n", p, m, best[0], best[1], best[0] / best[1]);
+        vibid_rls_destroy(bier);
     }
     if (failures) std::printf("WARNING: %ld updates returned an error; their figures are not meaningful\n", failures);
     return 0;

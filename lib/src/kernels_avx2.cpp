@@ -18,8 +18,8 @@ namespace avx2 {
 #undef VIBID_KERNEL_VBYTES
 }  // namespace avx2
 
-const Table avx2_table = {"avx2+fma", &avx2::bierman_step, &avx2::qr_merge,
-                                  &avx2::dot, &avx2::axpy_sum};
+const Table avx2_table = {"avx2+fma", &avx2::bierman_step, &avx2::bierman_small, &avx2::qr_merge,
+                                  &avx2::dot, &avx2::axpy_sum, &avx2::regressor_step};
 
 }  // namespace kern
 }  // namespace vibid

@@ -10,8 +10,8 @@ namespace base {
 #undef VIBID_KERNEL_VBYTES
 }  // namespace base
 
-const Table baseline_table = {"baseline", &base::bierman_step, &base::qr_merge,
-                                  &base::dot, &base::axpy_sum};
+const Table baseline_table = {"baseline", &base::bierman_step, &base::bierman_small, &base::qr_merge,
+                                  &base::dot, &base::axpy_sum, &base::regressor_step};
 
 }  // namespace kern
 }  // namespace vibid

@@ -35,6 +35,9 @@ VIBID_KINLINE vd vsplat(double s) {
     for (idx i = 0; i < W; ++i) v[i] = s;
     return v;
 }
+// *p in every lane, loaded as one broadcast (x - 0 is x exactly, -0 included, and folds
+// away; vsplat's lane-by-lane form compiles to two shuffles).
+VIBID_KINLINE vd vbroadcast(const double *p) { return *p - vd{}; }
 VIBID_KINLINE double hsum(vd v) {
     double s = v[0];
     for (idx i = 1; i < W; ++i) s += v[i];
@@ -256,6 +259,118 @@ void bierman_step(RlsStep &s) {
     case 15: bierman_step_t<15>(s); return;
     case 16: bierman_step_t<16>(s); return;
     default: bierman_step_t<0>(s); return;
+    }
+}
+
+// All equations of one sample for p = P <= kSmallP and one output (the structured form's
+// case: example 1 has p = 3, m = 2), see Table::bierman_small. U, D, Theta and V are loaded
+// once into local arrays, which the compiler keeps in registers through the equations
+// (the loops are unrolled completely), and stored once: the per-equation step goes through
+// memory, which puts a store and a reload of every entry on the chain from one equation to
+// the next, and its setup per equation costs as much as the arithmetic at this size. Same
+// arithmetic, in the same order, as bierman_step_t per equation.
+template <idx P>
+VIBID_KINLINE void bierman_small_t(RlsStep &s) {
+    constexpr bool vec = P > 2 * W;  // as bierman_step_t
+    double u[P * P], d[P], th[P], b[P], work[2 * P];
+#pragma GCC unroll 8
+    for (idx j = 0; j < P; ++j) {
+#pragma GCC unroll 8
+        for (idx i = 0; i < j; ++i) u[j * P + i] = s.us[j * s.ld + i];
+        d[j] = s.ds[j];
+        th[j] = s.ths[j];
+    }
+    double v = s.Vs[0], dscale = s.dscale, vscale = s.vscale, tr = 0.0, ts = 0.0;
+    bool ok = true;
+    for (idx i = 0; i < s.m; ++i) {
+        const double *x = s.x + i * P;
+        const double e = s.y[i] - dot_i<vec>(th, x, P);
+        double c;  // 1 / alpha
+        bierman_i<vec>(P, P, u, u, d, d, dscale, x, b, work, tr, c, ok);
+        ts = axpy_sum_i<vec>(P, e * c, b, th, th);
+        v = vscale * v + (e * c) * e;
+        dscale = vscale = 1.0;
+    }
+#pragma GCC unroll 8
+    for (idx j = 0; j < P; ++j) {
+#pragma GCC unroll 8
+        for (idx i = 0; i < j; ++i) s.ud[j * s.ld + i] = u[j * P + i];
+        s.dd[j] = d[j];
+        s.thd[j] = th[j];
+    }
+    s.Vd[0] = v;
+    s.trace = tr;
+    s.theta_sum = ts;
+    s.v_sum = v;
+    s.ok = ok;
+}
+
+void bierman_small(RlsStep &s) {
+    static_assert(kSmallP == 4, "one case per p up to kSmallP");
+    switch (s.p) {
+    case 1: bierman_small_t<1>(s); return;
+    case 2: bierman_small_t<2>(s); return;
+    case 3: bierman_small_t<3>(s); return;
+    default: bierman_small_t<4>(s); return;
+    }
+}
+
+// The compiled regressor's sample (kernels.hpp, RegStep). A block's four sums stay in
+// registers (one vector of four, or two of two); even and odd columns go to separate sums,
+// which halves the chain of dependent adds. The filter runs on whole vectors of entries:
+// one biquad's coefficients for all, each entry its own delays.
+void regressor_step(const RegStep &s) {
+    const idx np = s.n_pad;
+    double *out = s.out;
+    if (s.linear) {
+        const double *A = s.A, *win = s.window;
+        const idx *col = s.col;
+        static_assert(W == 2 || W == 4, "a block of four entries is two vectors or one");
+        constexpr bool two = W == 2;
+        for (idx b = 0; b < np / 4; ++b) {
+            const idx k1 = s.block[b + 1];
+            vd e0 = vsplat(0.0), e1 = e0, o0 = e0, o1 = e0;
+            idx k = s.block[b];
+            for (; k + 1 < k1; k += 2) {
+                const vd v0 = vbroadcast(win + col[k]), v1 = vbroadcast(win + col[k + 1]);
+                const double *a = A + 4 * k;
+                e0 += vload(a) * v0;
+                o0 += vload(a + 4) * v1;
+                if constexpr (two) {
+                    e1 += vload(a + 2) * v0;
+                    o1 += vload(a + 6) * v1;
+                }
+            }
+            if (k < k1) {
+                const vd v0 = vbroadcast(win + col[k]);
+                e0 += vload(A + 4 * k) * v0;
+                if constexpr (two) e1 += vload(A + 4 * k + 2) * v0;
+            }
+            vstore(out + 4 * b, e0 + o0);
+            if constexpr (two) vstore(out + 4 * b + 2, e1 + o1);
+        }
+        for (idx c = 0; c < s.n_cubic; ++c) {
+            const RegCubic &e = s.cubic[c];
+            double r = 0.0;
+            for (idx t = 0; t < e.n_taps; ++t) r += e.w[t] * win[col[e.tap[t]]];
+            out[e.out] += e.coef * (r * r * r);
+        }
+    }
+    if (!s.sec) return;
+    const double *c = s.sec;
+    double *z = s.z;
+    for (idx i = 0; i < np; i += W) {
+        vd v = vload(out + i);
+#pragma GCC unroll 2
+        for (idx q = 0; q < 2; ++q) {
+            const double *sq = c + 5 * q;
+            double *z0 = z + 2 * q * np + i, *z1 = z0 + np;
+            const vd o = vbroadcast(sq) * v + vload(z0);
+            vstore(z0, vbroadcast(sq + 1) * v - vbroadcast(sq + 3) * o + vload(z1));
+            vstore(z1, vbroadcast(sq + 2) * v - vbroadcast(sq + 4) * o);
+            v = o;
+        }
+        vstore(out + i, v);
     }
 }
 

@@ -17,6 +17,8 @@
 //
 // Cost. The Bierman update's inner loops are the kernels of kernels.hpp (one pass for
 // U^T x, one fused pass that updates U, the gain and the trace), chosen once for the CPU.
+// For small p with one output (the structured form; example 1 has p = 3, m = 2) one call
+// does all equations of a sample with the state in registers between them (bierman_small).
 // The per-call checks cost nothing on the accepted path: the input is not scanned before
 // the update, because every non-finite x or y entry makes the update itself fail (x
 // reaches alpha, or the innovation variance in the covariance form, y reaches the a-priori
@@ -165,6 +167,7 @@ struct vibid_rls {
     // slot c (later equations). A call sets only the forgetting, x and y.
     vibid::kern::RlsStep step_out[2], step_in[2];
     const vibid::kern::Table *kt;  // kernels for this CPU, fixed at create
+    bool small;                    // whole samples through kt->bierman_small (set in create)
 
     explicit vibid_rls(const vibid_rls_config &c)
         : p(static_cast<Index>(c.n_params)),
@@ -199,6 +202,10 @@ struct vibid_rls {
         work.setZero(2 * p);
         e.setZero(q);
         kt = &vibid::kern::active();
+        // At p = kSmallP with one equation nothing stays in registers between equations,
+        // and the copies in and out made the baseline kernels 5 % slower there.
+        small = form == VIBID_RLS_FORM_BIERMAN_UD && q == 1 &&
+                (p < vibid::kern::kSmallP || (p == vibid::kern::kSmallP && m > 1));
         for (int k = 0; k < 2; ++k) {
             build_step(step_out[k], slot[k], slot[1 - k]);
             build_step(step_in[k], slot[k], slot[k]);
@@ -212,6 +219,7 @@ struct vibid_rls {
         st.q = q;
         st.ld = p;
         st.ystride = m;
+        st.m = m;
         st.us = from.M.data();
         st.ud = to.M.data();
         st.ds = from.D.data();
@@ -306,6 +314,9 @@ struct vibid_rls {
         return std::min(1.0, std::max(gamma, slot[cur].trace / trace_max));
     }
 
+    // The D scale of the forgetting step, 1 / g: no division per sample at the nominal g.
+    double forgetting_scale(double g) const { return g == gamma ? inv_gamma : 1.0 / g; }
+
     bool adapt_sample(const double *xe, const double *ye) {
         const Slot &src = slot[cur];
         Slot &dst = slot[1 - cur];
@@ -322,7 +333,7 @@ struct vibid_rls {
                 // The first equation reads the committed slot and writes the other; later
                 // equations of the sample work in place on the uncommitted slot.
                 vibid::kern::RlsStep &st = first ? step_out[cur] : step_in[1 - cur];
-                st.dscale = first ? (g == gamma ? inv_gamma : 1.0 / g) : 1.0;  // no division per sample
+                st.dscale = first ? forgetting_scale(g) : 1.0;
                 st.vscale = first ? g : 1.0;
                 st.x = xi;
                 st.y = ye + i;
@@ -342,7 +353,28 @@ struct vibid_rls {
                 v_sum = accumulate_residual(dst.V, s);
             }
         }
-        if (!ok) return false;
+        return ok && commit(g, theta_sum, v_sum);
+    }
+
+    // adapt_sample for the small Bierman case (`small`): the whole sample in one kernel call,
+    // from the committed slot into the other.
+    bool adapt_small(const double *xe, const double *ye) {
+        const double g = forgetting_now();
+        vibid::kern::RlsStep &st = step_out[cur];
+        st.dscale = forgetting_scale(g);
+        st.vscale = g;
+        st.x = xe;
+        st.y = ye;
+        kt->bierman_small(st);
+        slot[1 - cur].trace = st.trace;
+        return st.ok && commit(g, st.theta_sum, st.v_sum);
+    }
+
+    // Makes the uncommitted slot, just written with forgetting g, the state, unless an
+    // entry of its Theta or V is not finite (told by the sums of the new entries, confirmed
+    // by a scan: a sum alone may overflow).
+    bool commit(double g, double theta_sum, double v_sum) {
+        const Slot &dst = slot[1 - cur];
         if (!std::isfinite(theta_sum) && !dst.theta.allFinite()) return false;
         if (!std::isfinite(v_sum) && !dst.V.allFinite()) return false;
         cur = 1 - cur;
@@ -531,7 +563,8 @@ VIBID_API vibid_status vibid_rls_update(vibid_rls *rls, const double *x, const d
     }
     // Optimistic: update first, classify a failure after (see the file comment). A
     // failed update has not touched the committed state.
-    if (rls->adapt ? rls->adapt_sample(xe, ye) : rls->observe(xe, ye)) return VIBID_OK;
+    if (!rls->adapt ? rls->observe(xe, ye) : rls->small ? rls->adapt_small(xe, ye) : rls->adapt_sample(xe, ye))
+        return VIBID_OK;
     const size_t nx = static_cast<size_t>(rls->p * rls->m), ny = static_cast<size_t>(rls->m * rls->q);
     size_t bad = first_nonfinite(x, nx);
     if (bad < nx) return RLS_FAIL(VIBID_E_NONFINITE, "x[%zu] = %g is not finite", bad, x[bad]);

@@ -28,8 +28,12 @@
  * (2 / h)^4 in power. Choose the cutoff above the highest natural frequency and the
  * excitation band (2-4 times the highest mode is a good start), below f_a / 4.
  *
- * Real time: vibid_regressor_push allocates nothing, takes no lock and costs
- * O(p_reg m + m q) operations (+ 20 flops per column with the pre-filter).
+ * Real time: vibid_regressor_push allocates nothing, takes no lock and costs one
+ * multiply-add per window value that an entry of x or y reads (the stencils, hold
+ * equivalents and coefficients are folded together at create; entries are taken four at a
+ * time, so about (p_reg m + m q) times the taps of one stencil), plus the cubic entries and
+ * 20 flops per entry with the pre-filter. Paper example 1 (p_reg = 3, m = 2) with the
+ * pre-filter: about 20 ns per sample on an x86-64 core with AVX2.
  */
 #ifndef VIBID_REGRESSOR_H
 #define VIBID_REGRESSOR_H
