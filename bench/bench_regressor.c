@@ -46,7 +46,7 @@ static vibid_model *chain10(void)
     vibid_model *m = vibid_model_create();
     size_t prev = VIBID_BASE, node = 0;
     for (int i = 0; i < 10; i++) {
-        char name[8];
+        char name[16];
         snprintf(name, sizeof name, "m%d", i);
         vibid_model_add_node(m, name, 1.0 + 0.1 * i, 0, &node);
         snprintf(name, sizeof name, "k%d", i);

@@ -290,7 +290,7 @@ vibid_model *long_chain() {
     assert_non_null(m);
     std::size_t prev = VIBID_BASE, node = 0;
     for (int i = 0; i < 10; ++i) {
-        char name[8];
+        char name[16]; /* "m" and any int: no truncation warning at any -O */
         std::snprintf(name, sizeof name, "m%d", i);
         assert_int_equal(vibid_model_add_node(m, name, 1.0 + 0.1 * i, 0, &node), VIBID_OK);
         std::snprintf(name, sizeof name, "k%d", i);
