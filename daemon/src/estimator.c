@@ -196,17 +196,16 @@ static void start_row(vd_est *e, const vibid_record *rec, uint64_t rel, vd_row *
     e->gap_since_row = 0;
     for (size_t k = 0; k < VD_MAX_PARAMS; k++)
         row->theta[k] = row->se[k] = row->freq[k] = row->freq_se[k] = row->zeta[k] = row->zeta_se[k] = NAN;
-    row->sync_status = e->twin ? (int)vibid_ident_twin_sync(e->twin, e->ident) : (int)VIBID_OK;
-    if (row->sync_status != VIBID_OK) /* cannot happen: twin_create checked the form */
-        snprintf(e->why, sizeof e->why, "twin: %s", vibid_last_error());
+    /* a failure cannot happen (twin_create checked the form); if it did, the row says E */
+    e->sync_status = e->twin ? vibid_ident_twin_sync(e->twin, e->ident) : VIBID_OK;
 }
 
 void vd_est_finish_row(vd_est *e, vd_row *row)
 {
     note_new_choices(e);
     vibid_ident *from = e->twin ? e->twin : e->ident;
-    vibid_status st = row->sync_status != VIBID_OK ? (vibid_status)row->sync_status
-                                                   : vibid_ident_estimate(from, row->theta, row->se, NULL);
+    vibid_status st = e->sync_status != VIBID_OK ? e->sync_status
+                                                 : vibid_ident_estimate(from, row->theta, row->se, NULL);
     row->est_status = (int)st;
     if (st != VIBID_OK) {
         for (size_t k = 0; k < e->p; k++)

@@ -75,7 +75,6 @@ typedef struct vd_row {
     double theta[VD_MAX_PARAMS], se[VD_MAX_PARAMS];
     double freq[VD_MAX_PARAMS], freq_se[VD_MAX_PARAMS], zeta[VD_MAX_PARAMS], zeta_se[VD_MAX_PARAMS];
     int est_status;         /* vibid_status of the estimate */
-    int sync_status;        /* vibid_status of the twin's sync at the row's sample */
     unsigned implausible;   /* VIBID_IMPLAUSIBLE_* bits found (flag P), 0 = plausible */
 } vd_row;
 
@@ -85,6 +84,8 @@ typedef struct vd_est {
     vibid_ident *twin;      /* a row's estimator state, kept at its sample (identify.h,
                                deferred estimates); NULL for LS, EKF and KF+RLS, ... */
     char twin_why[256];     /* ... and why (the library's message) */
+    vibid_status sync_status; /* the twin's sync at the due row's sample (one row is
+                                 pending at a time: vd_est_record) */
     const vibid_model *model;
     size_t p, nch, nmodes;
     bool started;
