@@ -4,6 +4,7 @@
 // small linear least-squares problem.
 #include <vibid/identify.h>
 #include <vibid/lsq.h>
+#include <vibid/output_error.h>
 #include <vibid/modal.h>
 #include <vibid/regressor.h>
 #include <vibid/rls.h>
@@ -39,6 +40,9 @@ struct LsqFree {
 struct RlsFree {
     void operator()(vibid_rls *r) const noexcept { vibid_rls_destroy(r); }
 };
+struct OeFree {
+    void operator()(vibid_oe *o) const noexcept { vibid_oe_destroy(o); }
+};
 }  // namespace
 
 struct vibid_ident {
@@ -54,6 +58,15 @@ struct vibid_ident {
     bool half_take = true;  // the next sample goes to `half` too
     std::unique_ptr<vibid::StandEkf> ekf;  // EKF: the state-space estimator (stand_ekf.hpp)
     std::unique_ptr<vibid_rls, RlsFree> rls;
+    // OE (output_error.h): the equation-error estimator that gives the start values (AUTO:
+    // IV, or the EKF on a stand that is not fully measured), every sample pushed
+    // (sample-major, kept for the fit), the fit, and the last fit's offsets.
+    std::unique_ptr<vibid_ident> ee;
+    std::unique_ptr<vibid_oe, OeFree> oe;
+    std::vector<double> samples;
+    std::vector<std::size_t> offset_channels;
+    std::vector<double> offsets, offsets_se;
+    std::string oe_description;  // what OE is (description = the start estimator's account + this + the fit's outcome)
     std::size_t n = 0, p = 0, p_reg = 0, m = 0, q = 0, n_channels = 0;
     bool zoh = false;
     bool has_prior = false;  // RLS started from vibid_ident_set_prior
@@ -274,6 +287,7 @@ vibid_ident_config resolve_config(const vibid_model &m, const vibid_ident_config
     case VIBID_ESTIMATOR_IV: why += "estimator: instrumental variables with block statistics (configured)\n"; break;
     case VIBID_ESTIMATOR_EKF: break;  // create_state_space describes it
     case VIBID_ESTIMATOR_KF_RLS: break;
+    case VIBID_ESTIMATOR_OE: break;  // create_output_error
     case VIBID_ESTIMATOR_LS:
         why += "estimator: batch least squares (configured); biased by noise on the measured channels, standard "
                "errors assume white equation errors (flagged as not valid)\n";
@@ -506,6 +520,8 @@ extern "C" {
 
 namespace {
 
+std::unique_ptr<vibid_ident> create_output_error(const vibid_model &model, const vibid_ident_config &cfg);
+
 // vibid_ident_create; with_check = false leaves out the discretization check (the
 // check's own estimator) and the pre-filter pilot; prefilter_why: see resolve_config.
 std::unique_ptr<vibid_ident> create_ident(const vibid_model *model, const vibid_ident_config *cfg, bool with_check,
@@ -514,7 +530,8 @@ std::unique_ptr<vibid_ident> create_ident(const vibid_model *model, const vibid_
     if (!cfg) throw_error(VIBID_E_NULL_ARGUMENT, "cfg is NULL");
     const int est = vibid::enum_value(cfg->estimator);
     if (est != VIBID_ESTIMATOR_LS && est != VIBID_ESTIMATOR_IV && est != VIBID_ESTIMATOR_RLS &&
-        est != VIBID_ESTIMATOR_AUTO && est != VIBID_ESTIMATOR_EKF && est != VIBID_ESTIMATOR_KF_RLS)
+        est != VIBID_ESTIMATOR_AUTO && est != VIBID_ESTIMATOR_EKF && est != VIBID_ESTIMATOR_KF_RLS &&
+        est != VIBID_ESTIMATOR_OE)
         throw_error(VIBID_E_OUT_OF_RANGE, "estimator %d unknown", est);
     if (!(cfg->sample_time > 0.0) || !std::isfinite(cfg->sample_time))
         throw_error(VIBID_E_OUT_OF_RANGE, "sample_time = %g s must be > 0 and finite", cfg->sample_time);
@@ -527,6 +544,7 @@ std::unique_ptr<vibid_ident> create_ident(const vibid_model *model, const vibid_
         throw_error(VIBID_E_OUT_OF_RANGE, "rls_alpha = %g: > 0, or 0 for the automatic prior", cfg->rls_alpha);
     if (cfg->iv_lag != 0 && (cfg->iv_lag < 3 || cfg->iv_lag > 4096))
         throw_error(VIBID_E_OUT_OF_RANGE, "iv_lag = %zu outside 3..4096 (0 = automatic)", cfg->iv_lag);
+    if (est == VIBID_ESTIMATOR_OE) return create_output_error(*model, *cfg);
     // A stand that leaves coordinates unmeasured (some signal of the equations can
     // not be formed from the channels) or declares an unmeasured random force gets
     // the state-space estimator under AUTO; the regression estimators cannot run on it.
@@ -582,6 +600,7 @@ std::unique_ptr<vibid_ident> create_ident(const vibid_model *model, const vibid_
     switch (rcfg.estimator) {
     case VIBID_ESTIMATOR_EKF: break;  // create_state_space
     case VIBID_ESTIMATOR_KF_RLS: break;
+    case VIBID_ESTIMATOR_OE: break;  // create_output_error
     case VIBID_ESTIMATOR_LS:
         id->lsq.reset(vibid_lsq_create(id->p_reg, id->q));
         if (!id->lsq) throw_error(VIBID_E_NO_MEMORY, "vibid_lsq_create: %s", vibid_last_error());
@@ -679,6 +698,98 @@ std::unique_ptr<vibid_ident> create_ident(const vibid_model *model, const vibid_
     return id;
 }
 
+// OE: the automatic equation-error estimator runs on the samples as they come and gives
+// the fit its start values; the fit itself runs at vibid_ident_estimate on every sample
+// kept (output_error.h). Refused here when the fit cannot run on the stand (a disturbance,
+// an unmeasured base).
+std::unique_ptr<vibid_ident> create_output_error(const vibid_model &model, const vibid_ident_config &cfg) {
+    vibid_ident_config ec = cfg;
+    ec.estimator = VIBID_ESTIMATOR_AUTO;
+    auto id = std::make_unique<vibid_ident>();
+    id->ee = create_ident(&model, &ec, true);
+    vibid_oe_config oc;
+    vibid_oe_config_init(&oc, cfg.sample_time);
+    id->oe.reset(vibid_oe_create(&model, &oc));
+    if (!id->oe) throw_error(VIBID_E_DIMENSION, "output error: %s", vibid_last_error());
+    id->model = model;
+    id->cfg = id->ee->cfg;
+    id->cfg.estimator = VIBID_ESTIMATOR_OE;
+    id->requested = cfg;
+    id->n = model.nodes.size();
+    id->p = model.param_term.size();
+    id->n_channels = model.channels.size();
+    id->cov.assign(id->p * id->p, 0.0);
+    std::size_t ny = 0;
+    check_status(vibid_oe_dims(id->oe.get(), &ny, nullptr), "output error");
+    id->offset_channels.resize(ny);
+    check_status(vibid_oe_dims(id->oe.get(), &ny, id->offset_channels.data()), "output error");
+    id->oe_description = "estimator: output error on the stand's model (configured), started from the equation-error "
+                      "estimate above (and from the nominal values where the stand gives them); initial state and "
+                      "an offset per response channel estimated; sandwich error bars\n";
+    id->description = id->ee->description + id->oe_description;
+    return id;
+}
+
+// The fit at vibid_ident_estimate: the equation-error estimate first (its failure is this
+// estimate's failure: no start), then the output-error fit from it. A fit that fails leaves
+// the equation-error estimate, its quality plus VIBID_QUALITY_REFINE_FAILED, and the reason
+// in the description.
+vibid_status estimate_output_error(vibid_ident &id, double *theta, double *se, vibid_ident_info *info) {
+    const std::size_t p = id.p, nc = id.n_channels, ns = id.samples.size() / std::max<std::size_t>(nc, 1);
+    std::vector<double> th_ee(p), se_ee(p);
+    const vibid_status st = vibid_ident_estimate(id.ee.get(), th_ee.data(), se_ee.data(), info);
+    if (st != VIBID_OK) return st;
+    std::vector<double> starts(th_ee);
+    std::vector<double> nominal(p);
+    if (vibid_model_nominal(&id.model, nominal.data()) == VIBID_OK &&
+        std::all_of(nominal.begin(), nominal.end(), [](double v) { return v != 0.0 && std::isfinite(v); }))
+        starts.insert(starts.end(), nominal.begin(), nominal.end());
+    std::vector<double> block(ns * nc);
+    for (std::size_t k = 0; k < ns; ++k)
+        for (std::size_t c = 0; c < nc; ++c) block[k + c * ns] = id.samples[k * nc + c];
+    const vibid_status fs = vibid_oe_fit(id.oe.get(), ns, block.data(), starts.size() / p, starts.data());
+    const std::string why = fs == VIBID_OK ? std::string() : vibid_last_error();
+    vibid_oe_fit_info fi{};
+    std::vector<double> th(p), sd(p), cov(p * p);
+    const std::size_t ny = id.offset_channels.size();
+    id.offsets.assign(ny, 0.0);
+    id.offsets_se.assign(ny, 0.0);
+    if (fs == VIBID_OK)
+        check_status(vibid_oe_result(id.oe.get(), th.data(), sd.data(), cov.data(), id.offsets.data(),
+                                     id.offsets_se.data(), nullptr, &fi),
+                     "output error");
+    if (fs != VIBID_OK) {
+        id.offsets.clear();
+        id.offsets_se.clear();
+        std::copy(th_ee.begin(), th_ee.end(), theta);
+        if (se) std::copy(se_ee.begin(), se_ee.end(), se);
+        check_status(vibid_ident_covariance(id.ee.get(), id.cov.data()), "equation error");
+        id.param_flags.assign(p, 0);
+        check_status(vibid_ident_get_quality(id.ee.get(), &id.quality, id.param_flags.data()), "equation error");
+        id.quality.flags |= VIBID_QUALITY_REFINE_FAILED;
+        for (auto &f : id.param_flags) f |= VIBID_QUALITY_REFINE_FAILED;
+        id.description = id.ee->description + id.oe_description + "output-error refinement failed (the equation-error estimate stands): " + why + "\n";
+    } else {
+        std::copy(th.begin(), th.end(), theta);
+        if (se) std::copy(sd.begin(), sd.end(), se);
+        id.cov = cov;
+        id.quality = vibid_ident_quality{};
+        id.quality.z_consistency = std::nan("");
+        id.quality.n_blocks = fi.n_blocks;
+        id.quality.rcond = fi.rcond;
+        id.param_flags.assign(p, 0);
+        id.description = id.ee->description + id.oe_description + strprintf("output-error fit: %u iterations from start %zu (%s), %zu samples, %zu blocks\n",
+                                                       fi.iterations, fi.start, fi.start == 0 ? "the equation-error estimate" : "the nominal values",
+                                                       fi.n_samples, fi.n_blocks);
+    }
+    id.have_cov = true;
+    if (info) {
+        info->n_samples = ns;
+        info->n_rows = ns;
+    }
+    return VIBID_OK;
+}
+
 }  // namespace
 
 VIBID_API vibid_ident *vibid_ident_create(const vibid_model *model, const vibid_ident_config *cfg) {
@@ -689,6 +800,10 @@ VIBID_API vibid_status vibid_ident_reset(vibid_ident *ident) {
     VIBID_GUARD(
         if (!ident) throw_error(VIBID_E_NULL_ARGUMENT, "ident is NULL");
         if (ident->ekf) ident->ekf->reset();
+        if (ident->ee) {
+            check_status(vibid_ident_reset(ident->ee.get()), "equation-error reset");
+            ident->samples.clear();
+        }
         if (ident->reg) check_status(vibid_regressor_reset(ident->reg.get()), "regressor reset");
         if (ident->lsq) check_status(vibid_lsq_reset(ident->lsq.get()), "lsq reset");
         if (ident->biv) ident->biv->reset();
@@ -717,6 +832,7 @@ VIBID_API vibid_status vibid_ident_dims(const vibid_ident *ident, size_t *n_chan
 VIBID_API vibid_status vibid_ident_set_prior(vibid_ident *ident, const double *theta0, const double *P0) {
     VIBID_GUARD(
         if (!ident) throw_error(VIBID_E_NULL_ARGUMENT, "ident is NULL");
+        if (ident->ee) throw_error(VIBID_E_STATE, "output error starts from its equation-error estimate: no prior");
         if (ident->ekf) {
             // The filter's start values (used at its next start: now, or after a reset).
             if (P0)
@@ -936,6 +1052,12 @@ VIBID_API vibid_status vibid_ident_push(vibid_ident *ident, const double *channe
     if (!ident || !channels) return VIBID_FAIL(VIBID_E_NULL_ARGUMENT, "ident and channels are required");
     if (ident->twin_of)
         return VIBID_FAIL(VIBID_E_STATE, "a twin takes no samples: push them into the identification it copies");
+    if (ident->ee) {
+        // OE keeps every sample as received (a gap included: the fit leaves it out)
+        ident->samples.insert(ident->samples.end(), channels, channels + ident->n_channels);
+        ++ident->n_samples;
+        return vibid_ident_push(ident->ee.get(), channels);
+    }
     if (ident->pilot_count >= ident->pilot_len) return push_sample(ident, channels);
     std::copy(channels, channels + ident->n_channels, ident->pilot.data() + ident->pilot_count * ident->n_channels);
     ++ident->pilot_count;
@@ -978,6 +1100,7 @@ vibid_status push_sample(vibid_ident *ident, const double *channels) {
     switch (ident->cfg.estimator) {
     case VIBID_ESTIMATOR_EKF: break;  // handled above
     case VIBID_ESTIMATOR_KF_RLS: break;
+    case VIBID_ESTIMATOR_OE: break;  // create_output_error
     case VIBID_ESTIMATOR_LS:
         transpose_into(ident->x.data(), p, m, ident->rows_x.data());
         s = vibid_lsq_add_rows(ident->lsq.get(), m, ident->rows_x.data(), ident->y.data(), nullptr);
@@ -1038,6 +1161,7 @@ VIBID_API vibid_status vibid_ident_estimate(vibid_ident *ident, double *theta, d
         if (!ident || !theta) throw_error(VIBID_E_NULL_ARGUMENT, "ident and theta are required");
         vibid_ident &id = *ident;
         if (id.ekf) return estimate_state_space(id, theta, stderr_out, info);
+        if (id.ee) return estimate_output_error(id, theta, stderr_out, info);
         const std::size_t pr = id.p_reg, q = id.q, P = pr * q;
         MatrixXd Th(pr, q);
         MatrixXd cov_reg = MatrixXd::Zero(P, P);  // Cov(vec Theta), vec column-major
@@ -1217,7 +1341,7 @@ VIBID_API vibid_ident *vibid_ident_twin_create(const vibid_ident *ident) {
         if (!ident->biv && !ident->rls)
             throw_error(VIBID_E_STATE, "no twin for the %s estimator: deferred estimates need IV, AUTO or RLS "
                                        "(estimate this identification itself)",
-                        ident->ekf ? "state-space" : "batch least-squares");
+                        ident->ekf ? "state-space" : ident->ee ? "output-error" : "batch least-squares");
         // The same form: create makes the same estimator objects (block statistics and
         // their discretization check, or an RLS) with the same shapes. No pilot: a twin
         // takes no samples.
@@ -1295,6 +1419,20 @@ VIBID_API vibid_status vibid_ident_describe(const vibid_ident *ident, char *buf,
         const std::size_t nb = std::min(cap - 1, ident->description.size());
         std::copy(ident->description.begin(), ident->description.begin() + static_cast<long>(nb), buf);
         buf[nb] = '\0';
+    }
+    return VIBID_OK;
+}
+
+VIBID_API vibid_status vibid_ident_offsets(const vibid_ident *ident, size_t cap, size_t *n_out, size_t *channels,
+                                           double *values, double *se) {
+    if (!ident || !n_out) return VIBID_FAIL(VIBID_E_NULL_ARGUMENT, "ident and n_out are required");
+    if (!ident->have_cov) return VIBID_FAIL(VIBID_E_STATE, "no estimate yet: call vibid_ident_estimate first");
+    const std::size_t n = ident->offsets.size();
+    *n_out = n;
+    for (std::size_t j = 0; j < std::min(n, cap); ++j) {
+        if (channels) channels[j] = ident->offset_channels[j];
+        if (values) values[j] = ident->offsets[j];
+        if (se) se[j] = ident->offsets_se[j];
     }
     return VIBID_OK;
 }

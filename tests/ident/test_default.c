@@ -42,20 +42,13 @@
 #include "sim_test_util.h"
 #include "capture.h"
 #include "chain_stand.h"
+#include "cubic_stand.h"
 #include "two_stands.h"
 
 #define FS 2000.0
 #define SECONDS 20.0
 #define MC_RUNS 200
 
-static const char *cubic_stand =
-    "stand = { name = \"cubic1\"; sample_rate = 2000.0;\n"
-    "  nodes = ( { name = \"m\"; mass = 1.0; measure = { displacement = \"x\"; }; } );\n"
-    "  elements = ( { name = \"k\"; kind = \"spring\"; between = [\"m\", \"ground\"]; unknown = true; true_value = 1.0e4; },\n"
-    "               { name = \"d\"; kind = \"damper\"; between = [\"m\", \"ground\"]; unknown = true; true_value = 5.0; },\n"
-    "               { name = \"eps\"; kind = \"cubic_spring\"; between = [\"m\", \"ground\"]; unknown = true; true_value = 1.0e10; } );\n"
-    "  inputs = ( { name = \"f\"; node = \"m\"; gain = 1.0; channel = \"F\"; } ); };\n"
-    "simulation = { seed = 4; excitation = ( { target = \"f\"; kind = \"noise\"; amplitude = 15.0; f_low = 2.0; f_high = 80.0; } ); };\n";
 
 static double fmax3(const double *f)
 {

@@ -54,8 +54,10 @@ typedef enum vibid_estimator {
     VIBID_ESTIMATOR_AUTO = 3,  /* the default: chosen from the model (see below) */
     VIBID_ESTIMATOR_EKF = 4,   /* extended Kalman filter on the stand's states and physical
                                   parameters, for stands that are not fully measured (below) */
-    VIBID_ESTIMATOR_KF_RLS = 5 /* the paper's Kalman filter + recursive LS (3.16) on the stand's
+    VIBID_ESTIMATOR_KF_RLS = 5, /* the paper's Kalman filter + recursive LS (3.16) on the stand's
                                   physical parameters (below); never chosen by AUTO */
+    VIBID_ESTIMATOR_OE = 6     /* output error on the stand's physical model (output_error.h), started
+                                  from the AUTO estimate; batch: every sample is kept (below) */
 } vibid_estimator;
 
 /* The automatic estimator (VIBID_ESTIMATOR_AUTO, the default of vibid_ident_config_init)
@@ -123,6 +125,16 @@ typedef enum vibid_estimator {
  * only on unmeasured nodes. The velocity model-error allowance is 0.3 % (three times the
  * EKF's). Standard errors: the regression's, on filtered and coloured regressors, always
  * VIBID_QUALITY_SE_INVALID. Weaker than the EKF where states are unmeasured (README). */
+/* Output error (VIBID_ESTIMATOR_OE; never chosen by AUTO in the library: the batch front
+ * ends choose it by a held-out comparison, docs/python.md): every sample is kept (the push
+ * appends it: allocates, not for real-time paths) and fed to the AUTO estimator; at
+ * vibid_ident_estimate the output-error fit (output_error.h) runs over all samples kept,
+ * started from the AUTO estimate and, where the stand gives a nominal value for every
+ * unknown, from those too. Its standard errors are the fit's sandwich ones; its offsets
+ * come from vibid_ident_offsets. A fit that fails leaves the AUTO estimate with its own
+ * quality plus VIBID_QUALITY_REFINE_FAILED, and the reason in vibid_ident_describe.
+ * No prior (vibid_ident_set_prior: VIBID_E_STATE), no twin. Refused at create for a stand
+ * with a disturbance or an unmeasured base displacement (output_error.h). */
 /* The state-space estimator (VIBID_ESTIMATOR_EKF; AUTO chooses it when some signal the
  * regression needs cannot be formed from the measured channels, or when the stand
  * declares a disturbance):
@@ -204,6 +216,10 @@ typedef struct vibid_ident_info {
 #define VIBID_QUALITY_SE_INVALID 1u   /* the error bars do not hold: the consistency check failed
                                          (|z| > 4), too few blocks, or an estimator whose standard
                                          errors assume white equation errors (LS, RLS) */
+#define VIBID_QUALITY_REFINE_FAILED 4u /* OE: the output-error fit failed (no convergence, a bound, a
+                                         singular information matrix, an unstable simulation, an input
+                                         gap): the estimate is the equation-error (AUTO) one, the reason
+                                         in vibid_ident_describe */
 #define VIBID_QUALITY_NOT_EXCITED 2u  /* a parameter lies in a direction the data hardly inform
                                          (scaled information below 1e-7 of the strongest): its
                                          standard error is reported as infinite */
@@ -271,6 +287,14 @@ VIBID_API vibid_status vibid_ident_push_block(vibid_ident *ident, size_t n_sampl
  * info may be NULL. Batch and ZOH: allocates (not for real-time paths). */
 VIBID_API vibid_status vibid_ident_estimate(vibid_ident *ident, double *theta, double *stderr_out,
                                             vibid_ident_info *info);
+
+/* Constant offsets of the measured response channels in the last estimate (OE: one per
+ * response channel, in the channel's units, measured = true + offset; every other
+ * estimator: none). *n_out receives their number; up to cap of them are written to
+ * channels (the channel index in the sample), values and se (each may be NULL).
+ * VIBID_E_STATE before an estimate. */
+VIBID_API vibid_status vibid_ident_offsets(const vibid_ident *ident, size_t cap, size_t *n_out, size_t *channels,
+                                           double *values, double *se);
 
 /* Covariance of the last estimate (p x p), consistent with its standard errors. Valid
  * after a successful vibid_ident_estimate. */

@@ -11,6 +11,7 @@
 #include <vibid/discretize.h>
 #include <vibid/modal.h>
 #include <vibid/identify.h>
+#include <vibid/output_error.h>
 #include <vibid/io_form.h>
 #include <vibid/kf_rls.h>
 #include <vibid/plausibility.h>

@@ -1,0 +1,144 @@
+/* vibid/output_error.h: output-error (simulation-error) estimation of a stand's physical
+ * parameters: the parameters, the initial state and constant sensor offsets that make the
+ * stand's own model, driven by the measured inputs, reproduce the measured response
+ * channels best (weighted least squares of the simulation error, Levenberg-Marquardt).
+ *
+ * Why: the equation-error estimators (LS, IV, RLS: identify.h) fit the equation of
+ * motion sample by sample, with derivatives from differences. On real captures that is
+ * fragile: a constant sensor offset enters every equation through the springs, few samples
+ * per period make differences poor, and a weak unmodelled effect biases the equations in
+ * ways no error bar sees. The output error measures what a user means by "the model
+ * explains the data": the simulated response against the measured one. Started from the
+ * equation-error estimate it converges in a few iterations.
+ *
+ * Model (model.h): M y'' + D y' + C y + cubic(y, s) = B u + c_b s + d_b s', driven by the
+ * measured force inputs u and the measured base displacement s, which are smooth (linear
+ * between samples) or held (constant over [t_k, t_k + h), a held base kicking the
+ * velocities through its dampers by M^-1 d_b (s_k - s_{k-1}) at t_k) as the model
+ * declares (vibid_model_set_hold). Simulated:
+ *  - linear stands exactly: x_{k+1} = E [x_k; e_k; e'_k], E the top rows of the matrix
+ *    exponential of the system augmented with the inputs e and their slopes e'. The
+ *    sensitivities to the parameters come from the Frechet derivative of that exponential
+ *    (the exponential of the block matrix [A dA; 0 A]), exact to rounding;
+ *  - stands with cubic springs by the classical Runge-Kutta method with `substeps` steps per
+ *    sample (automatic: at most 0.1 rad of the highest natural frequency of the start
+ *    values per step, relative frequency error below 1e-6), the sensitivities by the same
+ *    steps on the forward sensitivity equations (the exact derivative of the discrete
+ *    simulation, not a finite difference).
+ * Measured response channels: displacements, velocities and accelerations of nodes (an
+ * acceleration is the model's y'' at the sample). A base velocity or acceleration channel
+ * is not used (the base enters through its displacement, which must be measured when an
+ * element touches the base). A disturbance (vibid_model_add_disturbance) is refused: an
+ * unmeasured random force needs the Kalman predictor's error, not the simulation error.
+ *
+ * Estimated: the p unknowns of the model, the initial state x0 = [y(t_0); y'(t_0)] (2n),
+ * and (config.offsets, the default) one constant offset per measured response channel
+ * (a sensor's zero error, in the channel's units: measured = true + offset).
+ * Cost: sum over channels j and samples k of (z_jk - yhat_jk - o_j)^2 / s_j^2, s_j the
+ * residual RMS of channel j (first from the start values; with several response channels
+ * a second round re-weights with the converged residuals: the maximum-likelihood weights
+ * for white noise of unknown level per channel). Non-finite response samples are left
+ * out of the cost; a non-finite input sample is refused (VIBID_E_NONFINITE naming it).
+ *
+ * Levenberg-Marquardt on the Jacobi-scaled Gauss-Newton information; physical bounds
+ * (masses > 0, springs and dampers >= 0) by projection. Converged when the predicted
+ * decrease of the cost (in units of the weighted chi^2) is below 1e-8, i.e. the estimate
+ * is within 1e-4 of its standard errors of the optimum. Several start vectors can be
+ * given; the fit with the smallest cost is kept.
+ *
+ * Standard errors: sandwich H^-1 G H^-1 with H the Gauss-Newton information and G the
+ * covariance of the score (gradient) over n_blocks blocks of consecutive samples (batch
+ * means), so that coloured residuals and model error (which make the residuals coloured)
+ * widen the error bars instead of being assumed white. With fewer than 8 blocks of 50
+ * samples the fit is refused as too short for error bars.
+ *
+ * A fit that fails (no convergence within max_iterations, a parameter on its bound, an
+ * information matrix that is singular in some direction, an unstable simulation from
+ * every start) returns its status and reason (vibid_last_error) and
+ * vibid_oe_fit_info.failure; the best parameters found stay readable but are not an
+ * estimate to report.
+ *
+ * Cost per iteration: O(N (4n^2 (p + 2n) + 2n N_a p)) for N samples, N_a = 2n + 2 (r + 1)
+ * (linear), times 4 substeps for cubic stands; a fit allocates (not for real-time paths:
+ * vibidd runs it in a low-priority thread on a copy of its samples). */
+#ifndef VIBID_OUTPUT_ERROR_H
+#define VIBID_OUTPUT_ERROR_H
+
+#include <vibid/common.h>
+#include <vibid/model.h>
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+typedef struct vibid_oe vibid_oe;
+
+typedef struct vibid_oe_config {
+    double sample_time;       /* h in s, > 0 */
+    int offsets;              /* non-zero (default): estimate a constant offset per measured response channel */
+    unsigned max_iterations;  /* Levenberg-Marquardt iterations per start and round, 1..10000, default 100 */
+    unsigned substeps;        /* Runge-Kutta steps per sample for cubic stands, 0 = automatic (default), <= 1000 */
+    unsigned n_blocks;        /* blocks of the sandwich covariance, 0 = automatic (default: 32, fewer
+                                 for short records, at least 50 samples each), else 8..1024 */
+} vibid_oe_config;
+
+/* Why a fit is not an estimate (vibid_oe_fit_info.failure); 0 = none. */
+#define VIBID_OE_NO_CONVERGENCE 1u  /* max_iterations reached */
+#define VIBID_OE_BOUND 2u           /* a parameter ended on its physical bound */
+#define VIBID_OE_SINGULAR 4u        /* the information matrix is singular in some direction */
+#define VIBID_OE_UNSTABLE 8u        /* the simulation diverged from every start */
+
+typedef struct vibid_oe_fit_info {
+    unsigned failure;          /* VIBID_OE_* bits, 0 for a sound fit */
+    unsigned iterations;       /* accepted and rejected steps, all rounds, of the kept start */
+    size_t start;              /* index of the start vector kept */
+    size_t n_samples;          /* samples of the fit */
+    size_t n_response;         /* measured response channels (= offsets when estimated) */
+    size_t n_blocks;           /* blocks behind the covariance */
+    double cost;               /* final weighted cost (half the weighted sum of squares) */
+    double rcond;              /* reciprocal condition of the Jacobi-scaled information */
+} vibid_oe_fit_info;
+
+/* Defaults for sample time h: offsets on, 100 iterations, automatic substeps and blocks. */
+VIBID_API void vibid_oe_config_init(vibid_oe_config *cfg, double sample_time);
+
+/* Creates an output-error fit for a finalized model (copied). NULL with the reason
+ * (vibid_last_error) when the model has nothing unknown, has a disturbance, or touches the
+ * base without a measured base displacement, or when the configuration is out of range. */
+VIBID_API vibid_oe *vibid_oe_create(const vibid_model *model, const vibid_oe_config *cfg);
+VIBID_API void vibid_oe_destroy(vibid_oe *oe);
+
+/* Dimensions: response channels (the offsets' order: the model's channel order, inputs and
+ * base channels left out) and, for each, its index in the sample (response_channels,
+ * n_response entries, may be NULL). */
+VIBID_API vibid_status vibid_oe_dims(const vibid_oe *oe, size_t *n_response, size_t *response_channels);
+
+/* Fits to n_samples samples: channels n_samples x n_channels, column-major (one column per
+ * model channel, model.h), from each of n_starts start vectors (p x n_starts, column-major,
+ * model units; n_starts >= 1). Keeps the fit with the smallest cost. VIBID_OK for a sound
+ * fit; otherwise the status (VIBID_E_NUMERICAL for a singular information matrix or an
+ * unstable simulation, VIBID_E_DIVERGED for no convergence or a bound) with the reason,
+ * and the best parameters found stay readable. Allocates. */
+VIBID_API vibid_status vibid_oe_fit(vibid_oe *oe, size_t n_samples, const double *channels, size_t n_starts,
+                                    const double *theta_starts);
+
+/* The last fit: theta (p), standard errors (p, may be NULL), covariance (p x p, may be
+ * NULL), offsets and their standard errors (n_response each, may be NULL; zero when not
+ * estimated), initial state x0 (2 n: displacements, velocities; may be NULL), info (may be
+ * NULL). VIBID_E_STATE before a fit. */
+VIBID_API vibid_status vibid_oe_result(const vibid_oe *oe, double *theta, double *se, double *cov, double *offsets,
+                                       double *offsets_se, double *x0, vibid_oe_fit_info *info);
+
+/* Simulates the model with parameters theta (p), initial state x0 (2 n, NULL = at rest)
+ * and offsets (n_response, NULL = none) driven by the inputs of channels (n_samples x
+ * n_channels, column-major; response columns are not read): out receives n_samples x
+ * n_response simulated response channels (column-major, offsets added). VIBID_E_NUMERICAL
+ * when the simulation diverges. Allocates. */
+VIBID_API vibid_status vibid_oe_simulate(const vibid_oe *oe, const double *theta, const double *x0,
+                                         const double *offsets, size_t n_samples, const double *channels,
+                                         double *out);
+
+#ifdef __cplusplus
+}
+#endif
+#endif
