@@ -1092,7 +1092,7 @@ int vd_daemon_run(vd_daemon *d)
                      "above): nothing to identify",
                      cap_path, (unsigned long long)d->src_stats.bad_lines, (unsigned long long)d->faults);
         else
-            vd_error("%s: no sample in the capture (no data line after its header): nothing to identify", cap_path);
+            vd_error("%s: no sample in the capture (it has no data line): nothing to identify", cap_path);
         return 2;
     }
     return d->w.write_errors ? 1 : 0;
