@@ -561,15 +561,17 @@ static const char *lost_unit(int k) { return k == VD_OUT_TRACKS ? "rows" : k == 
  * stays closed (the others are not touched): counted as a write error and in its
  * open_failures, logged (the first failure of an episode at once, then at most once a
  * minute), retried after a back-off of 1 s doubling to 30 s. true if it is open. */
-static bool reopen_output(vd_writers *w, int k, double now, const char *when)
+static bool reopen_output(vd_writers *w, int k, double now, bool sighup)
 {
+    const char *when = sighup ? "reopening after SIGHUP" : "retrying to open it";
     vd_output *o = &w->out[k];
     char err[1200];
     if (open_output(w, k, err, sizeof err) == 0) {
         if (o->closed)
             vd_notice("%s %s is open again (%s) after %llu failed attempts; %llu %s lost while it was closed, in "
                       "this run (the status's %s_lost_%s)",
-                      o->what, o->path, when, (unsigned long long)o->failed_attempts, (unsigned long long)o->lost,
+                      o->what, o->path, sighup ? "SIGHUP" : "retried", (unsigned long long)o->failed_attempts,
+                      (unsigned long long)o->lost,
                       lost_unit(k), k == VD_OUT_RECORD ? "record" : k == VD_OUT_INFLUX ? "influx" : "tracks",
                       lost_unit(k));
         o->closed = false;
@@ -623,7 +625,7 @@ int vd_writers_reopen(vd_writers *w)
         if (!w->out[k].path[0])
             continue;
         close_output(w, k);
-        if (!reopen_output(w, k, now, "reopening after SIGHUP"))
+        if (!reopen_output(w, k, now, true))
             left++;
     }
     if (!left)
@@ -693,7 +695,7 @@ void vd_writers_flush(vd_writers *w, int sync)
         const double now = mono_s();
         for (int k = 0; k < VD_OUT_FILES; k++)
             if (w->out[k].closed && now >= w->out[k].retry_at)
-                reopen_output(w, k, now, "retrying to open it");
+                reopen_output(w, k, now, false);
     }
     flush_files(w, sync);
 }
