@@ -629,7 +629,9 @@ static void lost(vd_mqtt *m, int rc, int e, double *backoff, double *next_try) {
     bool was = m->connected_local;
     char why[400];
     why_of(m, rc, e, why, sizeof why);
-    m->last_fail = kind_of(m, rc);
+    /* a connection that was up and broke can come back (OpenSSL may log why it broke: not a
+     * TLS failure); an attempt that failed is judged by its reason */
+    m->last_fail = was ? FAIL_NET : kind_of(m, rc);
     m->sock_active = false;
     m->connected_local = false;
     atomic_store(&m->connected, 0);

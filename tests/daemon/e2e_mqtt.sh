@@ -44,6 +44,7 @@ command -v mosquitto_sub > /dev/null || fail "mosquitto_sub not found (Debian pa
 
 PIDS=()
 cleanup() {
+    exec 2> /dev/null # (bash's job notices of the peers killed here)
     for p in "${PIDS[@]}"; do kill -9 "$p" 2> /dev/null; done
     wait 2> /dev/null
     rm -rf "$W"
