@@ -515,6 +515,12 @@ static void take_snapshot(vd_daemon *d, const char *state, double now)
     }
     s->write_errors = d->w.write_errors;
     s->torn_lines = d->w.torn_lines;
+    for (int k = 0; k < VD_OUT_FILES; k++) {
+        s->output_on[k] = d->w.out[k].path && d->w.out[k].path[0];
+        s->output_open_failures[k] = d->w.out[k].open_failures;
+        s->output_lost[k] = d->w.out[k].lost;
+    }
+    s->outputs_closed = vd_writers_closed(&d->w);
     s->udp_sent = d->w.udp_sent;
     s->udp_errors = d->w.udp_errors;
     s->alarms_raised = d->alarms_raised;
@@ -590,6 +596,12 @@ static void format_status(vd_daemon *d, const vd_snapshot *sn)
     S("write_errors=%llu\ntorn_lines=%llu\ninflux_udp_sent=%llu\ninflux_udp_errors=%llu\n",
       (unsigned long long)sn->write_errors, (unsigned long long)sn->torn_lines, (unsigned long long)sn->udp_sent,
       (unsigned long long)sn->udp_errors);
+    S("outputs_closed=%u\noutput_open_failures=%llu\ntracks_lost_rows=%llu\ninflux_lost_lines=%llu\n"
+      "record_lost_samples=%llu\n",
+      sn->outputs_closed,
+      (unsigned long long)(sn->output_open_failures[0] + sn->output_open_failures[1] + sn->output_open_failures[2]),
+      (unsigned long long)sn->output_lost[0], (unsigned long long)sn->output_lost[1],
+      (unsigned long long)sn->output_lost[2]);
     S("alarms_raised=%llu\nalarms_active=", (unsigned long long)sn->alarms_raised);
     bool first = true;
     for (size_t k = 0; k < sn->n_params; k++)
@@ -615,11 +627,12 @@ static void format_status(vd_daemon *d, const vd_snapshot *sn)
     }
     if (sn->mqtt_on)
         S("mqtt_connected=%d\nmqtt_published=%llu\nmqtt_refused=%llu\nmqtt_dropped=%llu\nmqtt_queue_fill=%zu\n"
-          "mqtt_queue_capacity=%zu\nmqtt_inflight=%llu\nmqtt_reconnects=%llu\nmqtt_connect_failures=%llu\n",
+          "mqtt_queue_capacity=%zu\nmqtt_inflight=%llu\nmqtt_reconnects=%llu\nmqtt_connect_failures=%llu\n"
+          "mqtt_unsent=%llu\n",
           sn->mqtt_connected ? 1 : 0, (unsigned long long)sn->mqtt_published, (unsigned long long)sn->mqtt_refused,
           (unsigned long long)sn->mqtt_dropped, sn->mqtt_queue_fill, sn->mqtt_queue_capacity,
           (unsigned long long)sn->mqtt_inflight, (unsigned long long)sn->mqtt_reconnects,
-          (unsigned long long)sn->mqtt_connect_failures);
+          (unsigned long long)sn->mqtt_connect_failures, (unsigned long long)sn->mqtt_unsent);
     if (sn->influx_http_on)
         S("influx_http_ok=%d\ninflux_http_written=%llu\ninflux_http_requests=%llu\ninflux_http_failures=%llu\n"
           "influx_http_rejected=%llu\ninflux_http_dropped=%llu\ninflux_http_waiting=%llu\n"
@@ -1045,7 +1058,6 @@ int vd_daemon_run(vd_daemon *d)
             t_wd = now;
         }
     }
-    (void)stop_signal;
     stop_threads(d);
     if (d->mqtt || d->influx_http) {
         /* the final status is handed over: publish what is queued (outputs.mqtt.drain_timeout
@@ -1071,6 +1083,18 @@ int vd_daemon_run(vd_daemon *d)
               vd_daemon_latency_us(d, 0.99));
     if (atomic_load(&d->fatal))
         return atomic_load(&d->fatal) == 2 ? 2 : 1; /* 2: the source's rate was refused */
+    if (d->file_source && !stop_signal && d->est.samples == 0) {
+        /* a capture read to its end without one usable line identified nothing: the wrong
+         * file, format or channel map, not a run (exit 2, as a capture that cannot be opened) */
+        const char *cap_path = d->opt.replay ? d->opt.replay : d->cfg->replay_file;
+        if (d->faults)
+            vd_error("%s: no usable sample in the whole capture (%llu bad lines, %llu faults: see the source faults "
+                     "above): nothing to identify",
+                     cap_path, (unsigned long long)d->src_stats.bad_lines, (unsigned long long)d->faults);
+        else
+            vd_error("%s: no sample in the capture (it has no data line): nothing to identify", cap_path);
+        return 2;
+    }
     return d->w.write_errors ? 1 : 0;
 }
 

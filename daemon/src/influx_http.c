@@ -23,7 +23,9 @@
 #define BACKOFF_MAX_S 30.0
 #define RELOG_S 60.0                  /* a repeated failure is logged again at most this often */
 #define BATCH_BYTES_MAX (8u << 20)    /* one request's body at most (InfluxDB 1.x accepts 25 MB) */
-#define ANSWER_MAX 1024               /* the part of an error answer that is kept and logged */
+#define ANSWER_MAX 1024               /* the part of an answer's body that is read, kept and logged */
+#define ANSWER_SHOWN 400              /* of it, in a log line */
+#define HEADERS_MAX (64u << 10)       /* an answer's header lines at most (InfluxDB sends < 1 KiB) */
 #define RING_WRAP 0xffffffffu         /* record header: the rest of the ring is unused */
 
 static double mono_s(void) {
@@ -133,6 +135,9 @@ struct vd_influx_http {
     size_t body_cap;
     char answer[ANSWER_MAX];
     size_t answer_len;
+    bool answer_cut;       /* the body went on past ANSWER_MAX: the rest was not read */
+    size_t header_bytes;   /* of the current answer */
+    char answer_line[ANSWER_SHOWN + 64];
     char curl_error[CURL_ERROR_SIZE];
     unsigned batch_limit;  /* lines per request (halved by a 413) */
     char last_logged[700];
@@ -270,12 +275,36 @@ static unsigned take_batch(vd_influx_http *h, unsigned max_lines, size_t *bytes,
     return n;
 }
 
+/* curl's body callback. Reads are bounded: the first ANSWER_MAX - 1 bytes are kept (an
+ * InfluxDB error is a short JSON object), and once more arrives the transfer is ended
+ * (returning less than was handed over makes curl stop with CURLE_WRITE_ERROR and close the
+ * connection) instead of reading on: a server streaming a body of 1 GB cost a core for as
+ * long as it streamed, and the answer's status line is all the writer needs. */
 static size_t on_answer(char *data, size_t size, size_t nmemb, void *obj) {
     vd_influx_http *h = obj;
     size_t n = size * nmemb, room = sizeof h->answer - 1 - h->answer_len;
     memcpy(h->answer + h->answer_len, data, n < room ? n : room);
     h->answer_len += n < room ? n : room;
     h->answer[h->answer_len] = '\0';
+    if (n > room) {
+        h->answer_cut = true;
+        return 0;
+    }
+    return n;
+}
+
+/* curl's header callback: the same bound for the header lines (curl limits one line to
+ * 100 KiB, not their number) */
+static size_t on_header(char *data, size_t size, size_t nmemb, void *obj) {
+    (void)data;
+    vd_influx_http *h = obj;
+    size_t n = size * nmemb;
+    h->header_bytes += n;
+    if (h->header_bytes > HEADERS_MAX) {
+        snprintf(h->curl_error, sizeof h->curl_error, "the answer's headers are longer than %u KiB: not read on",
+                 HEADERS_MAX >> 10);
+        return 0;
+    }
     return n;
 }
 
@@ -293,7 +322,11 @@ static const char *answer_text(vd_influx_http *h) {
     h->answer[n] = '\0';
     for (size_t i = 0; i < n; i++)
         if ((unsigned char)h->answer[i] < 0x20 || (unsigned char)h->answer[i] == 0x7f) h->answer[i] = ' ';
-    return n ? h->answer : "(no message)";
+    /* a log line shows the first ANSWER_SHOWN bytes (an InfluxDB error is ~150) */
+    const int shown = n > ANSWER_SHOWN ? ANSWER_SHOWN : (int)n;
+    snprintf(h->answer_line, sizeof h->answer_line, "%.*s%s", n ? shown : 12, n ? h->answer : "(no message)",
+             h->answer_cut ? " [... the rest of the answer was not read]" : (int)n > shown ? " [...]" : "");
+    return h->answer_line;
 }
 
 /* One POST of h->body[0..bytes): the HTTP status, or 0 with h->curl_error when no answer
@@ -301,11 +334,19 @@ static const char *answer_text(vd_influx_http *h) {
 static long post(vd_influx_http *h, size_t bytes, double *retry_after) {
     h->answer_len = 0;
     h->answer[0] = '\0';
+    h->answer_cut = false;
+    h->header_bytes = 0;
     h->curl_error[0] = '\0';
     *retry_after = 0;
     curl_easy_setopt(h->curl, CURLOPT_POSTFIELDS, h->body);
     curl_easy_setopt(h->curl, CURLOPT_POSTFIELDSIZE_LARGE, (curl_off_t)bytes);
     CURLcode rc = curl_easy_perform(h->curl);
+    if (rc == CURLE_WRITE_ERROR && h->answer_cut) {
+        /* the body was cut by on_answer: the status line and headers came; curl has closed
+         * the connection, the next request opens a new one */
+        rc = CURLE_OK;
+        h->curl_error[0] = '\0';
+    }
     if (rc != CURLE_OK) {
         if (!h->curl_error[0]) snprintf(h->curl_error, sizeof h->curl_error, "%s", curl_easy_strerror(rc));
         return 0;
@@ -357,12 +398,18 @@ static void *writer_main(void *arg) {
     vd_influx_http *h = arg;
     const vd_config *cfg = h->cfg;
     double backoff = BACKOFF_FIRST_S, next_try = 0, oldest_t = 0;
-    bool stopping = false;
+    bool stopping = false, no_retry = false;
     for (;;) {
         double now = mono_s();
         if (!stopping && atomic_load(&h->stop)) stopping = true;
         uint64_t waiting = atomic_load(&h->lines_in) - atomic_load(&h->lines_out);
         if (stopping && (waiting == 0 || mono_ns() >= atomic_load(&h->deadline_ns))) break;
+        if (stopping && next_try > 1e-9 * (double)atomic_load(&h->deadline_ns)) {
+            /* the back-off (or the server's Retry-After) puts the next request after the
+             * deadline: nothing more can be written, so waiting for the deadline gains nothing */
+            no_retry = true;
+            break;
+        }
         if (waiting == 0) {
             oldest_t = 0;
             sleep_on_efd(h, 1.0);
@@ -448,7 +495,10 @@ static void *writer_main(void *arg) {
     atomic_store(&h->ok, 0);
     if (left)
         vd_warning("influx http: stopped with %llu lines not written to %s (%s; drain_timeout %g s)",
-                   (unsigned long long)left, h->url, h->failing ? "the server did not take them" : "time ran out",
+                   (unsigned long long)left, h->url,
+                   no_retry ? "the server did not take them, and its next try was due after the deadline"
+                   : h->failing ? "the server did not take them"
+                                : "time ran out",
                    cfg->influx_http_drain_timeout_s);
     else
         vd_info("influx http: every line written (%llu in %llu requests)", (unsigned long long)atomic_load(&h->written),
@@ -542,6 +592,8 @@ static vd_influx_http *op_open(const vd_config *cfg, const char *stand, char *er
     if (!rc) rc = curl_easy_setopt(c, CURLOPT_ERRORBUFFER, h->curl_error);
     if (!rc) rc = curl_easy_setopt(c, CURLOPT_WRITEFUNCTION, on_answer);
     if (!rc) rc = curl_easy_setopt(c, CURLOPT_WRITEDATA, h);
+    if (!rc) rc = curl_easy_setopt(c, CURLOPT_HEADERFUNCTION, on_header);
+    if (!rc) rc = curl_easy_setopt(c, CURLOPT_HEADERDATA, h);
     if (!rc) rc = curl_easy_setopt(c, CURLOPT_XFERINFOFUNCTION, on_progress);
     if (!rc) rc = curl_easy_setopt(c, CURLOPT_XFERINFODATA, h);
     if (!rc) rc = curl_easy_setopt(c, CURLOPT_NOPROGRESS, 0L);

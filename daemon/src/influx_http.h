@@ -29,8 +29,12 @@
  * A batch that reached the server but whose answer was lost is sent again; InfluxDB keeps
  * one point per series and timestamp, so the repetition overwrites the point with itself
  * (idempotent: no duplicate rows).
+ * An answer is read up to its first KiB of body (and 64 KiB of headers): the transfer then
+ * ends and the connection is closed, so a server that streams a long body costs nothing.
  * SIGTERM: the writer sends what is buffered for at most drain_timeout (an unfinished
- * request is aborted at the deadline), then says how many lines were left.
+ * request is aborted at the deadline), and ends at once when the back-off or the server's
+ * Retry-After puts the next request after the deadline; then it says how many lines were
+ * left (influx_http_waiting).
  *
  * The daemon's core (vibidd_core) does not link libcurl (the Python module links the core
  * without it): vibidd's main() hands this module over with vd_daemon_use_influx_http.

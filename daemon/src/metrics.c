@@ -207,6 +207,26 @@ int vd_metrics_render(char *buf, size_t cap, const vd_snapshot *s)
     u64(&o, "vibid_run_latency_seconds_count", "", s->lat_n);
     counter(&o, "vibid_write_errors_total", "Failed writes of any output (status file included).", s->write_errors);
     counter(&o, "vibid_torn_lines_total", "Torn last lines cut off the outputs at open.", s->torn_lines);
+    gauge(&o, "vibid_outputs_closed", "File outputs closed now because a reopen failed (retried).",
+          (double)s->outputs_closed);
+    static const char *const out_name[3] = {"tracks", "influx", "record"};
+    if (s->output_on[0] || s->output_on[1] || s->output_on[2]) { /* a family without a series is not written */
+        family(&o, "vibid_output_open_failures_total", "counter",
+               "Failed reopens of a file output (SIGHUP, retries); each also counts in vibid_write_errors_total.");
+        for (int k = 0; k < 3; k++)
+            if (s->output_on[k]) {
+                snprintf(a, sizeof a, "output=\"%s\"", out_name[k]);
+                u64(&o, "vibid_output_open_failures_total", a, s->output_open_failures[k]);
+            }
+        family(&o, "vibid_output_lost_records_total", "counter",
+               "Records not written to a file output while it was closed (tracks: rows, influx: lines, record: "
+               "samples).");
+        for (int k = 0; k < 3; k++)
+            if (s->output_on[k]) {
+                snprintf(a, sizeof a, "output=\"%s\"", out_name[k]);
+                u64(&o, "vibid_output_lost_records_total", a, s->output_lost[k]);
+            }
+    }
     counter(&o, "vibid_influx_udp_sent_total", "InfluxDB line-protocol datagrams sent.", s->udp_sent);
     counter(&o, "vibid_influx_udp_errors_total", "InfluxDB datagrams that could not be sent.", s->udp_errors);
     counter(&o, "vibid_alarms_raised_total", "Drift alarms raised.", s->alarms_raised);
@@ -285,8 +305,11 @@ int vd_metrics_render(char *buf, size_t cap, const vd_snapshot *s)
               (double)s->mqtt_inflight);
         counter(&o, "vibid_mqtt_reconnects_total", "MQTT connections after the first one.", s->mqtt_reconnects);
         counter(&o, "vibid_mqtt_connect_failures_total",
-                "Failed MQTT connection attempts (unreachable, TLS, refused by the broker).",
+                "Failed MQTT connection attempts (unreachable, TLS, refused by the broker, CONNECT unanswered).",
                 s->mqtt_connect_failures);
+        counter(&o, "vibid_mqtt_unsent_total",
+                "MQTT messages not acknowledged by the broker when vibidd stopped (queued or sent; 0 until the end).",
+                s->mqtt_unsent);
     }
     if (s->influx_http_on) {
         gauge(&o, "vibid_influx_http_ok", "1 while the last InfluxDB write request was answered 2xx.",

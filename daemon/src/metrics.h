@@ -104,6 +104,11 @@ typedef struct vd_snapshot {
     double lat_sum_s;
     /* outputs */
     uint64_t write_errors, torn_lines, udp_sent, udp_errors;
+    /* the file outputs (tracks, influx, record: writers.h's VD_OUT_*): configured, failed
+     * (re)opens, records (rows, lines, samples) lost while closed; how many are closed now */
+    bool output_on[3];
+    uint64_t output_open_failures[3], output_lost[3];
+    unsigned outputs_closed;
     uint64_t alarms_raised;
     /* parameters and modes (names in stand order; modes numbered 1..n_modes) */
     size_t n_params, n_modes;
@@ -127,6 +132,7 @@ typedef struct vd_snapshot {
     uint64_t mqtt_dropped;          /* dropped because the queue was full */
     uint64_t mqtt_reconnects, mqtt_connect_failures;
     uint64_t mqtt_inflight;         /* handed to libmosquitto, not yet acknowledged */
+    uint64_t mqtt_unsent;           /* left unacknowledged at the end (queued or sent): after the drain */
     size_t mqtt_queue_fill, mqtt_queue_capacity;
     /* outputs.influx.http (influx_http.h), when configured */
     bool influx_http_on, influx_http_ok; /* ok: the last request was answered 2xx */

@@ -18,6 +18,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/eventfd.h>
+#include <sys/socket.h>
 #include <sys/stat.h>
 #include <time.h>
 #include <unistd.h>
@@ -25,6 +26,18 @@
 #define BACKOFF_FIRST_S 0.5
 #define BACKOFF_MAX_S 30.0
 #define RELOG_S 60.0 /* a repeated failure is logged again at most this often */
+/* A connection attempt's CONNACK must come within this (from the attempt's start: TCP, TLS and
+ * CONNECT together). A broker answers CONNECT at once (mosquitto: about a millisecond on a
+ * LAN; TLS and a password check add round trips, not seconds); without this bound a peer
+ * that never answers was only given up by libmosquitto's keep-alive check, after 30 s and as
+ * "Unknown error.". */
+#define CONNECT_TIMEOUT_S 5.0
+
+/* How the last connection attempt failed, for the drain (pub_main): only a failure that can
+ * heal within seconds (the broker down or restarting, a lost connection) is retried while
+ * draining; a broker that refused vibidd (credentials, client id), TLS that failed, or a peer
+ * that did not answer CONNECT will not change before the deadline. */
+typedef enum fail_kind { FAIL_NONE = 0, FAIL_NET, FAIL_REFUSED, FAIL_TLS, FAIL_SILENT } fail_kind;
 
 static double mono_s(void) {
     struct timespec ts;
@@ -277,12 +290,15 @@ struct vd_mqtt {
     uint64_t status_seq;
     bool sock_active; /* a connection attempt or a connection */
     bool connected_local, just_connected, ever_connected;
+    double attempt_t;    /* when the current attempt began (mono_s) */
+    fail_kind last_fail; /* of the last failed attempt or lost connection; FAIL_NONE once connected */
     int refused_rc;      /* CONNACK reason of the current attempt (0 = none) */
     char lib_error[300]; /* the last error libmosquitto logged (OpenSSL's reasons) */
     char last_logged[600];
     double last_log_t;
     /* counters (publisher writes, estimation thread reads) */
     _Atomic uint64_t published, refused, reconnects, connect_failures, dropped, inflight, errors;
+    _Atomic uint64_t unsent; /* at the end of the drain: queued or unacknowledged messages left */
     _Atomic int connected;
 };
 
@@ -399,6 +415,7 @@ static void op_counters(vd_mqtt *m, vd_snapshot *s) {
     s->mqtt_dropped = atomic_load(&m->dropped);
     s->mqtt_reconnects = atomic_load(&m->reconnects);
     s->mqtt_connect_failures = atomic_load(&m->connect_failures);
+    s->mqtt_unsent = atomic_load(&m->unsent);
     s->mqtt_inflight = atomic_load(&m->inflight);
     s->mqtt_queue_capacity = m->n_slots;
     s->mqtt_queue_fill = atomic_load(&m->head) - atomic_load(&m->tail);
@@ -433,6 +450,7 @@ static void on_connect(struct mosquitto *mosq, void *obj, int rc, int flags,
     }
     m->connected_local = true;
     m->just_connected = true;
+    m->last_fail = FAIL_NONE;
     atomic_store(&m->connected, 1);
     if (m->ever_connected) atomic_fetch_add(&m->reconnects, 1);
 }
@@ -572,18 +590,105 @@ static bool idle(vd_mqtt *m) {
     return !st && atomic_load(&m->head) == atomic_load(&m->tail) && atomic_load(&m->inflight) == 0;
 }
 
+/* A CONNACK that did not come within CONNECT_TIMEOUT_S: why, as precisely as the socket tells */
+static const char *silent_reason(vd_mqtt *m, char *buf, size_t cap) {
+    struct sockaddr_storage peer;
+    socklen_t len = sizeof peer;
+    int sock = mosquitto_socket(m->mosq);
+    if (sock >= 0 && getpeername(sock, (struct sockaddr *)&peer, &len) != 0 && errno == ENOTCONN)
+        snprintf(buf, cap, "no TCP connection within %.0f s (the host does not answer: down, or its packets are "
+                 "dropped)", CONNECT_TIMEOUT_S);
+    else
+        snprintf(buf, cap, "the peer accepted the connection but did not answer CONNECT within %.0f s (not an MQTT "
+                 "broker? %s)", CONNECT_TIMEOUT_S,
+                 m->cfg->mqtt_tls ? "a listener without TLS for mqtts://?" : "a TLS listener for mqtt://?");
+    return buf;
+}
+
+/* The failure of rc (from connecting or mosquitto_loop) as the drain sees it (fail_kind) */
+static fail_kind kind_of(const vd_mqtt *m, int rc) {
+    if (m->refused_rc) return FAIL_REFUSED;
+    if (rc == MOSQ_ERR_TLS || strstr(m->lib_error, "SSL")) return FAIL_TLS; /* OpenSSL's reason was logged */
+    return FAIL_NET;
+}
+
+/* Sends DISCONNECT (a clean end: the broker drops the will). true once it is written to the
+ * socket; false when the connection broke first, so that the broker publishes the will and the
+ * final status must be published again on a new connection. */
+static bool disconnect_cleanly(vd_mqtt *m) {
+    if (mosquitto_disconnect(m->mosq) != MOSQ_ERR_SUCCESS) return false;
+    for (int i = 0; i < 10 && mosquitto_want_write(m->mosq); i++)
+        if (mosquitto_loop(m->mosq, 10, 1) != MOSQ_ERR_SUCCESS) break;
+    if (mosquitto_want_write(m->mosq)) return false;
+    for (int i = 0; i < 5; i++) /* the broker closes the connection after DISCONNECT */
+        if (mosquitto_loop(m->mosq, 10, 1) != MOSQ_ERR_SUCCESS) break;
+    return true;
+}
+
+static void lost(vd_mqtt *m, int rc, int e, double *backoff, double *next_try) {
+    bool was = m->connected_local;
+    char why[400];
+    why_of(m, rc, e, why, sizeof why);
+    /* a connection that was up and broke can come back (OpenSSL may log why it broke: not a
+     * TLS failure); an attempt that failed is judged by its reason */
+    m->last_fail = was ? FAIL_NET : kind_of(m, rc);
+    m->sock_active = false;
+    m->connected_local = false;
+    atomic_store(&m->connected, 0);
+    if (was) *backoff = BACKOFF_FIRST_S;
+    failed(m, was, why, backoff, next_try);
+    m->lib_error[0] = '\0';
+}
+
+/* The publisher thread. The drain (after stop): publishes what is queued and the final status
+ * and ends with a clean DISCONNECT, for at most drain_timeout. While disconnected it goes on
+ * connecting (the back-off as before) as long as an attempt can begin before the deadline and
+ * the last failure can heal (the broker down or restarting, a lost connection: FAIL_NET); every
+ * lost connection let the broker publish the will ("offline"), so the drain reconnects even
+ * with nothing queued, to put the final status over it. It ends at once when nothing more can
+ * be sent: the next attempt is due after the deadline, or the broker refused vibidd, TLS
+ * failed or the peer did not answer CONNECT (those do not heal within seconds). What is left
+ * is counted (unsent) and logged. */
 static void *pub_main(void *arg) {
     vd_mqtt *m = arg;
     double backoff = BACKOFF_FIRST_S, next_try = 0, drain_until = 0;
-    bool stopping = false, first = true;
+    bool stopping = false, first = true, clean = false;
+    const char *why_end = NULL; /* why the drain ended before a clean DISCONNECT */
     for (;;) {
         double now = mono_s();
         if (!stopping && atomic_load(&m->stop)) {
             stopping = true;
             drain_until = now + m->cfg->mqtt_drain_timeout_s;
         }
-        if (stopping && (idle(m) || (!m->sock_active && !m->connected_local) || now >= drain_until)) break;
-        if (!m->sock_active && !stopping && now >= next_try) {
+        if (m->sock_active && !m->connected_local && now - m->attempt_t >= CONNECT_TIMEOUT_S) {
+            /* the socket stays open until the next attempt (mosquitto_reconnect_async closes it) */
+            char why[400];
+            m->sock_active = false;
+            m->last_fail = FAIL_SILENT;
+            failed(m, false, silent_reason(m, why, sizeof why), &backoff, &next_try);
+        }
+        if (stopping) {
+            if (m->connected_local && idle(m)) {
+                if ((clean = disconnect_cleanly(m))) break;
+                lost(m, MOSQ_ERR_CONN_LOST, 0, &backoff, &next_try); /* the will is out: again */
+                continue;
+            }
+            if (now >= drain_until) {
+                why_end = m->connected_local ? "the broker was too slow" : "not connected";
+                break;
+            }
+            if (!m->connected_local && m->last_fail != FAIL_NONE && m->last_fail != FAIL_NET) {
+                why_end = m->last_fail == FAIL_REFUSED ? "the broker refuses the connection"
+                          : m->last_fail == FAIL_TLS   ? "TLS fails"
+                                                       : "the broker does not answer CONNECT";
+                break;
+            }
+            if (!m->sock_active && next_try >= drain_until) {
+                why_end = "not connected, and the next connection attempt is due after drain_timeout";
+                break;
+            }
+        }
+        if (!m->sock_active && now >= next_try) {
             m->lib_error[0] = '\0';
             m->refused_rc = 0;
             errno = 0;
@@ -593,9 +698,11 @@ static void *pub_main(void *arg) {
             int e = errno;
             if (rc == MOSQ_ERR_SUCCESS) {
                 m->sock_active = true;
+                m->attempt_t = now;
                 first = false;
             } else {
                 char why[400];
+                m->last_fail = kind_of(m, rc);
                 failed(m, false, why_of(m, rc, e, why, sizeof why), &backoff, &next_try);
                 if (rc != MOSQ_ERR_EAI && rc != MOSQ_ERR_ERRNO && rc != MOSQ_ERR_TLS) first = false;
             }
@@ -609,8 +716,8 @@ static void *pub_main(void *arg) {
             p[1].events = (short)(POLLIN | (mosquitto_want_write(m->mosq) ? POLLOUT : 0));
             np = 2;
         }
-        int timeout = 100; /* keepalive, back-off and the drain deadline are checked at least this often */
-        if (!m->sock_active && !stopping && next_try > now)
+        int timeout = 100; /* keepalive, back-off, CONNACK and drain deadlines are checked at least this often */
+        if (!m->sock_active && next_try > now)
             timeout = (int)fmin(100.0, ceil((next_try - now) * 1000.0));
         atomic_store(&m->sleeping, 1);
         atomic_thread_fence(memory_order_seq_cst);
@@ -628,40 +735,21 @@ static void *pub_main(void *arg) {
             errno = 0;
             int rc = mosquitto_loop(m->mosq, 0, 1);
             int e = errno;
-            if (rc != MOSQ_ERR_SUCCESS) {
-                bool was = m->connected_local;
-                char why[400];
-                why_of(m, rc, e, why, sizeof why);
-                m->sock_active = false;
-                m->connected_local = false;
-                atomic_store(&m->connected, 0);
-                if (was) {
-                    backoff = BACKOFF_FIRST_S;
-                    failed(m, true, why, &backoff, &next_try);
-                } else {
-                    failed(m, false, why, &backoff, &next_try);
-                }
-                m->lib_error[0] = '\0';
-            } else if (m->connected_local) {
+            if (rc != MOSQ_ERR_SUCCESS)
+                lost(m, rc, e, &backoff, &next_try);
+            else if (m->connected_local)
                 backoff = BACKOFF_FIRST_S;
-            }
         }
     }
+    if (m->connected_local && !clean) clean = disconnect_cleanly(m); /* drain_timeout while connected */
     size_t left = atomic_load(&m->head) - atomic_load(&m->tail);
     uint64_t unacked = atomic_load(&m->inflight);
-    if (m->connected_local) {
-        mosquitto_disconnect(m->mosq); /* clean: the broker does not publish the will */
-        for (int i = 0; i < 10 && mosquitto_want_write(m->mosq); i++)
-            if (mosquitto_loop(m->mosq, 10, 1) != MOSQ_ERR_SUCCESS) break;
-        for (int i = 0; i < 5; i++) /* the broker closes the connection after DISCONNECT */
-            if (mosquitto_loop(m->mosq, 10, 1) != MOSQ_ERR_SUCCESS) break;
-    }
+    atomic_store(&m->unsent, left + unacked);
     atomic_store(&m->connected, 0);
-    if (left || unacked)
-        vd_warning("mqtt: stopped with %zu messages unsent and %llu unacknowledged (%s; drain_timeout %g s)",
-                   left, (unsigned long long)unacked,
-                   m->connected_local ? "the broker was too slow" : "not connected",
-                   m->cfg->mqtt_drain_timeout_s);
+    if (left || unacked || !clean)
+        vd_warning("mqtt: stopped with %zu messages unsent and %llu unacknowledged (%s; drain_timeout %g s)%s",
+                   left, (unsigned long long)unacked, why_end ? why_end : "disconnected", m->cfg->mqtt_drain_timeout_s,
+                   clean || !m->ever_connected ? "" : "; the broker has published the will (offline), not the final status");
     else
         vd_info("mqtt: every message acknowledged by the broker (%llu), disconnected",
                 (unsigned long long)atomic_load(&m->published));

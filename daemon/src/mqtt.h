@@ -26,9 +26,15 @@
  * takes a message out of the queue only once mosquitto_publish accepted it, while at most
  * VD_MQTT_WINDOW messages wait for their acknowledgement; after a lost connection
  * libmosquitto resends those on the next one (QoS 1: at least once, so a consumer may see a
- * seq twice). It polls the broker's socket and an eventfd (new message, stop), so SIGTERM
+ * seq twice). A CONNACK must come within 5 s of an attempt's start (a peer that never answers
+ * is a failed attempt with its reason, not libmosquitto's "Unknown error." after the
+ * keep-alive). It polls the broker's socket and an eventfd (new message, stop), so SIGTERM
  * stops it at once; at the end it publishes what is queued and the final status for at most
- * drain_timeout, then disconnects cleanly (no will).
+ * drain_timeout, reconnecting meanwhile when the connection is down and can come back (the
+ * broker down or restarting: not a refusal, a TLS failure or an unanswered CONNECT), then
+ * disconnects cleanly (no will; a connection lost before the DISCONNECT is reconnected to put
+ * the final status over the will). It ends as soon as nothing more can be sent (the next
+ * attempt would come after the deadline) and counts what is left (mqtt_unsent).
  *
  * The daemon's core (vibidd_core) does not link libmosquitto (the Python module links the
  * core without it): the daemon reaches this module through vd_mqtt_ops, which vibidd's
@@ -69,8 +75,8 @@ typedef struct vd_mqtt_ops {
     bool (*status)(vd_mqtt *m, const char *text, size_t len, bool wait);
     /* The mqtt_* counters into s. */
     void (*counters)(vd_mqtt *m, vd_snapshot *s);
-    /* Publishes what is left (at most drain_timeout), disconnects, joins the thread; the
-     * counters stay readable. */
+    /* Publishes what is left (at most drain_timeout, reconnecting if it can), disconnects,
+     * joins the thread; the counters stay readable (mqtt_unsent: what was left). */
     void (*drain)(vd_mqtt *m);
     /* drain, then frees. NULL-safe. */
     void (*close)(vd_mqtt *m);

@@ -60,9 +60,21 @@ bool vd_ring_push(vd_ring *r, const vd_item *item)
     vibid_record_copy(&slot->rec, &item->rec); /* only the used part of the ~460-byte record */
     slot->t_rx_ns = item->t_rx_ns;
     atomic_store_explicit(&r->head, head + 1, memory_order_release);
-    uint64_t fill = head + 1 - r->tail_cache;
-    if (fill > atomic_load_explicit(&r->high_water, memory_order_relaxed))
-        atomic_store_explicit(&r->high_water, fill, memory_order_relaxed);
+    /* The high water. head + 1 - tail_cache is only an upper bound of the fill: tail_cache
+     * is refreshed when the ring looks full, so after the consumer emptied the ring it still
+     * counts every record pushed since (the old measure, which equalled the sample count up
+     * to the capacity). Only when that bound passes the high water so far is the consumer's
+     * tail read (one load of its cache line) and the real fill taken; otherwise the fill
+     * cannot have passed it. With a consumer that keeps up and a high water of h this is one
+     * load per ~h pushes; once the ring has been full, none. */
+    if (head + 1 - r->tail_cache > r->hw_local) {
+        r->tail_cache = atomic_load_explicit(&r->tail, memory_order_acquire);
+        const uint64_t fill = head + 1 - r->tail_cache;
+        if (fill > r->hw_local) {
+            r->hw_local = fill;
+            atomic_store_explicit(&r->high_water, fill, memory_order_relaxed);
+        }
+    }
     return true;
 }
 

@@ -43,12 +43,13 @@ typedef struct vd_ring {
     alignas(VD_CACHE_LINE) _Atomic uint64_t head; /* next slot to write (producer) */
     uint64_t tail_cache;                          /* producer's copy of tail */
     uint64_t overflows;                           /* pushes refused (producer) */
+    uint64_t hw_local;                            /* producer's copy of high_water */
     alignas(VD_CACHE_LINE) _Atomic uint64_t tail; /* next slot to read (consumer) */
     uint64_t head_cache;                          /* consumer's copy of head */
     alignas(VD_CACHE_LINE) uint64_t mask;         /* read-only after create */
     vd_item *slots;
     _Atomic uint64_t overflow_pub;                /* overflows, published for the status */
-    _Atomic uint64_t high_water;                  /* highest fill level seen by the producer */
+    _Atomic uint64_t high_water;                  /* highest fill right after a push (ring.c) */
 } vd_ring;
 
 /* capacity: power of two in VD_RING_MIN..VD_RING_MAX. NULL on bad capacity or no memory. */
@@ -71,6 +72,10 @@ void vd_ring_release(vd_ring *r);
 /* Any thread: records currently queued (approximate while both sides run). */
 size_t vd_ring_fill(vd_ring *r);
 uint64_t vd_ring_overflows(vd_ring *r);
+/* Any thread: the most records that waited in the ring at once, measured by the producer
+ * right after each push against the consumer's tail as it was then (exact when the two do
+ * not run at the same instant; while they do, a pop that lands between the push and the
+ * producer's look at the tail can make it one or a few records low, never high). */
 uint64_t vd_ring_high_water(vd_ring *r);
 
 #endif

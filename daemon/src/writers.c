@@ -286,10 +286,9 @@ static double mono_s(void)
 void vd_writers_failed(vd_writers *w, const char *what, const char *path)
 {
     const int e = errno;
-    const char *const outs[4] = {w->cfg->tracks_path, w->cfg->influx_path, w->cfg->record_path, w->cfg->status_path};
     int k = 0;
-    while (k < 3 && outs[k] != path)
-        k++;
+    while (k < VD_OUT_FILES && w->out[k].path != path)
+        k++; /* not a file output: the status file */
     w->write_errors++;
     const uint64_t n = ++w->output_errors[k];
     const double now = mono_s();
@@ -302,12 +301,22 @@ void vd_writers_failed(vd_writers *w, const char *what, const char *path)
     errno = e;
 }
 
-static void emit(vd_writers *w, FILE *f, const char *what, const char *path, const char *buf, int n)
+/* true if output k is open; an output closed by a failed reopen counts one more lost record */
+static bool wants(vd_writers *w, int k)
 {
-    if (!f || n <= 0)
+    vd_output *o = &w->out[k];
+    if (o->closed)
+        o->lost++;
+    return o->f != NULL;
+}
+
+static void emit(vd_writers *w, int k, const char *buf, int n)
+{
+    vd_output *o = &w->out[k];
+    if (!o->f || n <= 0)
         return;
-    if (fwrite(buf, 1, (size_t)n, f) != (size_t)n)
-        vd_writers_failed(w, what, path);
+    if (fwrite(buf, 1, (size_t)n, o->f) != (size_t)n)
+        vd_writers_failed(w, o->what, o->path);
 }
 
 /* An output that does not end in a newline was cut mid-line (kill -9, power loss, a full
@@ -374,38 +383,40 @@ static FILE *open_append(vd_writers *w, const char *path, const char *header, in
     return f;
 }
 
-static int open_files(vd_writers *w, char *err, size_t cap)
+/* Opens output k (its path is set) for appending, with its header when the file is empty:
+ * the tracks' preamble ("# " before each line; a CSV reader skips it with comment='#') and
+ * column header, the CSV recording's header. 0, or -1 with err. */
+static int open_output(vd_writers *w, int k, char *err, size_t cap)
 {
     const vd_config *cfg = w->cfg;
-    if (cfg->tracks_path[0]) {
-        /* The preamble: "# " before every line, then the column header (a CSV reader
-         * skips it with comment='#'). */
+    vd_output *o = &w->out[k];
+    int n = 0;
+    if (k == VD_OUT_TRACKS) {
         size_t off = 0;
         const char *rest = w->tracks_preamble, *line = rest;
         int len;
         while (off < sizeof w->linebuf / 2 && vd_next_line(&rest, &len)) {
-            int k = snprintf(w->linebuf + off, sizeof w->linebuf / 2 - off, "# %.*s\n", len, line);
-            if (k < 0 || (size_t)k >= sizeof w->linebuf / 2 - off)
+            int m = snprintf(w->linebuf + off, sizeof w->linebuf / 2 - off, "# %.*s\n", len, line);
+            if (m < 0 || (size_t)m >= sizeof w->linebuf / 2 - off)
                 break;
-            off += (size_t)k;
+            off += (size_t)m;
             line = rest;
         }
-        int n = vd_format_tracks_header(w->linebuf + off, sizeof w->linebuf - off, cfg);
+        n = vd_format_tracks_header(w->linebuf + off, sizeof w->linebuf - off, cfg);
         if (n >= 0)
             n += (int)off;
-        if (!(w->tracks = open_append(w, cfg->tracks_path, w->linebuf, n, err, cap)))
-            return -1;
+    } else if (k == VD_OUT_RECORD && cfg->record_format != VD_REC_CANDUMP) { /* a candump log has no header */
+        n = vd_format_recording_header(w->linebuf, sizeof w->linebuf, w->stand_name, cfg->sample_rate, w->chanmap);
     }
-    if (cfg->influx_path[0] && !(w->influx = open_append(w, cfg->influx_path, NULL, 0, err, cap)))
-        return -1;
-    if (cfg->record_path[0]) {
-        int n = cfg->record_format == VD_REC_CANDUMP ? 0 /* a candump log has no header */
-                                                     : vd_format_recording_header(w->linebuf, sizeof w->linebuf,
-                                                                                  w->stand_name, cfg->sample_rate,
-                                                                                  w->chanmap);
-        if (!(w->record = open_append(w, cfg->record_path, w->linebuf, n, err, cap)))
+    o->f = open_append(w, o->path, n > 0 ? w->linebuf : NULL, n, err, cap);
+    return o->f ? 0 : -1;
+}
+
+static int open_files(vd_writers *w, char *err, size_t cap)
+{
+    for (int k = 0; k < VD_OUT_FILES; k++)
+        if (w->out[k].path[0] && open_output(w, k, err, cap))
             return -1;
-    }
     return 0;
 }
 
@@ -499,6 +510,12 @@ int vd_writers_open(vd_writers *w, const vd_config *cfg, const vibid_chanmap *ch
     w->chanmap = chanmap;
     w->stand_name = cfg->influx_stand[0] ? cfg->influx_stand : vibid_stand_name(cfg->stand);
     w->udp_fd = -1;
+    const char *const paths[VD_OUT_FILES] = {cfg->tracks_path, cfg->influx_path, cfg->record_path};
+    const char *const whats[VD_OUT_FILES] = {"tracks", "influx", "raw recording"};
+    for (int k = 0; k < VD_OUT_FILES; k++) {
+        w->out[k].path = paths[k];
+        w->out[k].what = whats[k];
+    }
     if (cfg->record_path[0] && cfg->record_format == VD_REC_CANDUMP) {
         vibid_drv_error de = {0};
         w->record_encoder = cfg->dbc ? vibid_can_assembler_create(cfg->dbc, chanmap, &de) : NULL;
@@ -527,28 +544,93 @@ int vd_writers_open(vd_writers *w, const vd_config *cfg, const vibid_chanmap *ch
     return 0;
 }
 
-static void close_files(vd_writers *w)
+static void close_output(vd_writers *w, int k)
 {
-    FILE **fs[] = {&w->tracks, &w->influx, &w->record};
-    const char *paths[] = {w->cfg->tracks_path, w->cfg->influx_path, w->cfg->record_path};
-    for (int i = 0; i < 3; i++) {
-        if (*fs[i] && fclose(*fs[i]) != 0)
-            vd_writers_failed(w, "closing", paths[i]);
-        *fs[i] = NULL;
+    vd_output *o = &w->out[k];
+    if (o->f && fclose(o->f) != 0)
+        vd_writers_failed(w, "closing", o->path);
+    o->f = NULL;
+}
+
+static const char *lost_unit(int k) { return k == VD_OUT_TRACKS ? "rows" : k == VD_OUT_INFLUX ? "lines" : "samples"; }
+
+#define REOPEN_BACKOFF_FIRST_S 1.0
+#define REOPEN_BACKOFF_MAX_S 30.0
+
+/* Opens output k again (a SIGHUP, or the retry of a closed one). When that fails the output
+ * stays closed (the others are not touched): counted as a write error and in its
+ * open_failures, logged (the first failure of an episode at once, then at most once a
+ * minute), retried after a back-off of 1 s doubling to 30 s. true if it is open. */
+static bool reopen_output(vd_writers *w, int k, double now, bool sighup)
+{
+    const char *when = sighup ? "reopening after SIGHUP" : "retrying to open it";
+    vd_output *o = &w->out[k];
+    char err[1200];
+    if (open_output(w, k, err, sizeof err) == 0) {
+        if (o->closed)
+            vd_notice("%s %s is open again (%s) after %llu failed attempts; %llu %s lost while it was closed, in "
+                      "this run (the status's %s_lost_%s)",
+                      o->what, o->path, sighup ? "SIGHUP" : "retried", (unsigned long long)o->failed_attempts,
+                      (unsigned long long)o->lost,
+                      lost_unit(k), k == VD_OUT_RECORD ? "record" : k == VD_OUT_INFLUX ? "influx" : "tracks",
+                      lost_unit(k));
+        o->closed = false;
+        o->failed_attempts = 0;
+        return true;
+    }
+    o->backoff = o->closed ? fmin(o->backoff * 2.0, REOPEN_BACKOFF_MAX_S) : REOPEN_BACKOFF_FIRST_S;
+    o->closed = true;
+    o->retry_at = now + o->backoff;
+    o->open_failures++;
+    o->failed_attempts++;
+    w->write_errors++;
+    w->output_errors[k]++;
+    if (o->failed_attempts == 1 || now - w->output_report[k] > 60.0) {
+        vd_error("%s: %s; this output stays closed (the others go on), is tried again every %.0f s at most "
+                 "and at every SIGHUP; its %s are lost until then and counted (%llu so far, %llu failed attempts)",
+                 when, err, REOPEN_BACKOFF_MAX_S, lost_unit(k), (unsigned long long)o->lost,
+                 (unsigned long long)o->failed_attempts);
+        w->output_report[k] = now;
+    }
+    return false;
+}
+
+unsigned vd_writers_closed(const vd_writers *w)
+{
+    unsigned n = 0;
+    for (int k = 0; k < VD_OUT_FILES; k++)
+        n += w->out[k].closed;
+    return n;
+}
+
+static void flush_files(vd_writers *w, int sync)
+{
+    for (int k = 0; k < VD_OUT_FILES; k++) {
+        vd_output *o = &w->out[k];
+        if (!o->f)
+            continue;
+        if (fflush(o->f) != 0)
+            vd_writers_failed(w, "flushing", o->path);
+        else if (sync && fdatasync(fileno(o->f)) != 0 && errno != EINVAL)
+            vd_writers_failed(w, "fdatasync of", o->path);
     }
 }
 
 int vd_writers_reopen(vd_writers *w)
 {
-    vd_writers_flush(w, 0);
-    close_files(w);
-    char err[1200];
-    if (open_files(w, err, sizeof err)) {
-        vd_error("reopening outputs after SIGHUP: %s", err);
-        return -1;
+    flush_files(w, 0);
+    const double now = mono_s();
+    unsigned left = 0;
+    for (int k = 0; k < VD_OUT_FILES; k++) {
+        if (!w->out[k].path[0])
+            continue;
+        close_output(w, k);
+        if (!reopen_output(w, k, now, true))
+            left++;
     }
-    vd_info("outputs reopened (SIGHUP)");
-    return 0;
+    if (!left)
+        vd_info("outputs reopened (SIGHUP)");
+    return (int)left;
 }
 
 static void send_udp(vd_writers *w, const char *buf, int n)
@@ -569,20 +651,20 @@ static void send_udp(vd_writers *w, const char *buf, int n)
 
 void vd_writers_row(vd_writers *w, const vd_row *row)
 {
-    if (w->tracks) {
+    if (wants(w, VD_OUT_TRACKS)) {
         int n = vd_format_track_row(w->linebuf, sizeof w->linebuf, w->cfg, row);
-        emit(w, w->tracks, "tracks", w->cfg->tracks_path, w->linebuf, n);
+        emit(w, VD_OUT_TRACKS, w->linebuf, n);
     }
-    if (w->influx || w->udp_fd >= 0) {
+    if (wants(w, VD_OUT_INFLUX) || w->udp_fd >= 0) {
         int n = vd_format_influx_row(w->linebuf, sizeof w->linebuf, w->cfg, w->stand_name, row);
-        emit(w, w->influx, "influx", w->cfg->influx_path, w->linebuf, n);
+        emit(w, VD_OUT_INFLUX, w->linebuf, n);
         send_udp(w, w->linebuf, n);
     }
 }
 
 void vd_writers_sample(vd_writers *w, const vibid_record *rec)
 {
-    if (!w->record || rec->kind != VIBID_REC_SAMPLE)
+    if (rec->kind != VIBID_REC_SAMPLE || !wants(w, VD_OUT_RECORD))
         return;
     int n = w->record_encoder ? vd_format_recording_frames(w->linebuf, sizeof w->linebuf, w->record_encoder,
                                                            w->cfg->iface[0] ? w->cfg->iface : "can0", rec)
@@ -593,32 +675,29 @@ void vd_writers_sample(vd_writers *w, const vibid_record *rec)
         vd_writers_failed(w, "raw recording (a sample does not fit its DBC signals)", w->cfg->record_path);
         return;
     }
-    emit(w, w->record, "raw recording", w->cfg->record_path, w->linebuf, n);
+    emit(w, VD_OUT_RECORD, w->linebuf, n);
 }
 
 void vd_writers_alarm(vd_writers *w, const char *param, int raised, const vd_row *row, double value,
                       double baseline, double z)
 {
-    if (w->influx || w->udp_fd >= 0) {
+    if (wants(w, VD_OUT_INFLUX) || w->udp_fd >= 0) {
         int n = vd_format_influx_alarm(w->linebuf, sizeof w->linebuf, w->cfg, w->stand_name, param, raised, row,
                                        value, baseline, z);
-        emit(w, w->influx, "influx", w->cfg->influx_path, w->linebuf, n);
+        emit(w, VD_OUT_INFLUX, w->linebuf, n);
         send_udp(w, w->linebuf, n);
     }
 }
 
 void vd_writers_flush(vd_writers *w, int sync)
 {
-    FILE *fs[] = {w->tracks, w->influx, w->record};
-    const char *paths[] = {w->cfg->tracks_path, w->cfg->influx_path, w->cfg->record_path};
-    for (int i = 0; i < 3; i++) {
-        if (!fs[i])
-            continue;
-        if (fflush(fs[i]) != 0)
-            vd_writers_failed(w, "flushing", paths[i]);
-        else if (sync && fdatasync(fileno(fs[i])) != 0 && errno != EINVAL)
-            vd_writers_failed(w, "fdatasync of", paths[i]);
+    if (vd_writers_closed(w)) {
+        const double now = mono_s();
+        for (int k = 0; k < VD_OUT_FILES; k++)
+            if (w->out[k].closed && now >= w->out[k].retry_at)
+                reopen_output(w, k, now, false);
     }
+    flush_files(w, sync);
 }
 
 void vd_writers_close(vd_writers *w)
@@ -626,7 +705,8 @@ void vd_writers_close(vd_writers *w)
     if (!w->cfg)
         return;
     vd_writers_flush(w, w->cfg->fsync_on_flush);
-    close_files(w);
+    for (int k = 0; k < VD_OUT_FILES; k++)
+        close_output(w, k);
     if (w->udp_fd >= 0)
         close(w->udp_fd);
     w->udp_fd = -1;

@@ -24,7 +24,9 @@
  *           to the microsecond; missing samples show as counter jumps.
  * Writes are buffered (stdio) and flushed by the caller on a bounded interval
  * (outputs.tracks.flush_interval) and at exit; every failed write is counted and
- * logged (first failure per file, then once a minute).
+ * logged (first failure per file, then once a minute). Each file output is opened and
+ * reopened on its own (vd_output): one that fails to reopen is retried while the others go
+ * on, and what it misses meanwhile is counted (vd_output.lost), never lost silently.
  */
 #ifndef VIBIDD_WRITERS_H
 #define VIBIDD_WRITERS_H
@@ -41,21 +43,39 @@
 
 #define VD_RECORDING_MAGIC "# vibidd raw recording"
 
+/* The file outputs (vd_writers.out[]) and, for the per-output error counts, the status file. */
+enum { VD_OUT_TRACKS = 0, VD_OUT_INFLUX, VD_OUT_RECORD, VD_OUT_FILES, VD_OUT_STATUS = VD_OUT_FILES };
+
+/* One file output. Each is opened, reopened (SIGHUP), failed and retried on its own: a
+ * reopen that fails leaves that output closed (closed = true) and never the others; what
+ * would have gone to it meanwhile is counted in lost, and it is tried again after a
+ * back-off (vd_writers_flush) and at every SIGHUP. */
+typedef struct vd_output {
+    FILE *f;
+    const char *path;         /* the configuration's path; "" = off */
+    const char *what;         /* for messages: "tracks", "influx", "raw recording" */
+    bool closed;              /* configured, but the last (re)open failed */
+    uint64_t lost;            /* records (rows, lines, samples) not written while closed */
+    uint64_t open_failures;   /* failed (re)opens, retries included */
+    uint64_t failed_attempts; /* of the current closed episode */
+    double retry_at, backoff; /* monotonic s */
+} vd_output;
+
 typedef struct vd_writers {
     const vd_config *cfg;
     const vibid_chanmap *chanmap; /* channels of the raw recording, in record order */
     const char *stand_name;
     const char *tracks_preamble;  /* "# " lines before the tracks header, or NULL */
-    FILE *tracks, *influx, *record;
+    vd_output out[VD_OUT_FILES];
     vibid_can_assembler *record_encoder; /* candump recording: samples -> frames (source DBC) */
     int udp_fd;
     struct sockaddr_in udp_addr;
     uint64_t write_errors, udp_errors, udp_sent;
     uint64_t torn_lines;   /* torn last lines cut off outputs at open (a run killed mid-write) */
-    /* per output (tracks, influx file, record, status): failed writes and the last time
-     * they were logged (monotonic s); vd_writers_failed */
-    uint64_t output_errors[4];
-    double output_report[4];
+    /* per output (VD_OUT_TRACKS .. VD_OUT_STATUS): failed writes and the last time they were
+     * logged (monotonic s); vd_writers_failed */
+    uint64_t output_errors[VD_OUT_FILES + 1];
+    double output_report[VD_OUT_FILES + 1];
     char linebuf[16384];
 } vd_writers;
 
@@ -77,13 +97,20 @@ int vd_writers_check(const vd_config *cfg, char *err, size_t cap);
  * logged at once (so a second output failing later is not hidden behind the first), then
  * at most once a minute with its count. Uses errno. */
 void vd_writers_failed(vd_writers *w, const char *what, const char *path);
-/* SIGHUP: closes and reopens the files (logrotate moved them away). 0 or -1 (logged). */
+/* SIGHUP: closes and reopens each file (logrotate moved them away), each on its own: one
+ * that cannot be opened (logged, counted in write_errors and its open_failures) stays closed
+ * and is retried by vd_writers_flush, the others are open again. The number of outputs
+ * left closed (0: all reopened). */
 int vd_writers_reopen(vd_writers *w);
+/* File outputs configured but closed now (a failed reopen, being retried). */
+unsigned vd_writers_closed(const vd_writers *w);
 void vd_writers_row(vd_writers *w, const vd_row *row);
 void vd_writers_sample(vd_writers *w, const vibid_record *rec);
 void vd_writers_alarm(vd_writers *w, const char *param, int raised, const vd_row *row, double value,
                       double baseline, double z);
-/* fflush (and fdatasync when sync) every file. */
+/* fflush (and fdatasync when sync) every open file; first, every closed output whose retry
+ * is due is opened again (back-off 1 s doubling to 30 s; logged when it fails, at most once
+ * a minute, and when it succeeds, with the records lost meanwhile). */
 void vd_writers_flush(vd_writers *w, int sync);
 void vd_writers_close(vd_writers *w);
 

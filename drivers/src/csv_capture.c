@@ -38,6 +38,13 @@ static int next_content_line(vibid_csv_reader *r, const char **line, size_t *len
         if (rc <= 0)
             return rc;
         r->stats.lines++;
+        /* a UTF-8 byte order mark before the first line (spreadsheet programs write one) is
+         * not part of the first column's name: without this 't' read as "\xEF\xBB\xBFt" and
+         * time_column 't' was "not in the header" */
+        if (r->lr.line == 1 && *len >= 3 && memcmp(*line, "\xEF\xBB\xBF", 3) == 0) {
+            *line += 3;
+            *len -= 3;
+        }
         const char *e = *line + *len;
         const char *s = trim(*line, &e);
         if (*too_long || (s < e && *s != '#'))

@@ -80,8 +80,25 @@ static vibid_drv_status find_truncation(replay *r, vibid_drv_error *err)
     return st;
 }
 
+/* The header's column names, quoted, for a message: "'t', 'x1', 'x2'" (cut with "..." to fit) */
+static const char *header_names(const vibid_csv_reader *cr, char *buf, size_t cap)
+{
+    size_t off = 0;
+    buf[0] = '\0';
+    for (size_t i = 0; i < vibid_csv_column_count(cr); i++) {
+        int n = snprintf(buf + off, cap - off, "%s'%s'", i ? ", " : "", vibid_csv_column_name(cr, i));
+        if (n < 0 || (size_t)n >= cap - off) {
+            snprintf(buf + (off < cap - 6 ? off : cap - 6), 6, ", ...");
+            break;
+        }
+        off += (size_t)n;
+    }
+    return buf;
+}
+
 static vibid_drv_status open_csv(replay *r, vibid_source *src, vibid_drv_error *err)
 {
+    char names[200];
     r->cr = vibid_csv_open(r->path, err);
     if (!r->cr)
         return err ? err->status : VIBID_DRV_E_IO;
@@ -94,15 +111,16 @@ static vibid_drv_status open_csv(replay *r, vibid_source *src, vibid_drv_error *
         r->col[c] = vibid_csv_find_column(r->cr, ch->ref);
         if (r->col[c] < 0)
             return vibid_drv_fail(err, VIBID_DRV_E_NOT_FOUND,
-                                  "channel '%s' (line %u): column '%s' is not in the header of %s", ch->name,
-                                  ch->line, ch->ref, r->path);
+                                  "channel '%s' (line %u): column '%s' is not in the header of %s (its columns: %s)",
+                                  ch->name, ch->line, ch->ref, r->path, header_names(r->cr, names, sizeof names));
     }
     r->tcol = -1;
     if (m->time_column[0]) {
         r->tcol = vibid_csv_find_column(r->cr, m->time_column);
         if (r->tcol < 0)
-            return vibid_drv_fail(err, VIBID_DRV_E_NOT_FOUND, "time_column '%s' is not in the header of %s",
-                                  m->time_column, r->path);
+            return vibid_drv_fail(err, VIBID_DRV_E_NOT_FOUND,
+                                  "time_column '%s' is not in the header of %s (its columns: %s)", m->time_column,
+                                  r->path, header_names(r->cr, names, sizeof names));
     } else if (!(r->cfg.sample_period_s > 0)) {
         return vibid_drv_fail(err, VIBID_DRV_E_ARG,
                               "%s: no time_column in the channel map: the sample period must be given", r->path);

@@ -280,6 +280,10 @@ bad_config)
     note "$(cat log)"
     timeout 10 "$VIBIDD" -c nonexistent.cfg 2> log; rc=$?
     [ $rc -eq 2 ] && grep -q "nonexistent.cfg: cannot read" log || fail "missing file: rc $rc $(cat log)"
+    # a directory given as the configuration says so (it said "No such file or directory")
+    mkdir cfgdir
+    timeout 10 "$VIBIDD" -c cfgdir 2> log; rc=$?
+    [ $rc -eq 2 ] && grep -q "cfgdir: cannot read: Is a directory" log || fail "a directory: rc $rc $(cat log)"
     config_csv v2.cfg ""
     timeout 10 "$VIBIDD" -c v2.cfg 2> log; rc=$?  # cap.csv does not exist
     [ $rc -eq 2 ] && grep -q "cap.csv" log || fail "missing capture: rc $rc $(cat log)"
@@ -306,6 +310,12 @@ signals)
     [ $rc -eq 0 ] || fail "exit status $rc after SIGTERM: $(cat log)"
     [ $dt -lt 2000 ] || fail "took $dt ms to stop"
     [ "$(status_val state status)" = stopped ] || fail "status not final"
+    # the ring's high water: a paced replay at 2 kHz hands over a read's batch (at most 64
+    # records) at a time to an estimator that keeps up, so far below the 4096 records of the
+    # replay's ring, which the old measure (records pushed since the producer last looked at
+    # the tail) reached after 2 s. Half the ring is 1 s of the estimator stalled.
+    hw=$(status_val ring_high_water status)
+    [ "$hw" -ge 1 ] && [ "$hw" -le 2048 ] || fail "ring_high_water $hw of $(status_val ring_capacity status) on a paced replay"
     grep -v '^#' tracks.csv | head -1 | grep -q '^time_s,index,c1' || fail "reopened file has no header"
     samples=$(status_val samples status)
     rows=$(( $(data_rows tracks.old) + $(data_rows tracks.csv) ))
@@ -428,6 +438,79 @@ torn_lines)
     [ "$(data_rows tracks.csv)" -eq "$good_rows" ] || fail "tracks cut to empty: $(data_rows tracks.csv) rows"
     head -1 tracks.csv | grep -q '^#' || fail "tracks cut to empty: no preamble: $(head -1 tracks.csv)"
     note "$(grep 'torn' log2 | head -1)"
+    ;;
+reopen_fail)
+    # issue 30 item 1: logrotate moved the three file outputs away and a directory stands
+    # where the tracks file was; at SIGHUP the tracks cannot be reopened. The InfluxDB file
+    # and the recording must be reopened all the same, the tracks retried until the path is a
+    # file again, and every row that could not be written counted: rows in both tracks files +
+    # tracks_lost_rows = rows; nothing lost from the others; exit status 1 (write errors).
+    $GEN "$STAND" --duration 60 --noise 0.001 --seed 12 --csv cap.csv 2>/dev/null || fail "generator"
+    config_csv v.cfg 'outputs = { tracks = { path = "tracks.csv"; }; influx = { path = "tracks.influx"; };
+  record = { path = "raw.csv"; }; status = { path = "status"; interval = 0.1; }; };'
+    sed -i '/^outputs = { tracks = { path = "tracks.csv"; }; status/d' v.cfg
+    timeout 90 "$VIBIDD" -c v.cfg --pace --speed 2 2> log &
+    pid=$!
+    wait_status rows 'v >= 10' 20 || fail "no rows: $(cat log)"
+    mv tracks.csv tracks.1
+    mv tracks.influx influx.1
+    mv raw.csv raw.1
+    mkdir tracks.csv
+    kill -HUP $pid
+    wait_status tracks_lost_rows 'v >= 5' 20 || fail "no lost rows counted: $(grep -v info log)"
+    [ "$(status_val outputs_closed)" = 1 ] || fail "outputs_closed $(status_val outputs_closed)"
+    [ -f tracks.influx ] || fail "the InfluxDB file was not reopened with the tracks closed"
+    [ -f raw.csv ] || fail "the recording was not reopened with the tracks closed"
+    grep -q "reopening after SIGHUP: cannot open ./tracks.csv for appending: Is a directory" log ||
+        fail "the failure is not logged: $(grep -v info log)"
+    # the path a file again: the retry (1 s, 2 s, 4 s ...) opens it without another SIGHUP
+    rmdir tracks.csv
+    wait_status outputs_closed 'v == 0' 30 || fail "the tracks were not opened again: $(grep -v info log)"
+    grep -q "tracks ./tracks.csv is open again" log || fail "no notice: $(grep -v info log)"
+    wait_status rows "v >= $(status_val rows) + 5" 20 || fail "no rows after the retry"
+    kill -TERM $pid
+    wait $pid; rc=$?
+    [ $rc -eq 1 ] || fail "exit status $rc with rows lost (expected 1): $(grep -v info log | tail -3)"
+    rows=$(status_val rows)
+    lost=$(status_val tracks_lost_rows)
+    in_files=$(( $(data_rows tracks.1) + $(data_rows tracks.csv) ))
+    [ $((in_files + lost)) -eq "$rows" ] || fail "tracks: $in_files rows in the files + $lost lost != $rows rows"
+    [ "$(status_val influx_lost_lines)" = 0 ] && [ "$(status_val record_lost_samples)" = 0 ] ||
+        fail "lost from the outputs that reopened: $(grep _lost_ status)"
+    lines=$(cat influx.1 tracks.influx | grep -c '^vibid,')
+    [ "$lines" -eq "$rows" ] || fail "InfluxDB file: $lines lines for $rows rows"
+    samples=$(cat raw.1 raw.csv | grep -vc '^#\|^t,')
+    [ "$samples" -eq "$(status_val samples)" ] || fail "recording: $samples samples of $(status_val samples)"
+    of=$(status_val output_open_failures)
+    [ "$of" -ge 1 ] && [ "$(status_val write_errors)" = "$of" ] || fail "output_open_failures $of, write_errors $(status_val write_errors)"
+    note "tracks unopenable at SIGHUP: $lost of $rows rows lost and counted, $of failed opens; influx $lines of $rows lines, recording $samples samples: none lost"
+    ;;
+bad_capture)
+    # issue 30 item 9: a CSV that starts with a UTF-8 byte order mark (a spreadsheet's export)
+    # replays like the same CSV without it (it said "time_column 't' is not in the header");
+    # a capture without one usable line is an error (exit 2), not a run that identified nothing
+    $GEN "$STAND" --duration 2 --noise 0.001 --seed 13 --csv plain.csv 2>/dev/null || fail "generator"
+    printf '\xef\xbb\xbf' | cat - plain.csv > cap.csv
+    config_csv v.cfg ""
+    timeout 60 "$VIBIDD" -c v.cfg 2> log || fail "a CSV with a byte order mark: exit $?: $(grep -v info log)"
+    [ "$(status_val samples)" = 4000 ] || fail "BOM: $(status_val samples) samples of 4000"
+    cp tracks.csv tracks.bom
+    rm -f tracks.csv status
+    cp plain.csv cap.csv
+    timeout 60 "$VIBIDD" -c v.cfg 2> log || fail "plain CSV: exit $?"
+    cmp -s tracks.csv tracks.bom || fail "the tracks with and without the byte order mark differ"
+    # a wrong column name lists the header's columns
+    sed 's/column = "x2"/column = "y2"/' v.cfg > w.cfg
+    timeout 60 "$VIBIDD" -c w.cfg 2> log; rc=$?
+    [ $rc -eq 2 ] && grep -q "column 'y2' is not in the header of ./cap.csv (its columns: 't', 'x1', 'x2', 's')" log ||
+        fail "wrong column: rc $rc $(grep -v info log)"
+    # every data line bad: exit 2 with the reason
+    { head -1 plain.csv; for i in $(seq 50); do echo "garbage,$i,x,y"; done; } > cap.csv
+    rm -f tracks.csv status
+    timeout 60 "$VIBIDD" -c v.cfg --rate-check off 2> log; rc=$?
+    [ $rc -eq 2 ] || fail "a capture without a usable line: exit $rc: $(grep -v info log | tail -3)"
+    grep -q "cap.csv: no usable sample in the whole capture (50 bad lines" log || fail "message: $(grep -v info log | tail -3)"
+    note "BOM: the same tracks as without; $(grep -o 'no usable sample[^:]*' log)"
     ;;
 check_outputs)
     # --check runs the outputs' start-up checks, so it refuses what the run refuses (and

@@ -37,6 +37,49 @@ wait_status() {
     return 1
 }
 
+# wait_log FILE PATTERN SECONDS: until FILE has a line matching PATTERN (grep -E); 1 if not
+wait_log() {
+    for _ in $(seq $(($3 * 10))); do
+        grep -Eq "$2" "$1" 2> /dev/null && return 0
+        sleep 0.1
+    done
+    return 1
+}
+
+# start_peer LOG MODE PORT ARGS...: a small hostile peer of tests/daemon/tools/hostile_peer.py
+# (MODE silent, proxy or http) on 127.0.0.1:PORT, writing what it sees to LOG; returns once it
+# listens. Sets PEERPID and adds it to PIDS (the caller's cleanup kills them).
+start_peer() {
+    local logf=$1 mode=$2 port=$3
+    shift 3
+    python3 "$SRC/tests/daemon/tools/hostile_peer.py" "$mode" "$port" "$logf" "$@" > "$logf.out" 2>&1 &
+    PEERPID=$!
+    PIDS+=("$PEERPID")
+    for _ in $(seq 50); do
+        grep -q '^listening on' "$logf.out" 2> /dev/null && return 0
+        kill -0 $PEERPID 2> /dev/null || fail "hostile_peer.py $mode exited: $(cat "$logf.out")"
+        sleep 0.1
+    done
+    fail "hostile_peer.py $mode did not listen on $port"
+}
+
+# term_and_wait PID SECONDS: SIGTERM to PID (a child of this shell) and wait for its end, at
+# most SECONDS: a liveness bound, which the caller states, never a speed figure (fails when it
+# still runs). Sets RC (its exit status) and DT (ms from the signal to its end).
+term_and_wait() {
+    local t0
+    t0=$(date +%s%N)
+    kill -TERM "$1"
+    for _ in $(seq $(($2 * 10))); do
+        kill -0 "$1" 2> /dev/null || break
+        sleep 0.1
+    done
+    kill -0 "$1" 2> /dev/null && fail "SIGTERM: still running after $2 s"
+    wait "$1"
+    RC=$?
+    DT=$((($(date +%s%N) - t0) / 1000000))
+}
+
 # make_ca: in the working directory, two self-signed CAs (ca.pem/ca.key, other.pem/other.key)
 # and a server certificate for 127.0.0.1 signed by ca (server.pem/server.key), with openssl
 make_ca() {

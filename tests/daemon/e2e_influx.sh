@@ -19,6 +19,15 @@
 #             dropped_before = the number of CSV rows missing before it
 #   tls       https with the test's CA (openssl): rows written; with another CA:
 #             "certificate" in the error, retried, exit 0
+#   body      a hostile server (tests/daemon/tools/hostile_peer.py) that streams a body of 1 GB
+#             with every answer, three 500s then 200s: vibidd reads the first KiB of each and
+#             closes (the server could send no more than the sockets' buffers), retries the
+#             500s, writes every line (issue 30 item 4: it read all of it, 94 % of a core)
+#   drain     SIGTERM while the server asks for a later try: 503 with Retry-After: 60 s, a
+#             drain_timeout of 20 s: vibidd ends at once, the lines counted as not written,
+#             instead of waiting 20 s for a try that cannot come; 500 without Retry-After
+#             and a drain_timeout of 3 s: retries at the back-off until the next one would
+#             come after the deadline, then ends (issue 30 item 7)
 #   v2        API v2 (InfluxDB 2.x) against a recorder (python3 http.server, NOT an InfluxDB 2
 #             server: Debian has none): POST /api/v2/write?org=..&bucket=..&precision=ns with
 #             "Authorization: Token ..."; the recorded lines are the rows of the tracks CSV
@@ -293,6 +302,69 @@ tls)
     kill -TERM $vpid
     wait $vpid || fail "exit status $? after SIGTERM with the wrong CA"
     note "wrong CA: $(grep -o 'no answer: [^)]*' log.bad | head -1), retried, exit 0"
+    ;;
+body)
+    $GEN "$STAND" --duration 10 --noise 0.001 --seed 37 --csv cap.csv 2> /dev/null || fail "generator"
+    start_peer peer.log http "$PORT" "500:1073741824,500:1073741824,500:1073741824,200:1073741824"
+    config v.cfg "url = \"$BASE\"; batch_interval = 0.2;"
+    # vibidd's CPU time (user, system) and the run's wall time: printed, not asserted
+    (TIMEFORMAT='%U %S %R'; time timeout 90 "$VIBIDD" -c v.cfg --pace --speed 4 2> log) 2> time.txt; rc=$?
+    [ $rc -eq 0 ] || fail "exit status $rc: $(grep influx log)"
+    cpu=$(awk '{ printf "%.2f s of CPU in %.1f s (%.0f %% of a core)", $1 + $2, $3, 100 * ($1 + $2) / $3 }' time.txt)
+    rows=$(($(grep -vc '^#' tracks.csv) - 1))
+    [ "$(status_val influx_http_written)" = "$rows" ] || fail "influx_http_written $(status_val influx_http_written) of $rows: $(grep influx log)"
+    [ "$(status_val influx_http_failures)" = 3 ] || fail "influx_http_failures $(status_val influx_http_failures), the plan had 3 500s"
+    grep -q 'influx http: writing to .* failed (HTTP 500: {"error":"xxx.*\[\.\.\. the rest of the answer was not read\]' log ||
+        fail "the 500's message: $(grep influx log | head -3)"
+    # each answer's body: the server could hand the kernel its socket buffers' worth (a few
+    # MiB on loopback: tcp_wmem + tcp_rmem) before vibidd closed; 64 MiB is far above that and
+    # far below the 1 GiB that reading it whole takes
+    python3 - peer.log << 'PYEOF' || fail "bodies: $(cat peer.log)"
+import sys
+sent = [int(l.split()[5]) for l in open(sys.argv[1]) if l.startswith("request ")]
+assert len(sent) >= 4, sent
+assert max(sent) < 64 << 20, sent
+print(f"{len(sent)} answers of 1 GiB each; at most {max(sent) / 2**20:.1f} MiB of one was sent before vibidd closed")
+PYEOF
+    note "$(python3 -c 'import sys; s=[int(l.split()[5]) for l in open("peer.log") if l.startswith("request ")]; print(f"{len(s)} answers with a 1 GiB body: at most {max(s) / 2**20:.1f} MiB of one taken before vibidd closed")'); 3 500s retried, $rows of $rows lines written; vibidd: $cpu"
+    ;;
+drain)
+    $GEN "$STAND" --duration 60 --noise 0.001 --seed 38 --csv cap.csv 2> /dev/null || fail "generator"
+    # against PLAN (hostile_peer.py http) with drain_timeout DRAIN: a paced replay until the
+    # first failed request (sets vpid, n0: the requests before SIGTERM)
+    until_failure() {
+        rm -f peer.log status tracks.csv
+        start_peer peer.log http "$PORT" "$1"
+        config v.cfg "url = \"$BASE\"; batch_interval = 0.2; drain_timeout = $2;"
+        timeout 90 "$VIBIDD" -c v.cfg --pace 2> log &
+        vpid=$!
+        PIDS+=("$vpid")
+        wait_status influx_http_failures 'v >= 1' 15 || fail "no failure: $(grep influx log)"
+        n0=$(grep -c '^request ' peer.log)
+    }
+    until_failure "503:0:60" 20.0
+    # 10 s: a liveness bound (the drain may last 20 s; Retry-After, 60 s of which 30 s are
+    # honoured, puts every later try after that)
+    term_and_wait $vpid 10
+    [ $RC -eq 0 ] || fail "exit status $RC: $(grep influx log)"
+    grep -q 'influx http: stopped with [0-9]* lines not written .*its next try was due after the deadline' log ||
+        fail "end: $(grep influx log | tail -3)"
+    [ "$(grep -c '^request ' peer.log)" = 1 ] || fail "requests: $(cat peer.log)"
+    left=$(status_val influx_http_waiting)
+    rows=$(($(grep -vc '^#' tracks.csv) - 1))
+    [ "$left" = "$rows" ] || fail "influx_http_waiting $left after the drain, $rows rows never written"
+    note "503 with Retry-After 60: SIGTERM ended in $DT ms (drain_timeout 20 s), $left lines counted as not written, 1 request"
+    # without Retry-After: tries at the back-off (0.5, 1, 2 s ...) while they fit drain_timeout 3 s
+    kill -9 $PEERPID 2> /dev/null
+    wait $PEERPID 2> /dev/null
+    until_failure "500" 3.0
+    term_and_wait $vpid 10
+    [ $RC -eq 0 ] || fail "exit status $RC: $(grep influx log)"
+    n1=$(grep -c '^request ' peer.log)
+    [ $((n1 - n0)) -ge 1 ] || fail "no retry during the drain: $n0 requests before SIGTERM, $n1 after"
+    grep -q 'influx http: stopped with [0-9]* lines not written .*its next try was due after the deadline' log ||
+        fail "end: $(grep influx log | tail -3)"
+    note "500 without Retry-After, drain_timeout 3 s: $((n1 - n0)) retries during the drain, then ended in $DT ms (the next one was due after the deadline)"
     ;;
 v2)
     $GEN "$STAND" --duration 10 --noise 0.001 --seed 36 --csv cap.csv 2> /dev/null || fail "generator"

@@ -19,6 +19,16 @@
 #            gap carries dropped_before = the gap
 #   will     vibidd killed (kill -9): the retained status turns "offline" (the last will);
 #            on the way, its Prometheus endpoint shows the vibid_mqtt_* families (promtool)
+#   drain_reconnect  a replay that ends while vibidd cannot reach the broker (nothing listens
+#            on its port; a proxy to the broker opens there once the replay has ended): the
+#            drain waits for the reconnection, every row arrives, the retained status is
+#            "stopped" (issue 30 item 5: 200 of 200 rows were lost in 0.085 s)
+#   flaps    every connection cut 200 ms after it was made (a proxy of tools/hostile_peer.py):
+#            every row arrives (duplicates allowed), the retained status ends "stopped",
+#            not the will's "offline", nothing is counted unsent
+#   silent   a peer that accepts the connection and never answers CONNECT: a clear warning
+#            after 5 s (not "Unknown error." after 30 s), counted; SIGTERM does not wait
+#            drain_timeout (60 s) for it, and what was not sent is counted (mqtt_unsent)
 . "$(dirname "$0")/e2e_common.sh" e2e_mqtt "$@"
 GEN=$BUILD/tests/daemon/vd_gen_capture
 STAND=$SRC/examples/stands/paper_example1.cfg
@@ -34,6 +44,7 @@ command -v mosquitto_sub > /dev/null || fail "mosquitto_sub not found (Debian pa
 
 PIDS=()
 cleanup() {
+    exec 2> /dev/null # (bash's job notices of the peers killed here)
     for p in "${PIDS[@]}"; do kill -9 "$p" 2> /dev/null; done
     wait 2> /dev/null
     rm -rf "$W"
@@ -145,6 +156,16 @@ for i, r in enumerate(rows, 1):
     assert m["flags"] == r["flags"] and m["gap_samples"] == int(r["gap_samples"]), (i, m["flags"], r["flags"])
 print(f"{len(rows)} rows = {len(msgs)} messages ({len(msgs) - len(set(seqs))} duplicates), values equal")
 PYEOF
+}
+
+# open_broker: an anonymous broker on a free port BPORT, a subscriber on it into sub.out, and
+# PPORT, another free port (for vibidd, behind which the case puts a peer or nothing)
+open_broker() {
+    BPORT=$(free_port)
+    broker_conf b.conf "$BPORT" "allow_anonymous true"
+    start_broker b.conf "$BPORT"
+    start_sub sub.out "" -p "$BPORT"
+    PPORT=$(free_port)
 }
 
 # retained_status [ARGS...]: the retained status message's state ("" if none)
@@ -364,6 +385,67 @@ will)
     done
     [ "$st" = offline ] || fail "retained status after kill -9: '$st'"
     note "kill -9: the retained status went from running to offline (the last will)"
+    ;;
+drain_reconnect)
+    # an unpaced replay of 100 rows ends in a fraction of a second, while vibidd's port has no
+    # listener (connection refused: back-off); the proxy to the broker opens only once vibidd
+    # logged the end of the capture, so every row is published by the drain
+    $GEN "$STAND" --duration 10 --noise 0.001 --seed 27 --csv cap.csv 2> /dev/null || fail "generator"
+    open_broker
+    config v.cfg "url = \"mqtt://127.0.0.1:$PPORT\"; drain_timeout = 30.0;"
+    sed -i 's/paced = true;/paced = false;/' v.cfg
+    timeout 60 "$VIBIDD" -c v.cfg 2> log &
+    pid=$!
+    PIDS+=("$pid")
+    wait_log log 'end of the capture reached' 20 || fail "the replay did not end: $(cat log)"
+    wait_log log 'mqtt: cannot connect to' 10 || fail "no failed attempt before the proxy: $(grep mqtt log)"
+    start_peer proxy.log proxy "$PPORT" "$BPORT"
+    wait $pid; rc=$?
+    [ $rc -eq 0 ] || fail "exit status $rc: $(cat log)"
+    grep -q 'mqtt: every message acknowledged by the broker' log || fail "not drained: $(grep mqtt log)"
+    sleep 0.3
+    out=$(check_tracks sub.out tracks.csv) || fail "tracks: $out"
+    [ "$(retained_state -p "$BPORT")" = stopped ] || fail "retained status: '$(retained_state -p "$BPORT")'"
+    [ "$(status_val mqtt_unsent)" = 0 ] || fail "mqtt_unsent $(status_val mqtt_unsent)"
+    note "replay ended while unreachable ($(status_val mqtt_connect_failures) failed attempts): the drain reconnected; $out; retained status stopped"
+    ;;
+flaps)
+    $GEN "$STAND" --duration 6 --noise 0.001 --seed 28 --csv cap.csv 2> /dev/null || fail "generator"
+    open_broker
+    start_peer proxy.log proxy "$PPORT" "$BPORT" 0.2
+    config v.cfg "url = \"mqtt://127.0.0.1:$PPORT\"; drain_timeout = 30.0;"
+    timeout 90 "$VIBIDD" -c v.cfg 2> log; rc=$?
+    [ $rc -eq 0 ] || fail "exit status $rc: $(cat log)"
+    cuts=$(grep -c '^cut$' proxy.log)
+    [ "$cuts" -ge 3 ] || fail "the proxy cut only $cuts connections: $(cat proxy.log)"
+    grep -q 'mqtt: every message acknowledged by the broker' log || fail "not drained: $(grep mqtt log | tail -5)"
+    sleep 0.3
+    out=$(check_tracks sub.out tracks.csv dups) || fail "tracks: $out"
+    [ "$(retained_state -p "$BPORT")" = stopped ] || fail "retained status: '$(retained_state -p "$BPORT")' (the will after a cut?)"
+    [ "$(status_val mqtt_unsent)" = 0 ] || fail "mqtt_unsent $(status_val mqtt_unsent)"
+    note "connections cut 200 ms after each connect ($cuts cuts, $(status_val mqtt_reconnects) reconnections): $out; retained status stopped"
+    ;;
+silent)
+    $GEN "$STAND" --duration 30 --noise 0.001 --seed 29 --csv cap.csv 2> /dev/null || fail "generator"
+    SPORT=$(free_port)
+    start_peer silent.log silent "$SPORT"
+    config v.cfg "url = \"mqtt://127.0.0.1:$SPORT\"; drain_timeout = 60.0;"
+    timeout 120 "$VIBIDD" -c v.cfg 2> log &
+    pid=$!
+    PIDS+=("$pid")
+    # the CONNACK time-out is 5 s: the first failure is counted after that (15 s: a loaded machine)
+    wait_status mqtt_connect_failures 'v >= 1' 15 || fail "no failure counted: $(grep mqtt log)"
+    grep -q "mqtt: cannot connect to mqtt://127.0.0.1:$SPORT: the peer accepted the connection but did not answer CONNECT within 5 s" log ||
+        fail "message: $(grep mqtt log)"
+    wait_status rows 'v >= 3' 10 || fail "no rows: $(cat log)"
+    # 30 s: a liveness bound (drain_timeout is 60 s, and the peer will never answer)
+    term_and_wait $pid 30
+    [ $RC -eq 0 ] || fail "exit status $RC: $(tail -3 log)"
+    grep -q 'mqtt: stopped with [0-9]* messages unsent .*the broker does not answer CONNECT' log || fail "end: $(grep mqtt log | tail -3)"
+    rows=$(($(grep -vc '^#' tracks.csv) - 1))
+    [ "$(status_val mqtt_unsent)" = "$rows" ] || fail "mqtt_unsent $(status_val mqtt_unsent), $rows rows were never sent"
+    [ "$(status_val mqtt_published)" = 0 ] || fail "published to a silent peer?"
+    note "silent peer: $(grep -o 'the peer accepted[^;]*' log | head -1); SIGTERM took $DT ms (drain_timeout 60 s), $rows rows counted unsent"
     ;;
 *)
     fail "unknown case"

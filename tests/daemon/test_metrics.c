@@ -51,6 +51,11 @@ static void fill_snapshot(vd_snapshot *s)
     s->ring_overflows = 2;
     s->write_errors = 5;
     s->torn_lines = 1;
+    s->output_on[0] = s->output_on[2] = true; /* tracks and record; no influx file */
+    s->output_open_failures[0] = 3;
+    s->output_lost[0] = 401;
+    s->output_lost[2] = 8017;
+    s->outputs_closed = 1;
     s->rows = 617;
     s->est_errors = 1;
     s->implausible_rows = 2;
@@ -135,6 +140,12 @@ static void test_render_lines(void **state)
     has_line("vibid_ring_overflows_total 2");
     has_line("vibid_write_errors_total 5");
     has_line("vibid_torn_lines_total 1");
+    has_line("vibid_outputs_closed 1");
+    has_line("vibid_output_open_failures_total{output=\"tracks\"} 3");
+    has_line("vibid_output_open_failures_total{output=\"record\"} 0");
+    has_line("vibid_output_lost_records_total{output=\"tracks\"} 401");
+    has_line("vibid_output_lost_records_total{output=\"record\"} 8017");
+    assert_null(strstr(text, "output=\"influx\"")); /* not configured */
     has_line("vibid_rows_total 617");
     has_line("vibid_estimate_failures_total 1");
     has_line("vibid_implausible_rows_total 2");

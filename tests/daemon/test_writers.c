@@ -1,6 +1,7 @@
 /* Unit tests of the output formats (writers.h): tracks CSV header and rows, InfluxDB
  * line protocol (escaping, no NaN fields, ns timestamps), raw recording rows (exact
- * round trip), microsecond rounding of times, and the estimator's gap handling. */
+ * round trip), microsecond rounding of times, and the estimator's gap handling; the file
+ * outputs reopened each on its own (a failed reopen counted and retried). */
 #include <setjmp.h>
 #include <stdarg.h>
 #include <stddef.h>
@@ -13,6 +14,9 @@
 #include <string.h>
 #include <unistd.h>
 
+#include <sys/stat.h>
+
+#include "cfg_fixture.h"
 #include "config.h"
 #include "estimator.h"
 #include "writers.h"
@@ -225,12 +229,110 @@ static void test_estimator_gap(void **state)
     vd_est_free(&e);
 }
 
+/* Lines of a file (0 if it is not there) */
+static int file_lines(const char *dir, const char *name)
+{
+    char p[512];
+    snprintf(p, sizeof p, "%s/%s", dir, name);
+    FILE *f = fopen(p, "r");
+    if (!f)
+        return 0;
+    int n = 0, ch;
+    while ((ch = fgetc(f)) != EOF)
+        n += ch == '\n';
+    fclose(f);
+    return n;
+}
+
+/* Issue 30 item 1: logrotate moved the three files away and left a directory where the
+ * tracks were. The SIGHUP reopen leaves the tracks closed (counted, retried) and reopens the
+ * others; the rows the tracks miss are counted; the retry opens them once the path is free. */
+static void test_reopen_each_on_its_own(void **state)
+{
+    (void)state;
+    char dir[] = "/tmp/vd_test_reopen_XXXXXX", outs[1024], p[600], q[600];
+    assert_non_null(mkdtemp(dir));
+    snprintf(outs, sizeof outs,
+             "outputs = { tracks = { path = \"%s/t.csv\"; }; influx = { path = \"%s/i.lp\"; };\n"
+             " record = { path = \"%s/r.csv\"; }; };",
+             dir, dir, dir);
+    vd_config c;
+    vd_config_error ce;
+    assert_int_equal(vd_test_load_outputs("reopen", outs, &c, &ce), 0);
+    static vd_writers w;
+    char err[1200];
+    assert_int_equal(vd_writers_open(&w, &c, &c.chanmap, NULL, err, sizeof err), 0);
+    vd_row row;
+    memset(&row, 0, sizeof row);
+    row.index = 10;
+    vibid_record rec;
+    memset(&rec, 0, sizeof rec);
+    rec.kind = VIBID_REC_SAMPLE;
+    rec.n_values = 3;
+    vd_writers_row(&w, &row);
+    vd_writers_sample(&w, &rec);
+    const char *const names[3] = {"t.csv", "i.lp", "r.csv"};
+    for (int k = 0; k < 3; k++) {
+        snprintf(p, sizeof p, "%s/%s", dir, names[k]);
+        snprintf(q, sizeof q, "%s/%s.1", dir, names[k]);
+        assert_int_equal(rename(p, q), 0);
+    }
+    snprintf(p, sizeof p, "%s/t.csv", dir);
+    assert_int_equal(mkdir(p, 0700), 0);
+    assert_int_equal(vd_writers_reopen(&w), 1); /* one output left closed */
+    assert_int_equal(vd_writers_closed(&w), 1);
+    assert_true(w.out[VD_OUT_TRACKS].closed && !w.out[VD_OUT_TRACKS].f);
+    assert_non_null(w.out[VD_OUT_INFLUX].f);
+    assert_non_null(w.out[VD_OUT_RECORD].f);
+    assert_int_equal(w.out[VD_OUT_TRACKS].open_failures, 1);
+    assert_int_equal(w.write_errors, 1);
+    for (int i = 0; i < 5; i++) {
+        vd_writers_row(&w, &row);
+        vd_writers_sample(&w, &rec);
+    }
+    assert_int_equal(w.out[VD_OUT_TRACKS].lost, 5);
+    assert_int_equal(w.out[VD_OUT_INFLUX].lost, 0);
+    assert_int_equal(w.out[VD_OUT_RECORD].lost, 0);
+    vd_writers_flush(&w, 0); /* its retry is not due yet (1 s): still closed, nothing counted */
+    assert_true(w.out[VD_OUT_TRACKS].closed);
+    assert_int_equal(w.out[VD_OUT_TRACKS].open_failures, 1);
+    /* the retry when due (the test sets the time instead of waiting the second) and the path is
+     * a directory still: a second failure, the back-off doubled */
+    w.out[VD_OUT_TRACKS].retry_at = 0;
+    vd_writers_flush(&w, 0);
+    assert_int_equal(w.out[VD_OUT_TRACKS].open_failures, 2);
+    assert_true(w.out[VD_OUT_TRACKS].backoff == 2.0);
+    assert_int_equal(rmdir(p), 0);
+    w.out[VD_OUT_TRACKS].retry_at = 0;
+    vd_writers_flush(&w, 0);
+    assert_false(w.out[VD_OUT_TRACKS].closed);
+    assert_int_equal(vd_writers_closed(&w), 0);
+    vd_writers_row(&w, &row);
+    vd_writers_close(&w);
+    assert_int_equal(w.write_errors, 2);
+    assert_int_equal(w.out[VD_OUT_TRACKS].lost, 5);
+    /* header line + 1 row before, header + 1 row after; every InfluxDB line and sample kept */
+    assert_int_equal(file_lines(dir, "t.csv.1"), 2);
+    assert_int_equal(file_lines(dir, "t.csv"), 2);
+    assert_int_equal(file_lines(dir, "i.lp.1") + file_lines(dir, "i.lp"), 7);
+    assert_int_equal(file_lines(dir, "r.csv.1") + file_lines(dir, "r.csv"), 2 * 2 + 6); /* 2 headers each */
+    for (int k = 0; k < 3; k++) {
+        snprintf(p, sizeof p, "%s/%s", dir, names[k]);
+        snprintf(q, sizeof q, "%s/%s.1", dir, names[k]);
+        unlink(p);
+        unlink(q);
+    }
+    rmdir(dir);
+    vd_config_free(&c);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_tracks_header), cmocka_unit_test(test_track_row),
         cmocka_unit_test(test_influx),        cmocka_unit_test(test_recording_roundtrip),
         cmocka_unit_test(test_ns_to_us),      cmocka_unit_test(test_estimator_gap),
+        cmocka_unit_test(test_reopen_each_on_its_own),
     };
     return cmocka_run_group_tests(tests, setup, teardown);
 }

@@ -50,6 +50,34 @@ static void test_rows_and_faults(void **state)
     vibid_csv_close(r);
 }
 
+/* A UTF-8 byte order mark before the first line (a spreadsheet's CSV export) is not part of
+ * the first column's name, whether the first line is the header or a comment; elsewhere it
+ * is data like any other bytes. */
+static void test_byte_order_mark(void **state)
+{
+    (void)state;
+    vibid_drv_error err = {0};
+    static const char bom_header[] = "\xEF\xBB\xBFt,x\n0,1.5\n";
+    vibid_csv_reader *r = vibid_csv_open_mem(bom_header, sizeof bom_header - 1, "b.csv", &err);
+    assert_non_null(r);
+    assert_string_equal(vibid_csv_column_name(r, 0), "t");
+    double v[2];
+    unsigned long line;
+    assert_int_equal(vibid_csv_next(r, v, &line, &err), VIBID_DRV_OK);
+    assert_true(v[0] == 0.0 && v[1] == 1.5);
+    vibid_csv_close(r);
+    static const char bom_comment[] = "\xEF\xBB\xBF# exported\nt,x\n";
+    r = vibid_csv_open_mem(bom_comment, sizeof bom_comment - 1, "c.csv", &err);
+    assert_non_null(r);
+    assert_int_equal(vibid_csv_find_column(r, "t"), 0);
+    vibid_csv_close(r);
+    static const char bom_later[] = "t,x\n\xEF\xBB\xBF" "0,1\n";
+    r = vibid_csv_open_mem(bom_later, sizeof bom_later - 1, "d.csv", &err);
+    assert_non_null(r);
+    assert_int_equal(vibid_csv_next(r, v, &line, &err), VIBID_DRV_E_SYNTAX); /* not at the file's start */
+    vibid_csv_close(r);
+}
+
 static void test_bad_headers(void **state)
 {
     (void)state;
@@ -68,6 +96,7 @@ int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_rows_and_faults),
+        cmocka_unit_test(test_byte_order_mark),
         cmocka_unit_test(test_bad_headers),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);

@@ -7,6 +7,7 @@
 #include <stdio.h>
 #include <string.h>
 #include <strings.h>
+#include <sys/stat.h>
 
 /* The directory part of path ("." when it has none; "/" for a file in the root). */
 static void dir_of(const char *path, char *dir, size_t cap) {
@@ -65,6 +66,11 @@ int vibid_cfg_read_file(config_t *cf, const char *path, vibid_cfg_error *err) {
     char dir[1024];
     dir_of(path, dir, sizeof dir);
     config_set_include_dir(cf, dir);
+    /* libconfig opens a directory like a file and reports the read that fails as an I/O error
+     * without errno: it showed as "No such file or directory" */
+    struct stat st;
+    if (stat(path, &st) == 0 && S_ISDIR(st.st_mode))
+        return vibid_cfg_fail_at(&r, path, 0, "", "cannot read: %s", strerror(EISDIR));
     errno = 0;
     if (config_read_file(cf, path)) return 0;
     if (config_error_type(cf) == CONFIG_ERR_FILE_IO)
