@@ -10,10 +10,12 @@
 // small in the issue that led here). With the data cut into K blocks much longer than
 // the error's correlation, the block scores s_b = W_b^T (Y_b - X_b Theta) are nearly
 // independent, and
-//     Cov(vec Theta) = (I (x) A^-1) [K / (K - p) sum_b vec(s_b) vec(s_b)^T] (I (x) A^-T),
-//     A = sum_b W_b^T X_b,
+//     Cov(vec Theta) = (I (x) A^-1) [sum_b vec(s_b) vec(s_b)^T / (1 - h_b)] (I (x) A^-T),
+//     A = sum_b W_b^T X_b,  h_b = trace(W_b^T X_b A^-1) (the block's leverage),
 // is consistent whatever the colour (a heteroscedasticity-and-autocorrelation-consistent
-// estimate; the K / (K - p) corrects for the p directions fitted).
+// estimate; dividing by 1 - h_b corrects for the directions fitted, K / (K - p) when the
+// blocks are evenly informative, and keeps blocks that dominate the fit from hiding
+// their own error).
 //
 // Two modes:
 //  - forgetting = 1: all data count alike. K_max slots; when they are full, neighbouring
@@ -46,6 +48,7 @@ struct BlockIVResult {
     double rcond = 0.0;      // reciprocal condition of the scaled W^T X
     std::size_t rank = 0;
     std::size_t n_blocks = 0;
+    double n_eff = 0.0;      // effective number of informative blocks (leverage-weighted; n_blocks when even)
     double z_max = 0.0;      // consistency check (NaN when it could not be made)
     std::vector<int> not_excited;  // p: 1 where the parameter lies in a direction with too little information
 };

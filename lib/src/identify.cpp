@@ -1218,8 +1218,12 @@ VIBID_API vibid_status vibid_ident_estimate(vibid_ident *ident, double *theta, d
                     disc_error.resize(0);  // no check this time; the a-priori bound stays
                 }
             }
-            // Too few blocks for a covariance (early in a run), or the halves disagree.
-            if (!cov_reg.allFinite() || !(res.z_max <= 4.0)) qual.flags |= VIBID_QUALITY_SE_INVALID;
+            // Too few blocks for a covariance (early in a run), too few that carry the
+            // information (n_eff below p_reg + 4: the spread of the scores would rest on fewer
+            // than 4 blocks beyond the directions fitted, e.g. excitation only in the newest
+            // blocks), or the halves disagree.
+            if (!cov_reg.allFinite() || !(res.z_max <= 4.0) || res.n_eff < static_cast<double>(pr) + 4.0)
+                qual.flags |= VIBID_QUALITY_SE_INVALID;
         } else {
             MatrixXd Pm(pr, pr), Sig(q, q);
             bool sig_ok;
