@@ -26,6 +26,7 @@ struct Channel {
     double scale = 0.0;    // S: peak of the accepted increments, decaying
     double step = HUGE_VAL;  // smallest non-zero accepted increment (HUGE_VAL: none yet)
     bool pending = false;  // the oldest undecided sample is a suspect in this channel
+    double jump = 0.0;     // its jump |x - ref|
 };
 
 }  // namespace
@@ -82,10 +83,7 @@ struct vibid_outlier {
             if (!std::isfinite(x[k])) continue;  // missing: no value to judge
             const double a = c.has_ref ? std::fabs(x[k] - c.ref) : 0.0;
             if (a > K * std::max(c.scale, floor_of(c))) {
-                // the quantisation step is learned from every jump, also a suspect's: the
-                // first one-step flicker of a channel that never moved before is otherwise
-                // taken out, and so would every later one be
-                c.step = std::min(c.step, a);
+                c.jump = a;
                 c.pending = true;
                 any = true;
                 ++stats.held;
@@ -128,6 +126,11 @@ struct vibid_outlier {
             } else {
                 accept(c, x[k]);
             }
+            // The quantisation step is learned from every jump, a glitch's too (after its
+            // own decision): else the one-step flickers of a quantised channel at rest,
+            // which accepts no increment, would all be taken out; so the first is (when
+            // the warm-up saw none), later glitches of that channel need K times its size.
+            c.step = std::min(c.step, c.jump);
         }
         count(taken);
     }

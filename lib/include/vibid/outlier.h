@@ -13,41 +13,49 @@
  *          of the accepted values, held and decaying by exp(-1/memory) per sample (so the
  *          peak of the last ~memory samples). A peak, not a standard deviation: a held
  *          input (PRBS, a held base) that jumps rarely keeps its jumps in S.
- *   floor  max(the smallest non-zero increment accepted so far (a quantised channel's
- *          step), 1e-6 |x_ref|) (a float32 signal's rounding): S below it is taken as it.
- *   a sample is SUSPECT when a = x_k - x_ref (x_ref: the last accepted value) exceeds
- *          K max(S, floor). Otherwise it is accepted at once (no delay: a clean stream is
- *          passed through sample by sample and bit for bit).
- *   a suspect is an OUTLIER when the next sample returns: with b = x_(k+1) - x_k,
- *          min(|a|, |b|) > K max(S, floor, |x_(k+1) - x_ref|),
+ *   floor  max(q, 1e-6 |x_ref|): q the smallest non-zero jump seen so far (a quantised
+ *          channel's step), 1e-6 of the level covers float32 rounding. S below the floor
+ *          is taken as the floor.
+ *   a sample is SUSPECT when |a| = |x_k - x_ref| (x_ref: the last accepted value) exceeds
+ *          K max(S, floor). Otherwise it is accepted at once: a clean stream is passed
+ *          through sample by sample, bit for bit, without delay.
+ *   a suspect is an OUTLIER when its successors show it came back: with b = x_(k+1) - x_k
+ *          and m = max(|x_(k+1) - x_ref|, |x_(k+2) - x_(k+1)|, |x_(k+3) - x_(k+2)|),
+ *              min(|a|, |b|) > K max(S, floor, m),
  *          i.e. it jumped away by more than K times the recent motion, came back by as
- *          much, and the samples on either side of it are close together. A jump that
- *          stays (a held input's step, a new excitation level, the start of excitation
- *          of a stand at rest: increments of the same sign) is accepted when its next
- *          sample arrives, one sample late. A suspect whose next value is missing (a gap,
- *          the end of the data) cannot be checked and is taken out too ("unverified").
+ *          much, and the samples around it lie close together and stay quiet. A jump that
+ *          stays (a held input's step, a new excitation level, the start of excitation of
+ *          a stand at rest) or a signal that goes on moving that much (a random held input
+ *          starting from rest) is accepted, up to VIBID_OUTLIER_LOOKAHEAD = 3 samples late.
+ *          A suspect whose next value is missing (a gap, the end of the data) cannot be
+ *          checked and is taken out ("unverified"); a later missing value shortens m.
  *   K      `threshold`, default 8 (VIBID_OUTLIER_THRESHOLD_DEFAULT).
- * A sample arriving at the start has no history: the first `warmup` samples (default 16)
- * are held and decided together, with S from the third-largest of their increments (one
- * glitch contributes two), and the first value of each channel tested against its next
- * two (|x1 - x0| > K max(S, floor, |x2 - x1|)). The history (x_ref, S, floor) is kept
- * across missing values and gaps, so the first sample after a gap is tested against the
- * last one before it.
+ * The first `warmup` samples (default 16) have no history: they are held and decided
+ * together, with S from the third-largest of their increments (one glitch makes two) and q
+ * from the smallest, and the first value of each channel tested against its next two
+ * (|x1 - x0| > K max(S, floor, |x2 - x1|)). The history (x_ref, S, q) is kept across
+ * missing values and gaps: the first sample after a gap is tested against the last before.
  *
- * False outliers. On white Gaussian noise S is the peak of ~memory increments (about 5
- * standard deviations), so a false outlier needs a value 40 standard deviations off both
- * neighbours: none in 10^8 samples (tests/lib/test_outlier.c). On vibid-sim captures of
- * the shipped stands and the paper's examples (triangle, sine, sweep, PRBS, band-limited
- * and white noise excitation, with and without measurement noise, quantised, from rest):
- * none (same test; the figures are in docs/vibidd.md, "Outlier samples"). A smooth signal
- * cannot make one: at an extremum min(|a|, |b|) <= w^2 h^2 A / 2 while its increments
- * reach w h A. What can: a legitimate single-sample pulse more than K times larger than
- * every increment of the last ~memory samples (a one-sample hammer blow after a long rest
- * is indistinguishable from a glitch), and a held input of independent random values
- * that starts from exact rest (its first value can happen to look like a pulse).
- * What is not detected: a glitch longer than one sample (a level that holds for two
- * samples is a step), a glitch smaller than K times the recent motion (it also does little
- * harm), a glitch that is the very first sample of a channel with the next two close to it.
+ * False outliers (tests/lib/test_outlier.c, tests/sim/test_outlier.c). On white Gaussian
+ * noise S is the peak of ~memory increments (about 5 standard deviations), so a false
+ * outlier needs a value some 40 standard deviations off both neighbours: none in 2 x 10^7
+ * values. On 1.22 M values of vibid-sim captures (the shipped stands and simulations,
+ * the paper's examples 1 and 2, force inputs held and smooth under every excitation
+ * generator, measured as displacement, velocity, acceleration and force, from exact rest,
+ * quantised): one, below. A smooth signal cannot make one: at an extremum min(|a|, |b|) <=
+ * w^2 h^2 A / 2, while its increments reach w h A. What can:
+ *   - the first one-step flicker of a quantised channel that rested exactly on one value
+ *     since the start (no step seen in the warm-up): nothing tells it from a glitch; it
+ *     teaches q, so it happens once per channel (the one in the captures above);
+ *   - a held input of independent random values that starts from exact rest: its first
+ *     value can look like a pulse (3000 starts: 2 with 60 dB measurement noise, 0 without;
+ *     with one successor instead of three it was 17 of 200);
+ *   - a legitimate single-sample pulse more than K times every increment of the last
+ *     ~memory samples (a one-sample hammer blow after a long rest).
+ * What is not taken out: a glitch longer than one sample (a level that holds is a step), a
+ * glitch smaller than K times the recent motion (which also does little harm), a glitch
+ * within 3 samples before another glitch, and in a channel that never moved, a glitch up
+ * to K times the size of an earlier one (its jump taught q).
  *
  * Real time: every array is allocated in create. push, flush and released allocate
  * nothing and never throw; a push costs O(n_channels) (the warm-up's end
@@ -87,8 +95,8 @@ typedef struct vibid_outlier_stats {
     uint64_t outlier_samples; /* released samples with at least one value taken out */
     uint64_t outlier_values;  /* values taken out */
     uint64_t unverified;      /* of those, suspects whose next value was missing (gap, end) */
-    uint64_t held;            /* samples that waited for their successor (suspects), incl.
-                                 those found legitimate */
+    uint64_t held;            /* suspect values that waited for their successors, incl. those
+                                 found legitimate */
 } vibid_outlier_stats;
 
 /* Defaults for n_channels channels. cfg may not be NULL (nothing happens if it is). */
@@ -102,14 +110,15 @@ VIBID_API void vibid_outlier_destroy(vibid_outlier *det);
 
 /* Feeds the next sample: n_channels values; NaN or Inf = that value is missing (a sample
  * of all NaN stands for a gap). *n_released = the number of samples this call releases,
- * oldest first, in the order they were pushed: 0 while a suspect waits for its successor
- * or the warm-up collects, 1 usually, up to warmup + 1. Read them with
+ * oldest first, in the order they were pushed: 0 while a suspect waits for its successors
+ * or the warm-up collects, 1 usually, up to max(warmup, VIBID_OUTLIER_LOOKAHEAD + 1) at
+ * once (the most that is ever held). Read them with
  * vibid_outlier_released before the next push or flush (which drop them). Every pushed
  * sample is released exactly once. VIBID_E_NULL_ARGUMENT only (nothing changes then). */
 VIBID_API vibid_status vibid_outlier_push(vibid_outlier *det, const double *values, size_t *n_released);
 
-/* The end of the data: everything still held is decided without a successor and
- * released (*n_released of them). The history is kept (a push may follow). */
+/* The end of the data: everything still held is decided with the successors there are
+ * and released (*n_released of them). The history is kept (a push may follow). */
 VIBID_API vibid_status vibid_outlier_flush(vibid_outlier *det, size_t *n_released);
 
 /* Released sample i (0 = oldest of the last push/flush): its values, with every outlier
