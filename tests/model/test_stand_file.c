@@ -123,9 +123,9 @@ static void test_disturbance_errors(void **state) {
                  CFG ":6: stand.disturbances.[0].node: unknown node 'm9'");
     expect_error(HEAD "  disturbances = ( { name = \"w1\"; node = \"m1\"; std = 1.0; },\n"
                       "                   { name = \"w2\"; std = 1.0; } );\n};\n",
-                 CFG ":6: stand.disturbances.[1].node: missing (a string is required)");
+                 CFG ":6: stand.disturbances.[1].node: missing (a name is required)");
     expect_error(HEAD "  disturbances = ( { node = \"m1\"; } );\n};\n",
-                 CFG ":5: stand.disturbances.[0].name: missing (a string is required)");
+                 CFG ":5: stand.disturbances.[0].name: missing (a name is required)");
     expect_error(HEAD "  disturbances = ( { name = \"w1\"; node = \"m1\";\n    std = -1.0; } );\n};\n",
                  CFG ":6: stand.disturbances.[0].std: -1 must be >= 0 N (omitted or 0: unknown, estimated)");
     expect_error(HEAD "  disturbances = ( { name = \"w1\"; node = \"m1\"; std = \"big\"; } );\n};\n",
@@ -290,6 +290,114 @@ static void test_units(void **state) {
     remove(CFG);
 }
 
+/* Issue 30, item 3: names reach every output unescaped (CSV headers, line protocol tags
+ * and field keys, MQTT topics, JSON, the status file, the log), so every name and every
+ * reference to one is of the safe set A-Z a-z 0-9 _ - . (vibid/cfgread.h). Each place a
+ * stand file names something gets each hostile character; the error names file, line,
+ * field and the character, and is one line (the name is printed with \xNN for what is
+ * unprintable: the error cannot forge a log line either). Names of the full set pass. */
+static void test_hostile_names(void **state) {
+    (void)state;
+    /* every place a name is given or referenced, %s marking it */
+    static const struct {
+        const char *text, *field;
+        int line;
+    } where[] = {
+        {"stand = {\n  name = \"%s\";\n  sample_rate = 100.0;\n"
+         "  nodes = ( { name = \"m1\"; mass = 1.0; measure = { displacement = \"x1\"; }; } );\n"
+         "  elements = ( { name = \"c1\"; kind = \"spring\"; between = [\"m1\", \"ground\"]; value = 1.0; } );\n};\n",
+         "stand.name", 2},
+        {"stand = {\n  sample_rate = 100.0;\n"
+         "  nodes = ( { name = \"%s\"; mass = 1.0; measure = { displacement = \"x1\"; }; } );\n};\n",
+         "stand.nodes.[0].name", 3},
+        {"stand = {\n  sample_rate = 100.0;\n"
+         "  nodes = ( { name = \"m1\"; mass = 1.0; measure = { displacement = \"%s\"; }; } );\n};\n",
+         "stand.nodes.[0].measure.displacement", 3},
+        {"stand = {\n  sample_rate = 100.0;\n"
+         "  nodes = ( { name = \"m1\"; mass = 1.0; measure = { displacement = \"x1\"; }; } );\n"
+         "  elements = ( { name = \"%s\"; kind = \"spring\"; between = [\"m1\", \"ground\"]; value = 1.0; } );\n};\n",
+         "stand.elements.[0].name", 4},
+        {"stand = {\n  sample_rate = 100.0;\n"
+         "  nodes = ( { name = \"m1\"; mass = 1.0; measure = { displacement = \"x1\"; }; } );\n"
+         "  elements = ( { name = \"c1\"; kind = \"spring\";\n    between = [\"%s\", \"ground\"]; value = 1.0; } );\n};\n",
+         "stand.elements.[0].between", 5},
+        {"stand = {\n  sample_rate = 100.0;\n"
+         "  nodes = ( { name = \"m1\"; mass = 1.0; measure = { displacement = \"x1\"; }; } );\n"
+         "  inputs = ( { name = \"%s\"; node = \"m1\"; channel = \"F1\"; } );\n};\n",
+         "stand.inputs.[0].name", 4},
+        {"stand = {\n  sample_rate = 100.0;\n"
+         "  nodes = ( { name = \"m1\"; mass = 1.0; measure = { displacement = \"x1\"; }; } );\n"
+         "  inputs = ( { name = \"f1\"; node = \"m1\"; channel = \"%s\"; } );\n};\n",
+         "stand.inputs.[0].channel", 4},
+        {"stand = {\n  sample_rate = 100.0;\n"
+         "  nodes = ( { name = \"m1\"; mass = 1.0; measure = { displacement = \"x1\"; }; } );\n"
+         "  inputs = ( { name = \"f1\"; node = \"%s\"; channel = \"F1\"; } );\n};\n",
+         "stand.inputs.[0].node", 4},
+        {"stand = {\n  sample_rate = 100.0;\n"
+         "  nodes = ( { name = \"m1\"; mass = 1.0; measure = { displacement = \"x1\"; }; } );\n"
+         "  disturbances = ( { name = \"%s\"; node = \"m1\"; std = 1.0; } );\n};\n",
+         "stand.disturbances.[0].name", 4},
+        {"stand = {\n  sample_rate = 100.0;\n"
+         "  matrices = { n_dof = 1; M = [1.0]; D = [0.1]; C = [10.0];\n    channels = [\"%s\"]; };\n};\n",
+         "stand.matrices.channels", 4},
+    };
+    /* hostile: the issue's (a newline, a comma, printf directives) and every other
+     * character that one output or another gives a meaning */
+    static const struct {
+        const char *name, *what; /* name as written in the file (libconfig escapes) */
+    } bad[] = {
+        {"rig\\nstate=stopped", "contains a line break (character 4)"},
+        {"x,1", "contains ',' (character 2)"},
+        {"%n%s%s%s%x", "contains '%' (character 1)"},
+        {"a b", "contains a space (character 2)"},
+        {"a=b", "contains '='"},
+        {"a\\\"b", "contains '\"'"},
+        {"a\\\\", "contains a backslash"},
+        {"a/b", "contains '/'"},
+        {"a+", "contains '+'"},
+        {"a#", "contains '#'"},
+        {"a{b}", "contains '{'"},
+        {"a:b", "contains ':'"},
+        {"a\\tb", "contains \\x09"},
+        {"\\xc3\\xa4", "contains \\xc3 (character 1)"},
+        {"-a", "begins with '-'"},
+        {".a", "begins with '.'"},
+        {"", "is empty"},
+        {"a123456789012345678901234567890123456789012345678901234567890123", "longer than 63 characters"},
+    };
+    char text[2048], want[256];
+    for (size_t w = 0; w < sizeof where / sizeof where[0]; w++)
+        for (size_t b = 0; b < sizeof bad / sizeof bad[0]; b++) {
+            const char *at = strstr(where[w].text, "%s"); /* the place of the name */
+            snprintf(text, sizeof text, "%.*s%s%s", (int)(at - where[w].text), where[w].text, bad[b].name, at + 2);
+            vibid_stand_error err;
+            write_file(text);
+            vibid_stand *st = vibid_stand_load(CFG, &err);
+            if (st) {
+                vibid_stand_destroy(st);
+                fail_msg("%s = \"%s\": loaded", where[w].field, bad[b].name);
+            }
+            snprintf(want, sizeof want, CFG ":%d: %s: ", where[w].line, where[w].field);
+            /* an empty measured channel has a message of its own ("channel name missing") */
+            if (strncmp(err.text, want, strlen(want)) ||
+                (!strstr(err.text, bad[b].what) && !(!bad[b].name[0] && strstr(err.text, "missing"))))
+                fail_msg("%s = \"%s\": error '%s', want '%s...%s'", where[w].field, bad[b].name, err.text, want,
+                         bad[b].what);
+            if (strchr(err.text, '\n') || strchr(err.text, '\r')) fail_msg("the error has a line break: '%s'", err.text);
+            if (w == 0) printf("  %s\n", err.text);
+        }
+    /* the whole safe set passes, in every place */
+    snprintf(text, sizeof text,
+             "stand = {\n  name = \"Rig_07-b.2\";\n  sample_rate = 100.0;\n"
+             "  nodes = ( { name = \"m_1-a.b\"; mass = 1.0; measure = { displacement = \"X_1-a.b\"; }; } );\n"
+             "  elements = ( { name = \"_c1\"; kind = \"spring\"; between = [\"m_1-a.b\", \"ground\"]; value = 1.0; } );\n"
+             "  inputs = ( { name = \"9f\"; node = \"m_1-a.b\"; channel = \"F-1.x\"; } );\n};\n");
+    vibid_stand *st = load_ok(text);
+    assert_string_equal(vibid_stand_name(st), "Rig_07-b.2");
+    assert_int_equal(vibid_stand_find_channel(st, "F-1.x"), 1);
+    vibid_stand_destroy(st);
+}
+
 int main(void) {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_disturbances_and_noise),
@@ -297,7 +405,7 @@ int main(void) {
         cmocka_unit_test(test_noise_errors),
         cmocka_unit_test(test_unknown_keys),
         cmocka_unit_test(test_unknown_gain_true_value),
-        cmocka_unit_test(test_units),
+        cmocka_unit_test(test_units), cmocka_unit_test(test_hostile_names),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

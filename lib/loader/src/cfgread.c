@@ -255,3 +255,85 @@ int vibid_cfg_path(const vibid_cfg_reader *r, const config_setting_t *group, con
         return vibid_cfg_fail(r, s, f, "must be a string (a file name)");
     return vibid_cfg_path_of(r, s, f, config_setting_get_string(s), out, cap) ? -1 : 1;
 }
+
+/* The name as text that cannot break a line: printable ASCII as it is, anything else as
+ * \xNN, at most 48 characters of it (then "..."). */
+static void printable(char *out, size_t cap, const char *s)
+{
+    size_t o = 0;
+    for (size_t i = 0; s[i] && o + 8 < cap; i++) {
+        unsigned char ch = (unsigned char)s[i];
+        if (i == 48) {
+            o += (size_t)snprintf(out + o, cap - o, "...");
+            break;
+        }
+        if (ch >= 0x20 && ch < 0x7f && ch != '\\')
+            out[o++] = (char)ch;
+        else
+            o += (size_t)snprintf(out + o, cap - o, "\\x%02x", ch);
+    }
+    out[o < cap ? o : cap - 1] = '\0';
+}
+
+static bool name_char(char ch, bool first)
+{
+    return (ch >= 'A' && ch <= 'Z') || (ch >= 'a' && ch <= 'z') || (ch >= '0' && ch <= '9') || ch == '_' ||
+           (!first && (ch == '-' || ch == '.'));
+}
+
+const char *vibid_cfg_name_problem(const char *s, char *why, size_t cap)
+{
+    static const char rule[] = "a name is 1..63 of A-Z a-z 0-9 _ - . (the first a letter, digit or '_')";
+    char shown[256];
+    size_t n = 0;
+    while (s[n] && n <= VIBID_CFG_NAME_MAX) n++;
+    if (n == 0) {
+        snprintf(why, cap, "is empty: %s", rule);
+        return why;
+    }
+    for (size_t i = 0; i < n; i++) {
+        if (name_char(s[i], i == 0)) continue;
+        unsigned char ch = (unsigned char)s[i];
+        char what[16];
+        if (ch >= 0x21 && ch < 0x7f && ch != '\\')
+            snprintf(what, sizeof what, "'%c'", ch);
+        else if (ch == ' ')
+            snprintf(what, sizeof what, "a space");
+        else if (ch == '\n' || ch == '\r')
+            snprintf(what, sizeof what, "a line break");
+        else if (ch == '\\')
+            snprintf(what, sizeof what, "a backslash");
+        else
+            snprintf(what, sizeof what, "\\x%02x", ch);
+        printable(shown, sizeof shown, s);
+        snprintf(why, cap, "'%s' %s %s (character %zu): %s", shown, i == 0 && name_char(s[i], false) ? "begins with" : "contains",
+                 what, i + 1, rule);
+        return why;
+    }
+    if (n > VIBID_CFG_NAME_MAX) {
+        printable(shown, sizeof shown, s);
+        snprintf(why, cap, "'%s' is longer than %d characters: %s", shown, VIBID_CFG_NAME_MAX, rule);
+        return why;
+    }
+    return NULL;
+}
+
+int vibid_cfg_check_name(const vibid_cfg_reader *r, const config_setting_t *s, const char *field, const char *value)
+{
+    char why[512];
+    if (!value) return vibid_cfg_fail(r, s, field, "must be a string (a name)");
+    return vibid_cfg_name_problem(value, why, sizeof why) ? vibid_cfg_fail(r, s, field, "%s", why) : 0;
+}
+
+int vibid_cfg_name(const vibid_cfg_reader *r, const config_setting_t *group, const char *path, const char *name,
+                   const char **out)
+{
+    char f[192];
+    const config_setting_t *s = member(group, path, name, f, sizeof f);
+    if (!s) return 0;
+    if (config_setting_type(s) != CONFIG_TYPE_STRING) return vibid_cfg_fail(r, s, f, "must be a string (a name)");
+    const char *v = config_setting_get_string(s);
+    if (vibid_cfg_check_name(r, s, f, v)) return -1;
+    *out = v;
+    return 1;
+}
