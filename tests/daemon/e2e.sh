@@ -1007,6 +1007,37 @@ hostile_names)
     cmp -s <(grep -v '^#' tracks.csv) <(grep -v '^#' tracks2.csv) || fail "the recording does not replay to the same tracks"
     note "safe names through tracks, line protocol, status and recording: ok"
     ;;
+size_limits)
+    # Issue 30, item 8: one 4 MiB line in a stand file took 9.7 s (16 MiB over 100 s) in
+    # libconfig's scanner, nothing bounded a file, and 10^5 elements took 61 s in --check
+    # (the unit's ExecStartPre). Every file of the one reader (vibid/cfgread.h) is refused
+    # beyond 65536 characters a line or 16 MiB with its @includes, naming file and line,
+    # exit 2: the stand file, vibidd's configuration, a channel map. (The loader's own test,
+    # model.test_stand_file, has the limits exactly, the includes and 10^5 elements.)
+    $GEN "$STAND" --duration 1 --noise 0.001 --seed 5 --csv cap.csv 2>/dev/null || fail "generator"
+    python3 -c "import sys; s = open(sys.argv[1]).read(); open('long_stand.cfg', 'w').write(s.replace('name = \"paper_example1\";', 'name = \"' + 'a' * (4 << 20) + '\";'))" "$STAND"
+    config_csv v.cfg ""
+    sed -i 's|^stand = .*|stand = "long_stand.cfg";|' v.cfg
+    timeout 30 "$VIBIDD" -c v.cfg --check > out 2> err
+    rc=$?
+    [ $rc = 2 ] || fail "4 MiB line in the stand file: exit $rc ($(head -c 300 err))"
+    grep -q 'long_stand.cfg:[0-9]*: line longer than 65536 characters' err || fail "stand: $(head -c 300 err)"
+    config_csv v.cfg ""
+    printf '# %070000d\n' 0 >> v.cfg
+    timeout 30 "$VIBIDD" -c v.cfg --check > out 2> err
+    rc=$?
+    [ $rc = 2 ] && grep -q "v.cfg:$(wc -l < v.cfg): line longer than 65536 characters" err ||
+        fail "long line in vibidd's configuration: exit $rc ($(head -c 300 err))"
+    config_csv v.cfg ""
+    sed -n '/channels = (/,/);/p' v.cfg > map.cfg
+    printf '# %070000d\n' 0 >> map.cfg
+    sed -i -e '/channels = (/,/);/d' -e 's|time_column = "t";|time_column = "t"; channel_map = "map.cfg";|' v.cfg
+    timeout 30 "$VIBIDD" -c v.cfg --check > out 2> err
+    rc=$?
+    [ $rc = 2 ] && grep -q "map.cfg:$(wc -l < map.cfg): line longer than 65536 characters" err ||
+        fail "long line in the channel map: exit $rc ($(head -c 300 err))"
+    note "refused: $(head -c 200 err)"
+    ;;
 units)
     # Issue 12, item 9: a capture in mm (x1, x2) and um (s), declared so in the channel map,
     # gives the estimates of the same capture in m: the values are converted to the stand's

@@ -3,11 +3,13 @@
  * (vibid_model_disturbance_info, vibid_model_get_noise) and the simulator's accessor
  * (vibid_stand_disturbance_true_std); every mistake is reported as file:line: field:
  * message, checked here as exact text. */
+#define _POSIX_C_SOURCE 200809L /* clock_gettime */
 #include <setjmp.h>
 #include <stdarg.h>
 #include <stddef.h>
 #include <stdio.h>
 #include <string.h>
+#include <time.h>
 #include <cmocka.h>
 
 #include <vibid/stand_file.h>
@@ -398,6 +400,130 @@ static void test_hostile_names(void **state) {
     vibid_stand_destroy(st);
 }
 
+/* Issue 30, item 8: libconfig's scanner takes time quadratic in a line's length (a 4 MiB
+ * line in a stand file: 9.7 s, 16 MiB over 100 s), and nothing bounded a file. The one
+ * reader (vibid/cfgread.h) refuses a line longer than VIBID_CFG_LINE_MAX = 65536 characters
+ * and a file that is, with what it @includes, larger than VIBID_CFG_FILE_MAX = 16 MiB, before
+ * libconfig reads it; the error names the file and the line. The limits themselves pass. */
+static void write_named(const char *path, const char *head, char fill, size_t n, const char *tail) {
+    FILE *f = fopen(path, "w");
+    assert_non_null(f);
+    fputs(head, f);
+    for (size_t i = 0; i < n; i++) fputc(fill, f);
+    fputs(tail, f);
+    fclose(f);
+}
+
+static const char *const minimal_tail =
+    "\nstand = { sample_rate = 100.0;\n"
+    "  nodes = ( { name = \"m1\"; mass = 1.0; measure = { displacement = \"x1\"; }; } );\n"
+    "  base = { measure = { displacement = \"s\"; }; };\n"
+    "  elements = ( { name = \"c1\"; kind = \"spring\"; between = [\"m1\", \"base\"]; unknown = true; value = 1.0; } );\n"
+    "};\n";
+
+static void test_size_limits(void **state) {
+    (void)state;
+    vibid_stand_error err;
+    vibid_stand *st;
+    /* a comment line of exactly 65536 characters ("#" and 65535 more) passes */
+    write_named(CFG, "#", 'x', VIBID_CFG_LINE_MAX - 1, minimal_tail);
+    st = vibid_stand_load(CFG, &err);
+    if (!st) fail_msg("%s", err.text);
+    vibid_stand_destroy(st);
+    /* one more character is refused, on line 1; as is a 4 MiB name on line 2 */
+    write_named(CFG, "#", 'x', VIBID_CFG_LINE_MAX, minimal_tail);
+    assert_null(vibid_stand_load(CFG, &err));
+    assert_string_equal(err.text, CFG ":1: line longer than 65536 characters: the limit of a line of a configuration file");
+    write_named(CFG, "# a stand named by 4 MiB\nstand = { name = \"", 'a', 4u << 20, "\"; };\n");
+    assert_null(vibid_stand_load(CFG, &err));
+    assert_string_equal(err.text, CFG ":2: line longer than 65536 characters: the limit of a line of a configuration file");
+    /* an @included file is held to the same limit, and its error names it */
+    write_named("test_stand_file_inc.cfg", "#", 'y', 70000, "\n");
+    write_named(CFG, "# includes a file with a long line\n@include \"test_stand_file_inc.cfg\"\n", ' ', 0, minimal_tail);
+    assert_null(vibid_stand_load(CFG, &err));
+    assert_non_null(strstr(err.text, "test_stand_file_inc.cfg:1: line longer than 65536 characters"));
+    /* 16 MiB in short lines pass the limit's check (libconfig reads them in about 0.2 s); one
+     * more kilobyte, or the same split over a file and its @include, is refused */
+    const size_t lines = (VIBID_CFG_FILE_MAX - 2048) / 1024;
+    FILE *f = fopen(CFG, "w");
+    assert_non_null(f);
+    for (size_t i = 0; i < lines; i++) fprintf(f, "#%01022zu\n", i % 10);
+    fputs(minimal_tail, f);
+    fclose(f);
+    st = vibid_stand_load(CFG, &err);
+    if (!st) fail_msg("%s", err.text);
+    vibid_stand_destroy(st);
+    f = fopen(CFG, "a");
+    for (size_t i = 0; i < 4; i++) fprintf(f, "#%01022zu\n", i);
+    fclose(f);
+    assert_null(vibid_stand_load(CFG, &err));
+    assert_string_equal(err.text, CFG ": larger than 16 MiB with the files it @includes: the limit of a configuration file");
+    f = fopen("test_stand_file_inc.cfg", "w");
+    for (size_t i = 0; i < lines / 2 + 8; i++) fprintf(f, "#%01022zu\n", i % 10);
+    fclose(f);
+    f = fopen(CFG, "w");
+    fputs("@include \"test_stand_file_inc.cfg\"\n", f);
+    for (size_t i = 0; i < lines / 2; i++) fprintf(f, "#%01022zu\n", i % 10);
+    fputs(minimal_tail, f);
+    fclose(f);
+    assert_null(vibid_stand_load(CFG, &err));
+    assert_non_null(strstr(err.text, "larger than 16 MiB with the files it @includes"));
+    remove("test_stand_file_inc.cfg");
+    remove(CFG);
+}
+
+/* Issue 30, item 8: 10^5 elements took 61 s in vibidd --check: every name was compared with
+ * every earlier one, and every `between` looked up by walking the nodes. The names are now
+ * indexed (a hash map in the model): the stand loads, a duplicate among them is still
+ * refused naming both, and the ends still resolve. The time is printed, not asserted (it
+ * was 20.6 s for such a stand here before the index, 0.45 s after, vibidd --check). */
+static void test_many_elements(void **state) {
+    (void)state;
+    const size_t n = 100000;
+    for (int dup = 0; dup < 2; dup++) {
+        FILE *f = fopen(CFG, "w");
+        assert_non_null(f);
+        fputs("stand = { sample_rate = 1000.0;\n"
+              "  nodes = ( { name = \"m1\"; mass = 1.0; measure = { displacement = \"x1\"; }; },\n"
+              "            { name = \"m2\"; mass = 1.0; measure = { displacement = \"x2\"; }; } );\n"
+              "  base = { measure = { displacement = \"s\"; }; };\n"
+              "  elements = (\n"
+              "    { name = \"k\"; kind = \"spring\"; between = [\"m1\", \"base\"]; unknown = true; value = 1.0; },\n"
+              "    { name = \"k2\"; kind = \"spring\"; between = [\"m1\", \"m2\"]; unknown = true; value = 1.0; }",
+              f);
+        for (size_t i = 0; i < n; i++)
+            fprintf(f, ",\n    { name = \"e%zu\"; kind = \"damper\"; between = [\"m%zu\", \"ground\"]; value = 0.001; }",
+                    dup && i == n - 1 ? (size_t)17 : i, 1 + i % 2);
+        fputs("\n  );\n};\n", f);
+        fclose(f);
+        struct timespec t0, t1;
+        clock_gettime(CLOCK_MONOTONIC, &t0);
+        vibid_stand_error err;
+        vibid_stand *st = vibid_stand_load(CFG, &err);
+        clock_gettime(CLOCK_MONOTONIC, &t1);
+        printf("  %zu elements%s: loaded in %.2f s (printed, not asserted)\n", n + 2, dup ? ", the last a duplicate" : "",
+               (double)(t1.tv_sec - t0.tv_sec) + 1e-9 * (double)(t1.tv_nsec - t0.tv_nsec));
+        if (!dup) {
+            if (!st) fail_msg("%s", err.text);
+            vibid_model_dims d;
+            assert_int_equal(vibid_model_get_dims(vibid_stand_model(st), &d), VIBID_OK);
+            assert_int_equal(d.n_params, 2);
+            size_t node = 99;
+            assert_int_equal(vibid_model_find_node(vibid_stand_model(st), "m2", &node), VIBID_OK);
+            assert_int_equal(node, 1);
+            assert_int_not_equal(vibid_model_find_node(vibid_stand_model(st), "e5", &node), VIBID_OK); /* an element */
+            vibid_stand_destroy(st);
+        } else {
+            assert_null(st);
+            char want[128];
+            snprintf(want, sizeof want, CFG ":%zu: stand.elements.[%zu]:", (size_t)7 + n, n + 1);
+            if (strncmp(err.text, want, strlen(want)) || !strstr(err.text, "element name 'e17' is already used by an element"))
+                fail_msg("error '%s', want '%s ... e17 ... already used by an element'", err.text, want);
+        }
+    }
+    remove(CFG);
+}
+
 int main(void) {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_disturbances_and_noise),
@@ -406,6 +532,7 @@ int main(void) {
         cmocka_unit_test(test_unknown_keys),
         cmocka_unit_test(test_unknown_gain_true_value),
         cmocka_unit_test(test_units), cmocka_unit_test(test_hostile_names),
+        cmocka_unit_test(test_size_limits), cmocka_unit_test(test_many_elements),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -50,9 +50,18 @@ typedef struct vibid_cfg_reader {
     vibid_cfg_error *err;
 } vibid_cfg_reader;
 
+/* Size limits of every configuration file (checked before libconfig reads it, whose time
+ * grows with the square of a line's length): a line at most VIBID_CFG_LINE_MAX characters,
+ * a file together with the files it @includes at most VIBID_CFG_FILE_MAX bytes. Generous
+ * for any stand (a stand of 10^5 elements, one per line, is 8 MiB in lines of ~90
+ * characters); libconfig reads either limit's worth in well under a second. */
+#define VIBID_CFG_LINE_MAX 65536u
+#define VIBID_CFG_FILE_MAX (16u << 20)
+
 /* config_init(cf), @include relative to the file's directory, and reads `path`. 0 on
- * success; -1 with err filled ("file:line: syntax error: ..." or "file: cannot read: ...").
- * The caller calls config_destroy(cf) in both cases. */
+ * success; -1 with err filled ("file:line: syntax error: ...", "file: cannot read: ...",
+ * "file:line: line longer than 65536 characters: ..." or "file: larger than 16 MiB with the
+ * files it @includes: ..."). The caller calls config_destroy(cf) in both cases. */
 int vibid_cfg_read_file(config_t *cf, const char *path, vibid_cfg_error *err);
 
 /* Records an error at setting s (its file and line; the reader's file and line 0 when s
