@@ -614,8 +614,10 @@ VIBID_API vibid_status vibid_model_set_matrices(vibid_model *model, size_t n_dof
                 for (std::size_t i = 0; i <= j; ++i) {
                     const double v = mt.data[i + j * n_dof];
                     if (!unk && v == 0.0) continue;  // known zeros contribute nothing
-                    Term t{std::string(1, mt.letter) + "[" + std::to_string(i + 1) + "," + std::to_string(j + 1) + "]",
-                           mt.kind, v, unk, -1, {}};
+                    // "C1_2": a name of the safe set (vibid/cfgread.h) like every other, since
+                    // it becomes a CSV column, a field key, a label ("C[1,2]" broke the CSV)
+                    Term t{std::string(1, mt.letter) + std::to_string(i + 1) + "_" + std::to_string(j + 1), mt.kind, v,
+                           unk, -1, {}};
                     t.entries.push_back(Entry{i, 1.0, Signal{mt.type, j, VIBID_GROUND}});
                     if (i != j) t.entries.push_back(Entry{j, 1.0, Signal{mt.type, i, VIBID_GROUND}});
                     built.matrix_terms.push_back(std::move(t));
@@ -626,8 +628,7 @@ VIBID_API vibid_status vibid_model_set_matrices(vibid_model *model, size_t n_dof
             for (std::size_t i = 0; i < n_dof; ++i) {
                 const double v = B[i + j * n_dof];
                 if (!unk_b && v == 0.0) continue;
-                Term t{"B[" + std::to_string(i + 1) + "," + std::to_string(j + 1) + "]", VIBID_PARAM_GAIN, v, unk_b, -1,
-                       {}};
+                Term t{"B" + std::to_string(i + 1) + "_" + std::to_string(j + 1), VIBID_PARAM_GAIN, v, unk_b, -1, {}};
                 t.entries.push_back(Entry{i, -1.0, Signal{SignalType::Input, j, 0}});
                 built.matrix_terms.push_back(std::move(t));
             }
