@@ -46,6 +46,7 @@ struct vibid_outlier {
     std::vector<unsigned char> out;    // cap x n, 1 = taken out
     std::size_t n_queued = 0, n_decided = 0, n_released = 0;
     bool warm = false;  // the warm-up has ended
+    bool suspect_waits = false;  // sample n_decided was tested and waits for its successors
     vibid_outlier_stats stats{};
 
     double *row(std::size_t i) { return vals.data() + i * n; }
@@ -82,7 +83,7 @@ struct vibid_outlier {
             c.scale *= decay;
             if (!std::isfinite(x[k])) continue;  // missing: no value to judge
             const double a = c.has_ref ? std::fabs(x[k] - c.ref) : 0.0;
-            if (a > K * std::max(c.scale, floor_of(c))) {
+            if (a > K * c.scale && a > K * floor_of(c)) {  // the floor only when it can matter
                 c.jump = a;
                 c.pending = true;
                 any = true;
@@ -202,13 +203,14 @@ struct vibid_outlier {
         }
         while (n_decided < n_queued) {
             const std::size_t i = n_decided;
-            // a sample is tested once: when it becomes the oldest undecided one
-            bool waiting = false;
-            for (std::size_t k = 0; k < n && !waiting; ++k) waiting = ch[k].pending;
-            if (!waiting) waiting = test(i);
+            // a sample is tested once: when it becomes the oldest undecided one (a sample
+            // that waits was tested when it came first)
+            const bool waiting = suspect_waits || test(i);
+            suspect_waits = waiting;
             if (waiting) {
                 if (!at_end && !can_resolve(i)) return;  // waits for its successors
                 resolve(i);
+                suspect_waits = false;
             }
             ++n_decided;
         }
@@ -228,7 +230,7 @@ struct vibid_outlier {
     void reset() {
         std::fill(ch.begin(), ch.end(), Channel{});
         n_queued = n_decided = n_released = 0;
-        warm = false;
+        warm = suspect_waits = false;
         stats = vibid_outlier_stats{};
     }
 };
