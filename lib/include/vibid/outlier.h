@@ -60,8 +60,7 @@
  * Real time: every array is allocated in create. push, flush and released allocate
  * nothing and never throw; a push costs O(n_channels) (the warm-up's end
  * O(warmup n_channels), once): push and released of a clean 3-channel sample about 21 ns
- * (a loop of 5 * 10^6 pushes on one core of the 2-core test machine under load; vibidd's
- * replay of example 1 about 0.1 s slower per 600,000 samples, tracks identical).
+ * (a loop of 5 * 10^6 pushes on one core of the 2-core test machine, under load).
  */
 #ifndef VIBID_OUTLIER_H
 #define VIBID_OUTLIER_H
