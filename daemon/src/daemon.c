@@ -799,10 +799,11 @@ static void process(vd_daemon *d, const vd_item *it)
         handle_fault(d, rec);
         return;
     }
-    /* the raw recording keeps every sample as received, glitches included */
-    vd_writers_sample(&d->w, rec);
     vd_est_feed(&d->est, rec, it->t_rx_ns);
     drain_released(d);
+    /* the raw recording keeps every sample as received, glitches included; written after
+     * the estimate took it, so that the latency does not include its formatting */
+    vd_writers_sample(&d->w, rec);
 }
 
 /* acquisition.handoff_spin: waking a thread sleeping in poll() costs 20-40 us on the
