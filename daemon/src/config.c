@@ -9,6 +9,8 @@
 #include "log.h"
 #include "metrics.h"
 
+#include <vibid/outlier.h>
+
 #include <errno.h>
 #include <libconfig.h>
 #include <limits.h>
@@ -61,6 +63,22 @@ static int get_string(ctx *c, const config_setting_t *g, const char *section, co
 {
     snprintf(out, cap, "%s", def);
     return vibid_cfg_string(&c->r, g, section, name, true, out, cap) < 0 ? -1 : 0;
+}
+
+/* A name (the safe set of vibid/cfgread.h: A-Z a-z 0-9 _ - ., written into outputs
+ * unescaped), copied into out; absent leaves def; "" only where allow_empty (it means
+ * "not set"). */
+static int get_name(ctx *c, const config_setting_t *g, const char *section, const char *name, const char *def,
+                    bool allow_empty, char *out, size_t cap)
+{
+    if (get_string(c, g, section, name, def, out, cap))
+        return -1;
+    const config_setting_t *s = g ? config_setting_get_member(g, name) : NULL;
+    if (!s || (allow_empty && !out[0]))
+        return 0;
+    char f[192];
+    vibid_cfg_field(f, sizeof f, section, name);
+    return vibid_cfg_check_name(&c->r, s, f, out);
 }
 
 /* One of `names` (NULL-terminated); *out = its index. */
@@ -495,7 +513,7 @@ static const char *const acq_known[] = {"ring_size",   "read_batch",   "read_tim
                                         "lock_memory", "handoff_spin", NULL};
 static const char *const est_known[] = {"method",         "forgetting",       "prefilter_hz", "rls_alpha",
                                         "iv_lag",         "difference_order", "decimation",   "warmup_samples",
-                                        "start_values",   NULL};
+                                        "start_values",   "outlier_threshold", NULL};
 static const char *const out_known[] = {"tracks", "influx", "record", "status", "prometheus", "mqtt", NULL};
 static const char *const alarm_known[] = {"enabled", "threshold", "min_relative", "hold", "learn_start",
                                           "learn_duration", "parameters", NULL};
@@ -570,7 +588,7 @@ static int load_start_values(ctx *c, const config_setting_t *sv)
         if (!config_setting_is_group(e))
             return vibid_cfg_fail(&c->r, e, sec, "must be a group { name = \"...\"; value = ...; }");
         char name[64];
-        if (check_known(c, e, sec, sk) || get_string(c, e, sec, "name", "", name, sizeof name))
+        if (check_known(c, e, sec, sk) || get_name(c, e, sec, "name", "", false, name, sizeof name))
             return -1;
         size_t k = param_index(cfg, name);
         snprintf(f, sizeof f, "%s.name", sec);
@@ -624,19 +642,15 @@ static int load_estimator(ctx *c, config_t *cf)
     if (get_int(c, g, "estimator", "warmup_samples", 0, 0, 1000000000, &v))
         return -1;
     cfg->warmup_samples = (unsigned)v;
+    /* single-sample glitches taken out before the estimator (vibid/outlier.h); 0 = off */
+    if (get_double(c, g, "estimator", "outlier_threshold", VIBID_OUTLIER_THRESHOLD_DEFAULT, 0.0, 1e6,
+                   &cfg->outlier_threshold))
+        return -1;
+    if (cfg->outlier_threshold > 0.0 && cfg->outlier_threshold < 2.0)
+        return vibid_cfg_fail(&c->r, config_setting_get_member(g, "outlier_threshold"),
+                              "estimator.outlier_threshold", "%g: use 0 (off) or a value >= 2",
+                              cfg->outlier_threshold);
     return load_start_values(c, g ? config_setting_get_member(g, "start_values") : NULL);
-}
-
-/* An MQTT topic level: not empty, no '/', '+', '#' (the separator and the wildcards). */
-static const char *topic_level_problem(const char *s)
-{
-    if (!*s)
-        return "is empty";
-    if (strchr(s, '/'))
-        return "contains '/', the topic level separator";
-    if (strpbrk(s, "+#"))
-        return "contains a wildcard ('+' or '#')";
-    return NULL;
 }
 
 /* outputs.mqtt.url: mqtt://HOST[:PORT] (1883) or mqtts://HOST[:PORT] (8883); HOST a name, an
@@ -713,10 +727,10 @@ static int load_mqtt(ctx *c, const config_setting_t *q)
     int fi = 0, pi = 0;
     if (check_known(c, q, S, qk) ||
         get_string(c, q, S, "url", q ? "mqtt://127.0.0.1:1883" : "", cfg->mqtt_url, sizeof cfg->mqtt_url) ||
-        get_string(c, q, S, "site", "", cfg->mqtt_site, sizeof cfg->mqtt_site) ||
-        get_string(c, q, S, "stand", "", cfg->mqtt_stand, sizeof cfg->mqtt_stand) ||
+        get_name(c, q, S, "site", "", false, cfg->mqtt_site, sizeof cfg->mqtt_site) ||
+        get_name(c, q, S, "stand", "", true, cfg->mqtt_stand, sizeof cfg->mqtt_stand) ||
         get_string(c, q, S, "topic_prefix", "vibid/v1", cfg->mqtt_prefix, sizeof cfg->mqtt_prefix) ||
-        get_string(c, q, S, "client_id", "", cfg->mqtt_client_id, sizeof cfg->mqtt_client_id) ||
+        get_name(c, q, S, "client_id", "", true, cfg->mqtt_client_id, sizeof cfg->mqtt_client_id) ||
         get_string(c, q, S, "username", "", cfg->mqtt_username, sizeof cfg->mqtt_username) ||
         get_path(c, q, S, "password_file", cfg->mqtt_password_file, sizeof cfg->mqtt_password_file) ||
         get_path(c, q, S, "ca_file", cfg->mqtt_ca_file, sizeof cfg->mqtt_ca_file) ||
@@ -741,29 +755,23 @@ static int load_mqtt(ctx *c, const config_setting_t *q)
     char why[400];
     if (parse_mqtt_url(cfg, why, sizeof why))
         return vibid_cfg_fail(&c->r, config_setting_get_member(q, "url"), "outputs.mqtt.url", "%s", why);
-    const char *bad;
     if (!config_setting_get_member(q, "site"))
         return vibid_cfg_fail(&c->r, q, "outputs.mqtt.site",
                               "missing: the plant or site, the topic level after topic_prefix "
                               "(<topic_prefix>/<site>/<stand>/tracks)");
-    if ((bad = topic_level_problem(cfg->mqtt_site)))
-        return vibid_cfg_fail(&c->r, config_setting_get_member(q, "site"), "outputs.mqtt.site",
-                              "'%s' %s: it is one MQTT topic level", cfg->mqtt_site, bad);
-    if (cfg->mqtt_stand[0] && (bad = topic_level_problem(cfg->mqtt_stand)))
-        return vibid_cfg_fail(&c->r, config_setting_get_member(q, "stand"), "outputs.mqtt.stand",
-                              "'%s' %s: it is one MQTT topic level", cfg->mqtt_stand, bad);
-    if (!cfg->mqtt_stand[0] && (bad = topic_level_problem(vibid_stand_name(cfg->stand))))
-        return vibid_cfg_fail(&c->r, q, "outputs.mqtt.stand",
-                              "the stand's name '%s' %s and cannot be an MQTT topic level: give "
-                              "outputs.mqtt.stand",
-                              vibid_stand_name(cfg->stand), bad);
-    const char *pre = cfg->mqtt_prefix;
-    size_t pl = strlen(pre);
-    if (!pl || pre[0] == '/' || pre[pl - 1] == '/' || strstr(pre, "//") || strpbrk(pre, "+#"))
-        return vibid_cfg_fail(&c->r, config_setting_get_member(q, "topic_prefix"), "outputs.mqtt.topic_prefix",
-                              "'%s': expected topic levels without wildcards, leading, trailing or double "
-                              "slashes, e.g. \"vibid/v1\"",
-                              pre);
+    /* site and stand are names (get_name): no '/', '+' or '#' can make more topic levels */
+    /* topic_prefix: levels separated by '/', each a name */
+    for (const char *lv = cfg->mqtt_prefix;;) {
+        const char *sl = strchr(lv, '/');
+        char level[sizeof cfg->mqtt_prefix], lwhy[512];
+        snprintf(level, sizeof level, "%.*s", (int)(sl ? sl - lv : (long)strlen(lv)), lv);
+        if (vibid_cfg_name_problem(level, lwhy, sizeof lwhy))
+            return vibid_cfg_fail(&c->r, config_setting_get_member(q, "topic_prefix"), "outputs.mqtt.topic_prefix",
+                                  "topic levels separated by '/', e.g. \"vibid/v1\"; level %s", lwhy);
+        if (!sl)
+            break;
+        lv = sl + 1;
+    }
     if (cfg->mqtt_password_file[0] && !cfg->mqtt_username[0])
         return vibid_cfg_fail(&c->r, config_setting_get_member(q, "password_file"), "outputs.mqtt.password_file",
                               "a password needs a username (outputs.mqtt.username)");
@@ -774,18 +782,6 @@ static int load_mqtt(ctx *c, const config_setting_t *q)
         return vibid_cfg_fail(&c->r, q, "outputs.mqtt",
                               "a client certificate needs both cert_file and key_file");
     return 0;
-}
-
-/* A tag value vibid writes: escaped on output (commas, spaces, equals signs), but a
- * backslash at the end or a newline cannot be written in line protocol */
-static const char *influx_tag_problem(const char *v)
-{
-    size_t n = strlen(v);
-    if (strpbrk(v, "\n\r"))
-        return "contains a line break (line protocol is one point per line)";
-    if (n && v[n - 1] == '\\')
-        return "ends with a backslash (it would escape the separator after it)";
-    return NULL;
 }
 
 int vd_check_readable_file(const char *setting, const char *path, char *err, size_t cap)
@@ -935,10 +931,10 @@ static int load_outputs(ctx *c, config_t *cf)
     if (check_known(c, i, "outputs.influx", ik) ||
         get_path(c, i, "outputs.influx", "path", cfg->influx_path, sizeof cfg->influx_path) ||
         get_string(c, i, "outputs.influx", "udp", "", cfg->influx_udp, sizeof cfg->influx_udp) ||
-        get_string(c, i, "outputs.influx", "measurement", "vibid", cfg->influx_measurement,
-                   sizeof cfg->influx_measurement) ||
-        get_string(c, i, "outputs.influx", "site", "", cfg->influx_site, sizeof cfg->influx_site) ||
-        get_string(c, i, "outputs.influx", "stand", "", cfg->influx_stand, sizeof cfg->influx_stand) ||
+        get_name(c, i, "outputs.influx", "measurement", "vibid", false, cfg->influx_measurement,
+                 sizeof cfg->influx_measurement) ||
+        get_name(c, i, "outputs.influx", "site", "", true, cfg->influx_site, sizeof cfg->influx_site) ||
+        get_name(c, i, "outputs.influx", "stand", "", true, cfg->influx_stand, sizeof cfg->influx_stand) ||
         load_influx_http(c, i ? config_setting_get_member(i, "http") : NULL))
         return -1;
     if (cfg->influx_udp[0]) {
@@ -950,17 +946,6 @@ static int load_outputs(ctx *c, config_t *cf)
                                   "'%s': expected HOST:PORT, e.g. \"127.0.0.1:8089\" or \"localhost:8089\"",
                                   cfg->influx_udp);
     }
-    if (cfg->influx_site[0] && influx_tag_problem(cfg->influx_site))
-        return vibid_cfg_fail(&c->r, config_setting_get_member(i, "site"), "outputs.influx.site", "'%s' %s",
-                              cfg->influx_site, influx_tag_problem(cfg->influx_site));
-    if (cfg->influx_stand[0] && influx_tag_problem(cfg->influx_stand))
-        return vibid_cfg_fail(&c->r, config_setting_get_member(i, "stand"), "outputs.influx.stand", "'%s' %s",
-                              cfg->influx_stand, influx_tag_problem(cfg->influx_stand));
-    for (const char *p = cfg->influx_measurement; *p; p++)
-        if (*p == ',' || *p == ' ' || *p == '"' || *p == '\\')
-            return vibid_cfg_fail(&c->r, config_setting_get_member(i, "measurement"),
-                                  "outputs.influx.measurement",
-                                  "must not contain comma, space, quote or backslash");
     config_setting_t *r = g ? config_setting_get_member(g, "record") : NULL;
     static const char *const rk[] = {"path", "format", NULL};
     static const char *const rf[] = {"csv", "candump", NULL};
@@ -1041,7 +1026,7 @@ static int load_alarms(ctx *c, config_t *cf)
         if (check_known(c, e, sec, pk))
             return -1;
         char name[64];
-        if (get_string(c, e, sec, "name", "", name, sizeof name))
+        if (get_name(c, e, sec, "name", "", false, name, sizeof name))
             return -1;
         size_t k = param_index(cfg, name);
         if (k == cfg->n_params) {
@@ -1349,6 +1334,7 @@ void vd_config_print(const vd_config *cfg, FILE *o)
     else
         fprintf(o, "  # difference_order: automatic\n");
     fprintf(o, "  decimation = %u;\n  warmup_samples = %u;\n", cfg->decimation, cfg->warmup_samples);
+    fprintf(o, "  outlier_threshold = %s;  # 0 = off\n", num(cfg->outlier_threshold));
     if (cfg->has_start) {
         fprintf(o, "  start_values = (");
         for (size_t k = 0; k < cfg->n_params; k++) {

@@ -105,6 +105,7 @@ typedef struct vd_config {
     unsigned difference_order;        /* 0: automatic, else 2 or 4 */
     unsigned decimation;
     unsigned warmup_samples;
+    double outlier_threshold;         /* K of vibid/outlier.h; 0 = no outlier test */
     bool has_start;                   /* estimator.start_values given (RLS only) */
     double start_theta[VD_MAX_PARAMS];/* RLS start values, stand parameter order; the stand's
                                          nominal value for a parameter the list leaves out */

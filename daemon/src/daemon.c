@@ -500,6 +500,7 @@ static void take_snapshot(vd_daemon *d, const char *state, double now)
     s->est_errors = d->est.est_errors;
     s->implausible_rows = d->est.implausible_rows;
     s->nonfinite_samples = d->est.push_errors;
+    s->outlier_samples = d->est.outliers;
     s->lat_p50_us = vd_daemon_latency_us(d, 0.5);
     s->lat_p99_us = vd_daemon_latency_us(d, 0.99);
     s->lat_n = d->lat_n;
@@ -589,9 +590,9 @@ static void format_status(vd_daemon *d, const vd_snapshot *sn)
     S("jitter_mean_s=%.9g\njitter_std_s=%.3g\n", ss->jitter.mean_s, ss->jitter.std_s);
     for (unsigned c = 1; c <= sn->n_fault_kinds && c < 16; c++) /* faults by kind */
         S("faults_%s=%llu\n", sn->fault_kind[c], (unsigned long long)sn->faults_by_kind[c]);
-    S("rows=%llu\nestimate_failures=%llu\nimplausible_rows=%llu\nnonfinite_samples=%llu\n",
+    S("rows=%llu\nestimate_failures=%llu\nimplausible_rows=%llu\nnonfinite_samples=%llu\noutlier_samples=%llu\n",
       (unsigned long long)sn->rows, (unsigned long long)sn->est_errors, (unsigned long long)sn->implausible_rows,
-      (unsigned long long)sn->nonfinite_samples);
+      (unsigned long long)sn->nonfinite_samples, (unsigned long long)sn->outlier_samples);
     S("latency_us_p50=%.1f\nlatency_us_p99=%.1f\n", sn->lat_p50_us, sn->lat_p99_us);
     S("write_errors=%llu\ntorn_lines=%llu\ninflux_udp_sent=%llu\ninflux_udp_errors=%llu\n",
       (unsigned long long)sn->write_errors, (unsigned long long)sn->torn_lines, (unsigned long long)sn->udp_sent,
@@ -752,6 +753,41 @@ static void finish_row(vd_daemon *d)
         d->influx_http_ops->row(d->influx_http, row); /* buffered; never waits (influx_http.h) */
 }
 
+/* One record as the outlier test releases it (vd_est_next): to the estimator, a row when
+ * one is due. t_rx_ns: when the source read that returned it came back. */
+static void process_released(vd_daemon *d, const vibid_record *rec, int64_t t_rx_ns)
+{
+    /* a pending row goes out before anything that may start the next one or write
+     * something of its own (a gap): the outputs' order stays the samples' */
+    if (d->row_pending && vd_est_row_due(&d->est, rec))
+        finish_row(d);
+    if (rec->kind == VIBID_REC_GAP)
+        handle_gap_log(d, rec);
+    int due = vd_est_record(&d->est, rec, &d->row);
+    if (rec->kind == VIBID_REC_SAMPLE && d->measure_latency) {
+        /* the estimate is updated with this sample (pushed; a due row's state kept) */
+        int64_t lat = (mono_ns() - t_rx_ns) / 1000;
+        if (lat < 0)
+            lat = 0;
+        d->lat_hist[lat < VD_LAT_BUCKETS ? lat : VD_LAT_BUCKETS - 1]++;
+        d->lat_n++;
+        d->lat_sum_us += (uint64_t)lat;
+    }
+    if (due) {
+        d->row_pending = true;
+        if (!d->est.twin) /* no twin: the estimator's state moves on with the next sample */
+            finish_row(d);
+    }
+}
+
+static void drain_released(vd_daemon *d)
+{
+    const vibid_record *r;
+    int64_t t_rx;
+    while ((r = vd_est_next(&d->est, &t_rx)))
+        process_released(d, r, t_rx);
+}
+
 static void process(vd_daemon *d, const vd_item *it)
 {
     const vibid_record *rec = &it->rec;
@@ -769,34 +805,18 @@ static void process(vd_daemon *d, const vd_item *it)
             d->rate = NULL;
         }
     }
-    /* a pending row goes out before anything that may start the next one or write
-     * something of its own (a fault, a gap): the outputs' order stays the samples' */
-    if (d->row_pending && vd_est_row_due(&d->est, rec))
-        finish_row(d);
     if (rec->kind == VIBID_REC_FAULT) {
+        /* handled at once, also while the outlier test holds a sample for its successor */
+        if (d->row_pending && vd_est_row_due(&d->est, rec))
+            finish_row(d);
         handle_fault(d, rec);
         return;
     }
-    if (rec->kind == VIBID_REC_GAP)
-        handle_gap_log(d, rec);
-    int due = vd_est_record(&d->est, rec, &d->row);
-    if (rec->kind == VIBID_REC_SAMPLE) {
-        /* the estimate is updated with this sample (pushed; a due row's state kept) */
-        if (d->measure_latency) {
-            int64_t lat = (mono_ns() - it->t_rx_ns) / 1000;
-            if (lat < 0)
-                lat = 0;
-            d->lat_hist[lat < VD_LAT_BUCKETS ? lat : VD_LAT_BUCKETS - 1]++;
-            d->lat_n++;
-            d->lat_sum_us += (uint64_t)lat;
-        }
-        vd_writers_sample(&d->w, rec);
-    }
-    if (due) {
-        d->row_pending = true;
-        if (!d->est.twin) /* no twin: the estimator's state moves on with the next sample */
-            finish_row(d);
-    }
+    vd_est_feed(&d->est, rec, it->t_rx_ns);
+    drain_released(d);
+    /* the raw recording keeps every sample as received, glitches included; written after
+     * the estimate took it, so that the latency does not include its formatting */
+    vd_writers_sample(&d->w, rec);
 }
 
 /* acquisition.handoff_spin: waking a thread sleeping in poll() costs 20-40 us on the
@@ -853,6 +873,10 @@ static void *est_main(void *arg)
             }
         }
         atomic_store(&d->consumer_sleeping, 0);
+    }
+    if (!d->rate_refused) { /* the end: what the outlier test holds goes out, decided */
+        vd_est_flush(&d->est);
+        drain_released(d);
     }
     if (d->row_pending)
         finish_row(d);

@@ -51,7 +51,22 @@ int vd_est_init(vd_est *e, const vd_config *cfg, char *err, size_t cap)
     }
     e->nmodes = cfg->n_modes;
     e->cov = calloc(e->p * e->p, sizeof *e->cov);
-    if (!e->cov) {
+    if (cfg->outlier_threshold > 0.0) {
+        vibid_outlier_config oc;
+        vibid_outlier_config_init(&oc, e->nch);
+        oc.threshold = cfg->outlier_threshold;
+        e->outl = vibid_outlier_create(&oc);
+        if (!e->outl) {
+            snprintf(err, cap, "estimator.outlier_threshold: %s", vibid_last_error());
+            vd_est_free(e);
+            return -1;
+        }
+        /* the most the test holds at once (vibid/outlier.h) */
+        e->held_cap = (oc.warmup > VIBID_OUTLIER_LOOKAHEAD + 1 ? oc.warmup : VIBID_OUTLIER_LOOKAHEAD + 1) + 1;
+        e->held = calloc(e->held_cap, sizeof *e->held);
+        e->held_tag = calloc(e->held_cap, sizeof *e->held_tag);
+    }
+    if (!e->cov || (e->outl && (!e->held || !e->held_tag))) {
         snprintf(err, cap, "estimator: out of memory");
         vd_est_free(e);
         return -1;
@@ -107,6 +122,92 @@ void vd_est_free(vd_est *e)
     e->ident = NULL;
     free(e->cov);
     e->cov = NULL;
+    vibid_outlier_destroy(e->outl);
+    e->outl = NULL;
+    free(e->held);
+    e->held = NULL;
+    free(e->held_tag);
+    e->held_tag = NULL;
+}
+
+void vd_flag_letters(unsigned flags, char out[8])
+{
+    static const struct {
+        unsigned bit;
+        char letter;
+    } order[] = {{VD_FLAG_GAP, 'G'},        {VD_FLAG_OUTLIER, 'O'},     {VD_FLAG_NOEST, 'E'}, {VD_FLAG_IMPLAUSIBLE, 'P'},
+                 {VD_FLAG_SE_INVALID, 'U'}, {VD_FLAG_NOT_EXCITED, 'I'}, {VD_FLAG_ALARM, 'A'}};
+    int n = 0;
+    for (size_t i = 0; i < sizeof order / sizeof order[0]; i++)
+        if (flags & order[i].bit)
+            out[n++] = order[i].letter;
+    out[n] = '\0';
+}
+
+/* A record's values in the model's channels and the stand's units (a GAP: all NaN). */
+static void model_values(const vd_est *e, const vibid_record *rec, double *out)
+{
+    for (size_t i = 0; i < e->nch; i++)
+        out[i] = rec->kind == VIBID_REC_SAMPLE ? rec->values[e->cfg->model_to_chan[i]] * e->cfg->model_scale[i] : NAN;
+}
+
+/* The records the last feed or flush released have all been handed out: they leave the
+ * queue (the held ones that were released; the fed record itself was never copied). */
+static void drop_released(vd_est *e)
+{
+    size_t gone = e->rel_n < e->n_held ? e->rel_n : e->n_held;
+    if (gone) {
+        memmove(e->held, e->held + gone, (e->n_held - gone) * sizeof *e->held);
+        memmove(e->held_tag, e->held_tag + gone, (e->n_held - gone) * sizeof *e->held_tag);
+        e->n_held -= gone;
+    }
+    e->rel_n = e->rel_i = 0;
+    e->cur = NULL;
+}
+
+void vd_est_feed(vd_est *e, const vibid_record *rec, int64_t tag)
+{
+    drop_released(e);
+    e->cur = rec;
+    e->cur_tag = tag;
+    e->cur_first = e->n_held;
+    if (!e->outl) {
+        e->rel_n = 1;
+        return;
+    }
+    double v[VIBID_DRV_MAX_CHANNELS];
+    model_values(e, rec, v);
+    size_t n = 0;
+    (void)vibid_outlier_push(e->outl, v, &n); /* cannot fail: arguments checked at init */
+    e->rel_n = n;
+    if (n <= e->n_held) { /* the fed record waits: kept (the caller's copy does not live on) */
+        vibid_record_copy(&e->held[e->n_held], rec);
+        e->held_tag[e->n_held++] = tag;
+    }
+}
+
+void vd_est_flush(vd_est *e)
+{
+    drop_released(e);
+    e->cur_first = e->n_held;
+    if (e->outl)
+        (void)vibid_outlier_flush(e->outl, &e->rel_n);
+}
+
+const vibid_record *vd_est_next(vd_est *e, int64_t *tag)
+{
+    if (e->rel_i >= e->rel_n)
+        return NULL;
+    size_t i = e->rel_i++;
+    e->rel_outliers = 0;
+    if (e->outl)
+        (void)vibid_outlier_released(e->outl, i, e->chan, e->rel_out, &e->rel_outliers);
+    if (i < e->cur_first) {
+        *tag = e->held_tag[i];
+        return &e->held[i];
+    }
+    *tag = e->cur_tag;
+    return e->cur;
 }
 
 static void restart_window(vd_est *e)
@@ -125,6 +226,28 @@ static void note_gap(vd_est *e, uint64_t count)
     e->missing += count;
     e->gap_since_row += count;
     restart_window(e);
+}
+
+/* A sample had values taken out by the outlier test: counted, flagged O on the next row,
+ * logged (the first 20, then every 1000th) with what was received. */
+static void note_outlier(vd_est *e, const vibid_record *rec)
+{
+    e->outliers++;
+    e->outlier_since_row++;
+    if (e->outliers > 20 && e->outliers % 1000 != 0)
+        return;
+    char what[256];
+    size_t off = 0;
+    what[0] = '\0';
+    for (size_t i = 0; i < e->nch && off < sizeof what; i++)
+        if (e->rel_out[i]) {
+            size_t src = e->cfg->model_to_chan[i];
+            int n = snprintf(what + off, sizeof what - off, "%s%s = %.17g", off ? ", " : "",
+                             e->cfg->chanmap.ch[src].name, rec->values[src]);
+            off += n > 0 ? (size_t)n : 0;
+        }
+    vd_notice("outlier: sample %llu: %s taken out (a single-sample glitch; the estimator sees a gap; %llu so far)",
+              (unsigned long long)(rec->index - e->first_index), what, (unsigned long long)e->outliers);
 }
 
 /* Flags the row P when its estimate is physically impossible (a failed modal computation,
@@ -194,6 +317,9 @@ static void start_row(vd_est *e, const vibid_record *rec, uint64_t rel, vd_row *
     if (e->gap_since_row)
         row->flags |= VD_FLAG_GAP;
     e->gap_since_row = 0;
+    if (e->outlier_since_row)
+        row->flags |= VD_FLAG_OUTLIER;
+    e->outlier_since_row = 0;
     for (size_t k = 0; k < VD_MAX_PARAMS; k++)
         row->theta[k] = row->se[k] = row->freq[k] = row->freq_se[k] = row->zeta[k] = row->zeta_se[k] = NAN;
     /* a failure cannot happen (twin_create checked the form); if it did, the row says E */
@@ -258,11 +384,13 @@ int vd_est_record(vd_est *e, const vibid_record *rec, vd_row *row)
         return 0;
     }
     e->next_index = rec->index + 1;
-    for (size_t i = 0; i < e->nch; i++)
-        e->chan[i] = rec->values[e->cfg->model_to_chan[i]] * e->cfg->model_scale[i]; /* to the stand's units */
+    if (!e->outl)
+        model_values(e, rec, e->chan); /* else vd_est_next put them there, glitches as NaN */
+    else if (e->rel_outliers)
+        note_outlier(e, rec);
     vibid_status st = vibid_ident_push(e->ident, e->chan);
     e->last_push_status = (int)st;
-    if (st != VIBID_OK)
+    if (st != VIBID_OK && !e->rel_outliers)
         e->push_errors++; /* non-finite value: the library restarted the window itself */
     e->samples++;
     if (rec->index < e->next_emit)

@@ -23,6 +23,14 @@
  * the gap; the first 2 samples after it (plus the pre-filter's settling) only refill the
  * window. The row that covers a gap carries the missing-sample count and the flag G.
  *
+ * Outlier samples (single-sample glitches, vibid/outlier.h; estimator.outlier_threshold):
+ * every SAMPLE and GAP record passes through the outlier test before the estimator
+ * (vd_est_feed, vd_est_next). A value the test takes out is pushed as NaN, a gap for the
+ * estimator, counted (vd_est.outliers), logged and flagged O on the next row; the record
+ * itself (the raw recording) is not changed. The test releases a clean sample at once; a
+ * suspect waits for the next sample, and the first 16 samples of a run are decided
+ * together, so records leave vd_est_next in their order, sometimes one record late.
+ *
  * Physically impossible estimates (vibid/plausibility.h: a mass, damper or spring <= 0, a
  * mode at 0 Hz or at/above f_a/2, an unstable mode, or zeta >= 1 where the nominal mode is
  * underdamped) are written as they are but flagged P (VD_FLAG_IMPLAUSIBLE), with the
@@ -42,6 +50,7 @@
 #include <stdint.h>
 
 #include <vibid/identify.h>
+#include <vibid/outlier.h>
 #include <vibid/plausibility.h>
 #include <vibid_drivers/sample.h>
 
@@ -56,9 +65,15 @@ enum {
     VD_FLAG_SE_INVALID = 16u, /* U: the standard errors do not hold (VIBID_QUALITY_SE_INVALID:
                                  the older and newer half of the data disagree, too few blocks
                                  yet, or an LS/RLS estimator) */
-    VD_FLAG_NOT_EXCITED = 32u /* I: some parameter is hardly informed by the data (its
-                                 standard error is written as inf) */
+    VD_FLAG_NOT_EXCITED = 32u, /* I: some parameter is hardly informed by the data (its
+                                  standard error is written as inf) */
+    VD_FLAG_OUTLIER = 64u      /* O: a sample since the previous row had a glitch taken out
+                                  (vibid/outlier.h): the estimator saw it as a gap */
 };
+
+/* The row's flags as letters, in the order G O E P U I A (docs/vibidd.md): the one
+ * spelling of the tracks, InfluxDB, MQTT and the metrics. out holds at least 8 bytes. */
+void vd_flag_letters(unsigned flags, char out[8]);
 
 /* Rows the alarms may use: an estimate exists (no E) and is physically possible (no P). */
 static inline bool vd_row_usable(unsigned flags)
@@ -89,6 +104,20 @@ typedef struct vd_est {
     const vibid_model *model;
     size_t p, nch, nmodes;
     bool started;
+    /* the outlier test (NULL: estimator.outlier_threshold = 0) and the records it holds,
+     * in order: [0, rel_n) released by the last feed or flush, rel_i of them handed out */
+    vibid_outlier *outl;
+    vibid_record *held;
+    int64_t *held_tag;
+    size_t n_held, held_cap, rel_n, rel_i;
+    const vibid_record *cur; /* the record of the last feed (the caller's) ... */
+    int64_t cur_tag;
+    size_t cur_first;        /* ... released as number cur_first, after the held ones */
+    unsigned char rel_out[VIBID_DRV_MAX_CHANNELS]; /* the released record: per model
+                                                      channel 1 = taken out ... */
+    size_t rel_outliers;                           /* ... how many (its values: chan) */
+    uint64_t outliers;      /* samples with a value taken out */
+    uint64_t outlier_since_row;
     uint64_t first_index, next_index, next_emit;
     uint64_t samples, gaps, missing, push_errors, est_errors, rows;
     uint64_t gap_since_row;
@@ -123,7 +152,17 @@ void vd_est_log_choices(const vd_est *e);
  * (len characters, no '\n') and *text advanced past it; 0 at the end. */
 int vd_next_line(const char **text, int *len);
 
-/* Feeds one record (allocation-free). Returns 1 when a row is due, else 0: *row then
+/* Hands a SAMPLE or GAP record to the outlier test (FAULT records are not fed: the caller
+ * handles them at once). tag (e.g. the receive time) comes back with the record from
+ * vd_est_next. Allocation-free. */
+void vd_est_feed(vd_est *e, const vibid_record *rec, int64_t tag);
+/* The end of the data: what the outlier test holds is decided (no successor) and released. */
+void vd_est_flush(vd_est *e);
+/* The next record released by the test, in feed order, or NULL: pass each to
+ * vd_est_record before asking for the next one. *tag = its feed's tag. */
+const vibid_record *vd_est_next(vd_est *e, int64_t *tag);
+
+/* Feeds one record released by vd_est_next (allocation-free). Returns 1 when a row is due, else 0: *row then
  * holds the row's time, index and gap fields, and the estimator's state at this sample
  * is kept in the twin. FAULT records are not handled here (the caller logs and counts
  * them). The row's estimate follows with vd_est_finish_row: with a twin at any later time

@@ -185,6 +185,8 @@ int vd_metrics_render(char *buf, size_t cap, const vd_snapshot *s)
             s->implausible_rows);
     counter(&o, "vibid_nonfinite_samples_total", "Samples refused by the estimator (a non-finite value).",
             s->nonfinite_samples);
+    counter(&o, "vibid_outlier_samples_total",
+            "Samples with a single-sample glitch taken out before the estimator (flag O).", s->outlier_samples);
     /* the daemon's 1 us histogram as a Prometheus histogram with a handful of buckets */
     family(&o, "vibid_latency_seconds", "histogram",
            "Receipt of a sample to its estimate (live and paced sources only).");
@@ -267,14 +269,16 @@ int vd_metrics_render(char *buf, size_t cap, const vd_snapshot *s)
         per_mode(&o, s, "vibid_damping_ratio_standard_error", "Standard error of vibid_damping_ratio.",
                  s->zeta_se);
         family(&o, "vibid_row_flag", "gauge",
-               "Flags of the latest row as in the tracks, 1 if set: G samples missing since the previous row, E "
+               "Flags of the latest row as in the tracks, 1 if set: G samples missing since the previous row, O "
+               "a single-sample glitch taken out since the previous row, E "
                "no estimate, P physically impossible, U standard errors do not hold, I a parameter hardly "
                "informed, A an alarm active.");
         static const struct {
             const char *letter;
             unsigned bit;
-        } fl[] = {{"G", VD_FLAG_GAP},        {"E", VD_FLAG_NOEST},       {"P", VD_FLAG_IMPLAUSIBLE},
-                  {"U", VD_FLAG_SE_INVALID}, {"I", VD_FLAG_NOT_EXCITED}, {"A", VD_FLAG_ALARM}};
+        } fl[] = {{"G", VD_FLAG_GAP},        {"O", VD_FLAG_OUTLIER},     {"E", VD_FLAG_NOEST},
+                  {"P", VD_FLAG_IMPLAUSIBLE}, {"U", VD_FLAG_SE_INVALID}, {"I", VD_FLAG_NOT_EXCITED},
+                  {"A", VD_FLAG_ALARM}};
         for (size_t i = 0; i < sizeof fl / sizeof fl[0]; i++) {
             snprintf(a, sizeof a, "flag=\"%s\"", fl[i].letter);
             u64(&o, "vibid_row_flag", a, (s->last_flags & fl[i].bit) ? 1 : 0);

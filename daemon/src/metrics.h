@@ -97,6 +97,7 @@ typedef struct vd_snapshot {
     const char *fault_kind[16];
     uint64_t faults_by_kind[16];
     uint64_t rows, est_errors, implausible_rows, nonfinite_samples;
+    uint64_t outlier_samples;        /* samples with a glitch taken out (vibid/outlier.h) */
     /* receipt -> estimate latency (live or paced sources; lat_n == 0 otherwise) */
     double lat_p50_us, lat_p99_us;   /* NaN when no sample was measured */
     uint64_t lat_n;

@@ -84,17 +84,6 @@ static void put_time(vd_text *o, int64_t t_us) {
     vd_text_put(o, "%s%llu.%06llu", sign, (unsigned long long)(a / 1000000u), (unsigned long long)(a % 1000000u));
 }
 
-static void flag_text(unsigned flags, char out_[8]) {
-    int n = 0;
-    if (flags & VD_FLAG_GAP) out_[n++] = 'G';
-    if (flags & VD_FLAG_NOEST) out_[n++] = 'E';
-    if (flags & VD_FLAG_IMPLAUSIBLE) out_[n++] = 'P';
-    if (flags & VD_FLAG_SE_INVALID) out_[n++] = 'U';
-    if (flags & VD_FLAG_NOT_EXCITED) out_[n++] = 'I';
-    if (flags & VD_FLAG_ALARM) out_[n++] = 'A';
-    out_[n] = '\0';
-}
-
 static void put_header(vd_text *o, const vd_config *cfg, const char *stand, uint64_t seq) {
     vd_text_put(o, "{\"stand\":");
     put_str(o, stand);
@@ -135,7 +124,7 @@ int vd_mqtt_format_track(char *buf, size_t cap, const vd_config *cfg, const char
         vd_text_put(&o, "}");
     }
     char fl[8];
-    flag_text(row->flags, fl);
+    vd_flag_letters(row->flags, fl);
     vd_text_put(&o, "],\"gap_samples\":%llu,\"flags\":\"%s\",\"dropped_before\":%llu}",
         (unsigned long long)row->gap_samples, fl, (unsigned long long)dropped_before);
     return o.full ? -1 : (int)o.off;

@@ -72,25 +72,6 @@ int vd_format_tracks_header(char *buf, size_t cap, const vd_config *cfg)
     return (int)off;
 }
 
-/* Letters in this order: G E P U I A (E and P never meet: P needs an estimate). */
-static void flag_text(unsigned flags, char out[8])
-{
-    int n = 0;
-    if (flags & VD_FLAG_GAP)
-        out[n++] = 'G';
-    if (flags & VD_FLAG_NOEST)
-        out[n++] = 'E';
-    if (flags & VD_FLAG_IMPLAUSIBLE)
-        out[n++] = 'P';
-    if (flags & VD_FLAG_SE_INVALID)
-        out[n++] = 'U';
-    if (flags & VD_FLAG_NOT_EXCITED)
-        out[n++] = 'I';
-    if (flags & VD_FLAG_ALARM)
-        out[n++] = 'A';
-    out[n] = '\0';
-}
-
 int vd_format_track_row(char *buf, size_t cap, const vd_config *cfg, const vd_row *row)
 {
     size_t off = 0;
@@ -104,7 +85,7 @@ int vd_format_track_row(char *buf, size_t cap, const vd_config *cfg, const vd_ro
             put_num(buf, cap, &off, row->zeta[i]) || put_num(buf, cap, &off, row->zeta_se[i]))
             return -1;
     char fl[8];
-    flag_text(row->flags, fl);
+    vd_flag_letters(row->flags, fl);
     if (put(buf, cap, &off, ",%llu,%s\n", (unsigned long long)row->gap_samples, fl))
         return -1;
     return (int)off;
@@ -173,7 +154,7 @@ int vd_format_influx_row(char *buf, size_t cap, const vd_config *cfg, const char
             return -1;
     }
     char fl[8];
-    flag_text(row->flags, fl);
+    vd_flag_letters(row->flags, fl);
     if (put(buf, cap, &off, "%sindex=%llui,gap_samples=%llui,flags=\"%s\" %lld\n", first ? " " : ",",
             (unsigned long long)row->index, (unsigned long long)row->gap_samples, fl, ns_of_us(row->t_us)))
         return -1;

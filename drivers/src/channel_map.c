@@ -25,6 +25,13 @@ static vibid_drv_status to_drv(const vibid_cfg_error *ce, vibid_drv_status st, v
     return vibid_drv_fail(err, st, "%s", ce->text);
 }
 
+/* The channel's name (read into name) is a name of the safe set (vibid/cfgread.h). */
+static int check_name(const vibid_cfg_reader *r, const config_setting_t *g, const char *p, const char *name) {
+    char f[192];
+    vibid_cfg_field(f, sizeof f, p, "name");
+    return vibid_cfg_check_name(r, config_setting_get_member(g, "name"), f, name);
+}
+
 vibid_drv_status vibid_chanmap_read(const vibid_cfg_reader *r, const config_setting_t *group,
                                     const char *path, vibid_chanmap *map) {
     if (!r || !r->err) return VIBID_DRV_E_ARG;
@@ -57,6 +64,7 @@ vibid_drv_status vibid_chanmap_read(const vibid_cfg_reader *r, const config_sett
         if (vibid_cfg_check_keys(r, g, p, ch_known) ||
             vibid_cfg_require(r, g, p, "name", "the stand's channel name, a string") ||
             vibid_cfg_string(r, g, p, "name", false, c->name, sizeof c->name) < 0 ||
+            check_name(r, g, p, c->name) || /* written into outputs: the raw recording's header, logs */
             vibid_cfg_require(r, g, p, "quantity", "displacement, velocity, acceleration, force, ...") ||
             vibid_cfg_enum(r, g, p, "quantity", qnames, false, &qi) < 0 ||
             (got = vibid_cfg_int(r, g, p, "node", 0, 1 << 20, &node)) < 0 ||

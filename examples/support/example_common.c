@@ -28,10 +28,9 @@ vibid_stand *example_load_stand(const char *path, int disc_override) {
     vibid_stand_destroy(st);
     /* Same file, discretization field replaced in memory, same loader. */
     config_t cfg;
-    config_init(&cfg);
     st = NULL;
-    if (!config_read_file(&cfg, path)) {
-        fprintf(stderr, "%s:%d: %s\n", path, config_error_line(&cfg), config_error_text(&cfg));
+    if (vibid_cfg_read_file(&cfg, path, &err)) { /* the one reader: its limits, its messages */
+        fprintf(stderr, "%s\n", err.text);
     } else {
         config_setting_t *g = config_lookup(&cfg, "stand");
         config_setting_t *d = g ? config_setting_get_member(g, "discretization") : NULL;

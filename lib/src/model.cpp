@@ -50,15 +50,25 @@ void check_name(const vibid_model *model, const char *name, const char *what) {
             throw_error(VIBID_E_OUT_OF_RANGE, "%s name '%s' contains a space or non-printable character", what, name);
     if (!std::strcmp(name, "ground") || !std::strcmp(name, "base"))
         throw_error(VIBID_E_OUT_OF_RANGE, "%s name '%s' is reserved", what, name);
-    for (const auto &n : model->nodes)
-        if (n.name == name) throw_error(VIBID_E_OUT_OF_RANGE, "%s name '%s' is already used by a node", what, name);
-    for (const auto &e : model->elements)
-        if (e.name == name) throw_error(VIBID_E_OUT_OF_RANGE, "%s name '%s' is already used by an element", what, name);
-    for (const auto &u : model->inputs)
-        if (u.name == name) throw_error(VIBID_E_OUT_OF_RANGE, "%s name '%s' is already used by an input", what, name);
-    for (const auto &w : model->disturbances)
-        if (w.name == name)
-            throw_error(VIBID_E_OUT_OF_RANGE, "%s name '%s' is already used by a disturbance", what, name);
+    const auto it = model->names.find(name);
+    if (it != model->names.end()) {
+        const char k = it->second.first;
+        throw_error(VIBID_E_OUT_OF_RANGE, "%s name '%s' is already used by %s", what, name,
+                    k == 'n' ? "a node" : k == 'e' ? "an element" : k == 'i' ? "an input" : "a disturbance");
+    }
+}
+
+// Appends item (a Node, Element, Input or Disturbance) to list and its name to the model's
+// index of names (kind as there); both or neither.
+template <class List, class Item>
+void add_named(vibid_model *model, List &list, Item &&item, char kind) {
+    const auto ins = model->names.emplace(item.name, std::make_pair(kind, list.size()));
+    try {
+        list.push_back(std::forward<Item>(item));
+    } catch (...) {
+        model->names.erase(ins.first);
+        throw;
+    }
 }
 
 // Index 0..2 of a single VIBID_MEASURE_* bit; throws otherwise.
@@ -435,7 +445,7 @@ VIBID_API vibid_status vibid_model_add_node(vibid_model *model, const char *name
         if (unknown && mass < 0.0)
             throw_error(VIBID_E_OUT_OF_RANGE, "node '%s': nominal mass %g kg must be >= 0", name, mass);
         if (model->nodes.size() >= 4096) throw_error(VIBID_E_DIMENSION, "more than 4096 nodes");
-        model->nodes.push_back(vibid::Node{name, mass, unknown != 0, 0});
+        add_named(model, model->nodes, vibid::Node{name, mass, unknown != 0, 0}, 'n');
         if (node_out) *node_out = model->nodes.size() - 1;
         return VIBID_OK;);
 }
@@ -463,7 +473,7 @@ VIBID_API vibid_status vibid_model_add_element(vibid_model *model, const char *n
         if (kind != VIBID_ELEMENT_CUBIC_SPRING && value < 0.0)
             throw_error(VIBID_E_OUT_OF_RANGE, "element '%s': %s coefficient %g must be >= 0", name, kind_name(kind),
                         value);
-        model->elements.push_back(vibid::Element{name, kind, node_a, node_b, value, unknown != 0});
+        add_named(model, model->elements, vibid::Element{name, kind, node_a, node_b, value, unknown != 0}, 'e');
         return VIBID_OK;);
 }
 
@@ -478,7 +488,7 @@ VIBID_API vibid_status vibid_model_add_input(vibid_model *model, const char *nam
                         model->nodes.size());
         if (!std::isfinite(gain)) throw_error(VIBID_E_NONFINITE, "input '%s': gain is not finite", name);
         if (!unknown && gain == 0.0) throw_error(VIBID_E_OUT_OF_RANGE, "input '%s': known gain must be != 0", name);
-        model->inputs.push_back(vibid::Input{name, node, gain, unknown != 0});
+        add_named(model, model->inputs, vibid::Input{name, node, gain, unknown != 0}, 'i');
         if (input_out) *input_out = model->inputs.size() - 1;
         return VIBID_OK;);
 }
@@ -495,7 +505,7 @@ VIBID_API vibid_status vibid_model_add_disturbance(vibid_model *model, const cha
         if (!std::isfinite(std_dev) || std_dev < 0.0)
             throw_error(VIBID_E_OUT_OF_RANGE, "disturbance '%s': std_dev = %g must be >= 0 and finite (0 = unknown)",
                         name, std_dev);
-        model->disturbances.push_back(vibid::Disturbance{name, node, std_dev});
+        add_named(model, model->disturbances, vibid::Disturbance{name, node, std_dev}, 'd');
         if (index_out) *index_out = model->disturbances.size() - 1;
         return VIBID_OK;);
 }
@@ -584,9 +594,10 @@ VIBID_API vibid_status vibid_model_set_matrices(vibid_model *model, size_t n_dof
         vibid_model built;
         built.full_matrix = true;
         for (std::size_t i = 0; i < n_dof; ++i)
-            built.nodes.push_back(vibid::Node{"q" + std::to_string(i + 1), 0.0, false, VIBID_MEASURE_DISPLACEMENT});
+            add_named(&built, built.nodes,
+                      vibid::Node{"q" + std::to_string(i + 1), 0.0, false, VIBID_MEASURE_DISPLACEMENT}, 'n');
         for (std::size_t j = 0; j < n_inputs; ++j)
-            built.inputs.push_back(vibid::Input{"u" + std::to_string(j + 1), VIBID_GROUND, 1.0, false});
+            add_named(&built, built.inputs, vibid::Input{"u" + std::to_string(j + 1), VIBID_GROUND, 1.0, false}, 'i');
         struct Mat {
             char letter;
             const double *data;
@@ -603,8 +614,10 @@ VIBID_API vibid_status vibid_model_set_matrices(vibid_model *model, size_t n_dof
                 for (std::size_t i = 0; i <= j; ++i) {
                     const double v = mt.data[i + j * n_dof];
                     if (!unk && v == 0.0) continue;  // known zeros contribute nothing
-                    Term t{std::string(1, mt.letter) + "[" + std::to_string(i + 1) + "," + std::to_string(j + 1) + "]",
-                           mt.kind, v, unk, -1, {}};
+                    // "C1_2": a name of the safe set (vibid/cfgread.h) like every other, since
+                    // it becomes a CSV column, a field key, a label ("C[1,2]" broke the CSV)
+                    Term t{std::string(1, mt.letter) + std::to_string(i + 1) + "_" + std::to_string(j + 1), mt.kind, v,
+                           unk, -1, {}};
                     t.entries.push_back(Entry{i, 1.0, Signal{mt.type, j, VIBID_GROUND}});
                     if (i != j) t.entries.push_back(Entry{j, 1.0, Signal{mt.type, i, VIBID_GROUND}});
                     built.matrix_terms.push_back(std::move(t));
@@ -615,8 +628,7 @@ VIBID_API vibid_status vibid_model_set_matrices(vibid_model *model, size_t n_dof
             for (std::size_t i = 0; i < n_dof; ++i) {
                 const double v = B[i + j * n_dof];
                 if (!unk_b && v == 0.0) continue;
-                Term t{"B[" + std::to_string(i + 1) + "," + std::to_string(j + 1) + "]", VIBID_PARAM_GAIN, v, unk_b, -1,
-                       {}};
+                Term t{"B" + std::to_string(i + 1) + "_" + std::to_string(j + 1), VIBID_PARAM_GAIN, v, unk_b, -1, {}};
                 t.entries.push_back(Entry{i, -1.0, Signal{SignalType::Input, j, 0}});
                 built.matrix_terms.push_back(std::move(t));
             }
@@ -776,11 +788,11 @@ VIBID_API vibid_status vibid_model_find_node(const vibid_model *model, const cha
     VIBID_GUARD(
         require_model(model);
         if (!name || !node_out) throw_error(VIBID_E_NULL_ARGUMENT, "name and node_out are required");
-        for (std::size_t i = 0; i < model->nodes.size(); ++i)
-            if (model->nodes[i].name == name) {
-                *node_out = i;
-                return VIBID_OK;
-            }
+        const auto it = model->names.find(name);
+        if (it != model->names.end() && it->second.first == 'n') {
+            *node_out = it->second.second;
+            return VIBID_OK;
+        }
         throw_error(VIBID_E_OUT_OF_RANGE, "no node named '%s'", name););
 }
 

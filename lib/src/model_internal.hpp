@@ -15,6 +15,8 @@
 #include <array>
 #include <cstddef>
 #include <string>
+#include <unordered_map>
+#include <utility>
 #include <vector>
 
 namespace vibid {
@@ -91,6 +93,10 @@ struct vibid_model {
     std::vector<vibid::Input> inputs;
     std::vector<vibid::Term> matrix_terms;  // full-matrix models only
     std::vector<vibid::Disturbance> disturbances;
+    // Every name -> what carries it ('n' node, 'e' element, 'i' input, 'd' disturbance) and
+    // its index there: the duplicate check and vibid_model_find_node in constant time (a
+    // stand of 10^5 elements took 61 s to load when both walked every list, issue 30).
+    std::unordered_map<std::string, std::pair<char, std::size_t>> names;
     unsigned base_measured = 0;
     // Measurement noise std per quantity (disp, vel, acc) of each node and of the base;
     // < 0 = unknown (vibid_model_set_noise). node_noise grows with the nodes.

@@ -5,7 +5,7 @@
 // The check reads the model's terms directly (model_internal.hpp) rather than through
 // vibid_model_param_info: it must not throw or allocate, and the sign constraint of a
 // full-matrix entry depends on whether it is a diagonal entry, which the term's structure
-// says without parsing its name ("C[1,2]" is built in vibid_model_set_matrices from the
+// says without parsing its name ("C1_2" is built in vibid_model_set_matrices from the
 // same (i, j): a diagonal entry has one equation entry, an off-diagonal one two).
 #include <vibid/modal.h>
 #include <vibid/plausibility.h>

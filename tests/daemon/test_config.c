@@ -327,6 +327,32 @@ static void test_alarm_param(void **state)
                  ":13: alarms.parameters.[0].name:", "'c3' is not an unknown parameter");
 }
 
+/* Issue 30, item 3: the names vibidd writes into its outputs unescaped are of the safe set
+ * (vibid/cfgread.h), and so are the references to the stand's names; each is refused with
+ * file:line: field and the character, in one line. (The stand's own names: model.test_stand_file;
+ * MQTT's site, stand, client_id, topic_prefix: daemon.unit.mqtt.) */
+static void test_hostile_names(void **state)
+{
+    (void)state;
+    expect_error("hn1.cfg",
+                 STAND SOURCE_X2("{ name = \"x2\\nvibidd: error: forged\"; quantity = \"displacement\"; node = 1; "
+                                 "column = \"x2\"; }"),
+                 ":8: source.channels.[1].name:", "contains a line break (character 3)");
+    expect_error("hn2.cfg", STAND SOURCE_X2("{ name = \"x,2\"; quantity = \"displacement\"; node = 1; column = \"x2\"; }"),
+                 ":8: source.channels.[1].name:", "'x,2' contains ','");
+    expect_error("hn3.cfg", STAND SOURCE "outputs = { influx = { path = \"i.lp\"; site = \"%n%s\"; }; };\n",
+                 ":12: outputs.influx.site:", "'%n%s' contains '%' (character 1)");
+    expect_error("hn4.cfg", STAND SOURCE "outputs = { influx = { path = \"i.lp\"; stand = \"rig 7\"; }; };\n",
+                 ":12: outputs.influx.stand:", "contains a space");
+    expect_error("hn5.cfg", STAND SOURCE "outputs = { influx = { path = \"i.lp\"; measurement = \"v,x=1\"; }; };\n",
+                 ":12: outputs.influx.measurement:", "contains ','");
+    expect_error("hn6.cfg", STAND SOURCE "alarms = {\n parameters = ( { name = \"c1\\n\"; } );\n};\n",
+                 ":13: alarms.parameters.[0].name:", "'c1\\x0a' contains a line break");
+    expect_error("hn7.cfg",
+                 STAND SOURCE "estimator = { method = \"rls\";\n start_values = ( { name = \"c1,d\"; value = 1.0; } ); };\n",
+                 ":13: estimator.start_values.[0].name:", "contains ','");
+}
+
 static void test_modbus_url(void **state)
 {
     (void)state;
@@ -429,7 +455,7 @@ int main(void)
         cmocka_unit_test(test_type_error),        cmocka_unit_test(test_unknown_directive),
         cmocka_unit_test(test_ring_power_of_two), cmocka_unit_test(test_missing_parts),
         cmocka_unit_test(test_stand_errors),      cmocka_unit_test(test_channel_missing),
-        cmocka_unit_test(test_alarm_param),       cmocka_unit_test(test_modbus_url),
+        cmocka_unit_test(test_alarm_param), cmocka_unit_test(test_hostile_names),       cmocka_unit_test(test_modbus_url),
         cmocka_unit_test(test_defaults_and_roundtrip),
         cmocka_unit_test(test_start_values),      cmocka_unit_test(test_prometheus),
         cmocka_unit_test(test_channel_units),     cmocka_unit_test(test_channel_units_dbc),

@@ -76,7 +76,7 @@ static void test_config(void **state) {
     vd_config_free(&c);
     /* v2 with a base path (the trailing slash dropped), tags site and stand */
     assert_int_equal(load("v2",
-                          "outputs = { influx = { site = \"plant 1\"; stand = \"rig,7\"; http = { url = "
+                          "outputs = { influx = { site = \"plant1\"; stand = \"rig-7.b\"; http = { url = "
                           "\"https://h.example/influx/\"; api = \"v2\"; org = \"o\"; bucket = \"b\"; token_file = "
                           "\"tok\"; batch_size = 10; buffer_size = 1; }; }; };",
                           &c, &err),
@@ -84,8 +84,8 @@ static void test_config(void **state) {
     assert_int_equal(c.influx_http_api, 2);
     assert_string_equal(c.influx_http_url, "https://h.example/influx");
     assert_string_equal(c.influx_http_token_file, "/tmp/tok");
-    assert_string_equal(c.influx_site, "plant 1");
-    assert_string_equal(c.influx_stand, "rig,7");
+    assert_string_equal(c.influx_site, "plant1");
+    assert_string_equal(c.influx_stand, "rig-7.b");
     vd_config_free(&c);
     /* refusals name the field */
     static const struct {

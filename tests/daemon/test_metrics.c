@@ -59,6 +59,7 @@ static void fill_snapshot(vd_snapshot *s)
     s->rows = 617;
     s->est_errors = 1;
     s->implausible_rows = 2;
+    s->outlier_samples = 5;
     s->alarms_raised = 1;
     s->lat_n = 10;
     for (unsigned i = 0; i < VD_METRICS_LAT_BOUNDS; i++)
@@ -77,7 +78,7 @@ static void fill_snapshot(vd_snapshot *s)
     s->have_last = true;
     s->last_index = 4000;
     s->last_t_us = 1700000001500000LL;
-    s->last_flags = VD_FLAG_GAP | VD_FLAG_ALARM;
+    s->last_flags = VD_FLAG_GAP | VD_FLAG_OUTLIER | VD_FLAG_ALARM;
     s->theta[0] = 250000.0;
     s->theta[1] = NAN;
     s->theta[2] = 0.1;
@@ -149,6 +150,8 @@ static void test_render_lines(void **state)
     has_line("vibid_rows_total 617");
     has_line("vibid_estimate_failures_total 1");
     has_line("vibid_implausible_rows_total 2");
+    has_line("# TYPE vibid_outlier_samples_total counter");
+    has_line("vibid_outlier_samples_total 5");
     has_line("vibid_alarms_raised_total 1");
     has_line("vibid_alarms_active 1");
     has_line("vibid_alarm_active{parameter=\"c1\"} 0");
@@ -179,6 +182,7 @@ static void test_render_lines(void **state)
     has_line("vibid_natural_frequency_hertz{mode=\"2\"} 48.15");
     has_line("vibid_damping_ratio{mode=\"1\"} 0.0653");
     has_line("vibid_row_flag{flag=\"G\"} 1");
+    has_line("vibid_row_flag{flag=\"O\"} 1");
     has_line("vibid_row_flag{flag=\"E\"} 0");
     has_line("vibid_row_flag{flag=\"A\"} 1");
     has_line("vibid_metrics_scrapes_total 7");

@@ -168,29 +168,52 @@ static void test_ns_to_us(void **state)
     assert_int_equal(vd_ns_to_us(0), 0);
 }
 
+/* Feeds rec through the outlier test and the estimator (as vibidd's process does);
+ * finishes every row that comes due at once. Appends the rows to idx/flags/gaps. */
+static void est_feed(vd_est *e, const vibid_record *rec, int *rows, uint64_t *idx, unsigned *flags, uint64_t *gaps)
+{
+    if (rec)
+        vd_est_feed(e, rec, 0);
+    else
+        vd_est_flush(e);
+    const vibid_record *r;
+    int64_t tag;
+    vd_row row;
+    while ((r = vd_est_next(e, &tag))) {
+        if (vd_est_record(e, r, &row)) {
+            vd_est_finish_row(e, &row);
+            idx[*rows] = row.index;
+            flags[*rows] = row.flags;
+            gaps[*rows] = row.gap_samples;
+            (*rows)++;
+        }
+    }
+}
+
 /* Estimator: a gap restarts the difference window, is counted and flagged in the next
- * row; rows are due every `decimation` indices, also across a gap. */
+ * row; rows are due every `decimation` indices, also across a gap. A glitch is taken out
+ * (counted, flagged O), not counted as a non-finite sample. */
 static void test_estimator_gap(void **state)
 {
     (void)state;
     vd_est e;
     char err[512];
     assert_int_equal(vd_est_init(&e, &cfg, err, sizeof err), 0);
+    assert_non_null(e.outl); /* the default: the outlier test on */
     vibid_record rec;
     memset(&rec, 0, sizeof rec);
     rec.n_values = 3;
-    vd_row row;
     int rows = 0;
-    uint64_t idx[8];
-    unsigned flags[8];
-    uint64_t gaps[8];
+    uint64_t idx[16];
+    unsigned flags[16];
+    uint64_t gaps[16];
     for (uint64_t k = 100; k < 160; k++) {
         if (k >= 125 && k < 128) { /* 3 samples missing */
             if (k == 125) {
                 rec.kind = VIBID_REC_GAP;
                 rec.index = 125;
                 rec.count = 3;
-                assert_int_equal(vd_est_record(&e, &rec, &row), 0);
+                est_feed(&e, &rec, &rows, idx, flags, gaps);
             }
             continue;
         }
@@ -201,14 +224,11 @@ static void test_estimator_gap(void **state)
         rec.values[0] = 1e-3 * sin(140 * t);
         rec.values[1] = 1e-3 * sin(31 * t);
         rec.values[2] = 1e-3 * sin(300 * t);
-        if (vd_est_record(&e, &rec, &row)) {
-            vd_est_finish_row(&e, &row);
-            idx[rows] = row.index;
-            flags[rows] = row.flags;
-            gaps[rows] = row.gap_samples;
-            rows++;
-        }
+        if (k == 145)
+            rec.values[1] = 1e300; /* a glitch */
+        est_feed(&e, &rec, &rows, idx, flags, gaps);
     }
+    est_feed(&e, NULL, &rows, idx, flags, gaps);
     /* index relative to the first record (100): rows at 9, 19 (in time), 29 (after the gap) ... */
     assert_int_equal(rows, 6);
     assert_int_equal(idx[0], 9);
@@ -218,12 +238,18 @@ static void test_estimator_gap(void **state)
     assert_true(flags[2] & VD_FLAG_GAP);
     assert_int_equal(gaps[3], 0);
     assert_false(flags[3] & VD_FLAG_GAP);
+    assert_false(flags[3] & VD_FLAG_OUTLIER);
+    assert_true(flags[4] & VD_FLAG_OUTLIER); /* row 49 covers sample 45 */
+    assert_false(flags[5] & VD_FLAG_OUTLIER);
+    assert_int_equal(e.outliers, 1);
+    assert_int_equal(e.push_errors, 0);
     assert_int_equal(e.gaps, 1);
     assert_int_equal(e.missing, 3);
     /* an index jump without a GAP record (ring overflow) is a gap too */
     rec.kind = VIBID_REC_SAMPLE;
     rec.index = 170;
-    vd_est_record(&e, &rec, &row);
+    est_feed(&e, &rec, &rows, idx, flags, gaps);
+    est_feed(&e, NULL, &rows, idx, flags, gaps);
     assert_int_equal(e.gaps, 2);
     assert_int_equal(e.missing, 13);
     vd_est_free(&e);
@@ -326,6 +352,21 @@ static void test_reopen_each_on_its_own(void **state)
     vd_config_free(&c);
 }
 
+/* The flag letters: one spelling for every output, in the documented order. */
+static void test_flag_letters(void **state)
+{
+    (void)state;
+    char l[8];
+    vd_flag_letters(VD_FLAG_GAP | VD_FLAG_OUTLIER | VD_FLAG_IMPLAUSIBLE | VD_FLAG_SE_INVALID | VD_FLAG_NOT_EXCITED |
+                        VD_FLAG_ALARM,
+                    l);
+    assert_string_equal(l, "GOPUIA");
+    vd_flag_letters(VD_FLAG_NOEST | VD_FLAG_OUTLIER, l);
+    assert_string_equal(l, "OE");
+    vd_flag_letters(0, l);
+    assert_string_equal(l, "");
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -333,6 +374,7 @@ int main(void)
         cmocka_unit_test(test_influx),        cmocka_unit_test(test_recording_roundtrip),
         cmocka_unit_test(test_ns_to_us),      cmocka_unit_test(test_estimator_gap),
         cmocka_unit_test(test_reopen_each_on_its_own),
+        cmocka_unit_test(test_flag_letters),
     };
     return cmocka_run_group_tests(tests, setup, teardown);
 }

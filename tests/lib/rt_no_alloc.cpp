@@ -40,6 +40,7 @@ extern "C" {
 
 #include <vibid/iv.h>
 #include <vibid/lsq.h>
+#include <vibid/outlier.h>
 #include <vibid/rls.h>
 
 #include "../support/rt_alloc_counter.hpp"
@@ -157,12 +158,55 @@ void test_lsq_riv_no_alloc(void **state) {
     vibid_riv_destroy(riv);
 }
 
+// The outlier test (vibid/outlier.h): pushes through the warm-up, clean samples, suspects
+// taken out and accepted, missing values, the flush, the counters, the error paths.
+void test_outlier_no_alloc(void **state) {
+    (void)state;
+    const std::size_t n = 4;
+    vibid_outlier_config cfg;
+    vibid_outlier_config_init(&cfg, n);
+    vibid_outlier *det = vibid_outlier_create(&cfg);
+    assert_non_null(det);
+    double x[n], out[n];
+    unsigned char mark[n];
+    vibid_outlier_stats st;
+    std::size_t bad_status = 0, released = 0;
+
+    arm();
+    for (std::size_t k = 0; k < 2000; ++k) {
+        for (std::size_t i = 0; i < n; ++i) x[i] = value(k, i);
+        if (k % 97 == 50) x[k % n] = 1e300;  // a glitch
+        if (k % 89 == 0) x[1] += 50.0;       // a step that stays (accepted a sample late)
+        if (k % 113 == 7) x[2] = NAN;        // a missing value
+        std::size_t nr = 0, no = 0;
+        if (vibid_outlier_push(det, x, &nr) != VIBID_OK) ++bad_status;
+        for (std::size_t i = 0; i < nr; ++i)
+            if (vibid_outlier_released(det, i, out, mark, &no) != VIBID_OK) ++bad_status;
+        released += nr;
+    }
+    std::size_t nr = 0;
+    if (vibid_outlier_flush(det, &nr) != VIBID_OK) ++bad_status;
+    released += nr;
+    if (vibid_outlier_get_stats(det, &st) != VIBID_OK) ++bad_status;
+    if (vibid_outlier_push(det, nullptr, &nr) != VIBID_E_NULL_ARGUMENT) ++bad_status;
+    if (vibid_outlier_released(det, 99, out, mark, nullptr) != VIBID_E_OUT_OF_RANGE) ++bad_status;
+    if (vibid_outlier_reset(det) != VIBID_OK) ++bad_status;
+    const std::size_t allocs = disarm();
+
+    assert_int_equal(bad_status, 0);
+    assert_int_equal(allocs, 0);
+    assert_int_equal(released, 2000);
+    assert_true(st.outlier_samples > 0);  // the glitches were found: the paths above ran
+    vibid_outlier_destroy(det);
+}
+
 }  // namespace
 
 int main(void) {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_counters_fire),
         cmocka_unit_test(test_rls_no_alloc),
+        cmocka_unit_test(test_outlier_no_alloc),
         cmocka_unit_test(test_lsq_riv_no_alloc),
     };
     return cmocka_run_group_tests(tests, nullptr, nullptr);

@@ -140,7 +140,8 @@ typedef struct vibid_disturbance_info {
 
 typedef struct vibid_param_info {
     const char *name;      /* e.g. "c1" (element name), "m2" (node name for a mass),
-                              "f1" (input name for a gain), "C[1,2]" (full matrices, 1-based).
+                              "f1" (input name for a gain), "C1_2" (full matrices: row 1,
+                              column 2, 1-based).
                               Lives as long as the model. */
     vibid_param_kind kind;
     double nominal;        /* value given in the description (start/true value, may be 0 = not given) */

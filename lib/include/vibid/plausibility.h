@@ -12,7 +12,7 @@
  *   VIBID_IMPLAUSIBLE_STIFFNESS  a stiffness <= 0 N/m.
  *       Lumped networks (model.h): every unknown node mass, damper and linear spring.
  *       Full-matrix models (vibid_model_set_matrices): only the diagonal entries
- *       "M[i,i]", "D[i,i]", "C[i,i]"; off-diagonal entries (couplings) may have any sign.
+ *       "Mi_i", "Di_i", "Ci_i"; off-diagonal entries (couplings) may have any sign.
  *       Cubic coefficients (VIBID_PARAM_CUBIC: hardening > 0, softening < 0) and input
  *       gains (VIBID_PARAM_GAIN: the sign is the sensor's/actuator's convention) are
  *       never sign-constrained. Zero counts as implausible: no estimate is exactly 0

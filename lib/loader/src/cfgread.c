@@ -59,6 +59,70 @@ int vibid_cfg_fail(const vibid_cfg_reader *r, const config_setting_t *s, const c
     return -1;
 }
 
+/* The limits of vibid/cfgread.h, checked before libconfig reads a byte: its scanner takes
+ * time quadratic in a line's length (a 1 MiB line 0.95 s, 4 MiB 15 s on the test machine;
+ * 64 KiB 4 ms), and nothing bounded a file. One pass over the file and every file it
+ * @includes (libconfig's own rule: "@include" at the start of a line, the name relative to
+ * the include directory, at most 10 deep). */
+typedef struct prescan {
+    const vibid_cfg_reader *r;
+    const char *dir;   /* the include directory */
+    size_t total;      /* bytes of all files so far */
+} prescan;
+
+/* The file name of an @include line (text, len bytes: the line's first bytes), or 0. */
+static int include_name(const char *text, size_t len, char *name, size_t cap) {
+    size_t i = 0;
+    while (i < len && (text[i] == ' ' || text[i] == '\t')) i++;
+    if (len - i < 8 || strncmp(text + i, "@include", 8)) return 0;
+    i += 8;
+    while (i < len && (text[i] == ' ' || text[i] == '\t')) i++;
+    if (i >= len || text[i] != '"') return 0;
+    size_t n = 0;
+    for (i++; i < len && text[i] != '"' && n + 1 < cap; i++) name[n++] = text[i];
+    name[n] = '\0';
+    return n > 0;
+}
+
+static int prescan_file(prescan *ps, const char *path, int depth) {
+    FILE *f = fopen(path, "r");
+    if (!f) return 0; /* libconfig says why, in its words */
+    char buf[16384], head[1100], name[1024];
+    size_t line = 1, len = 0, hn = 0;
+    int rc = 0;
+    for (size_t got; rc == 0 && (got = fread(buf, 1, sizeof buf, f)) > 0;) {
+        ps->total += got;
+        if (ps->total > VIBID_CFG_FILE_MAX) {
+            rc = vibid_cfg_fail_at(ps->r, path, 0, "",
+                                   "larger than %u MiB with the files it @includes: the limit of a configuration file",
+                                   VIBID_CFG_FILE_MAX >> 20);
+            break;
+        }
+        for (size_t i = 0; i < got && rc == 0; i++) {
+            if (buf[i] != '\n') {
+                if (hn < sizeof head) head[hn++] = buf[i];
+                if (++len > VIBID_CFG_LINE_MAX)
+                    rc = vibid_cfg_fail_at(ps->r, path, (int)line, "",
+                                           "line longer than %u characters: the limit of a line of a configuration file",
+                                           VIBID_CFG_LINE_MAX);
+                continue;
+            }
+            if (include_name(head, hn, name, sizeof name)) {
+                char inc[2048];
+                if (depth >= 10)
+                    rc = vibid_cfg_fail_at(ps->r, path, (int)line, "", "@include nested more than 10 deep");
+                else if (snprintf(inc, sizeof inc, "%s%s%s", name[0] == '/' ? "" : ps->dir, name[0] == '/' ? "" : "/",
+                                  name) < (int)sizeof inc)
+                    rc = prescan_file(ps, inc, depth + 1);
+            }
+            line++;
+            len = hn = 0;
+        }
+    }
+    fclose(f);
+    return rc;
+}
+
 int vibid_cfg_read_file(config_t *cf, const char *path, vibid_cfg_error *err) {
     config_init(cf);
     vibid_cfg_reader r = {path, err};
@@ -71,6 +135,8 @@ int vibid_cfg_read_file(config_t *cf, const char *path, vibid_cfg_error *err) {
     struct stat st;
     if (stat(path, &st) == 0 && S_ISDIR(st.st_mode))
         return vibid_cfg_fail_at(&r, path, 0, "", "cannot read: %s", strerror(EISDIR));
+    prescan ps = {&r, dir, 0};
+    if (prescan_file(&ps, path, 0)) return -1;
     errno = 0;
     if (config_read_file(cf, path)) return 0;
     if (config_error_type(cf) == CONFIG_ERR_FILE_IO)
@@ -260,4 +326,86 @@ int vibid_cfg_path(const vibid_cfg_reader *r, const config_setting_t *group, con
     if (config_setting_type(s) != CONFIG_TYPE_STRING)
         return vibid_cfg_fail(r, s, f, "must be a string (a file name)");
     return vibid_cfg_path_of(r, s, f, config_setting_get_string(s), out, cap) ? -1 : 1;
+}
+
+/* The name as text that cannot break a line: printable ASCII as it is, anything else as
+ * \xNN, at most 48 characters of it (then "..."). */
+static void printable(char *out, size_t cap, const char *s)
+{
+    size_t o = 0;
+    for (size_t i = 0; s[i] && o + 8 < cap; i++) {
+        unsigned char ch = (unsigned char)s[i];
+        if (i == 48) {
+            o += (size_t)snprintf(out + o, cap - o, "...");
+            break;
+        }
+        if (ch >= 0x20 && ch < 0x7f && ch != '\\')
+            out[o++] = (char)ch;
+        else
+            o += (size_t)snprintf(out + o, cap - o, "\\x%02x", ch);
+    }
+    out[o < cap ? o : cap - 1] = '\0';
+}
+
+static bool name_char(char ch, bool first)
+{
+    return (ch >= 'A' && ch <= 'Z') || (ch >= 'a' && ch <= 'z') || (ch >= '0' && ch <= '9') || ch == '_' ||
+           (!first && (ch == '-' || ch == '.'));
+}
+
+const char *vibid_cfg_name_problem(const char *s, char *why, size_t cap)
+{
+    static const char rule[] = "a name is 1..63 of A-Z a-z 0-9 _ - . (the first a letter, digit or '_')";
+    char shown[256];
+    size_t n = 0;
+    while (s[n] && n <= VIBID_CFG_NAME_MAX) n++;
+    if (n == 0) {
+        snprintf(why, cap, "is empty: %s", rule);
+        return why;
+    }
+    for (size_t i = 0; i < n; i++) {
+        if (name_char(s[i], i == 0)) continue;
+        unsigned char ch = (unsigned char)s[i];
+        char what[16];
+        if (ch >= 0x21 && ch < 0x7f && ch != '\\')
+            snprintf(what, sizeof what, "'%c'", ch);
+        else if (ch == ' ')
+            snprintf(what, sizeof what, "a space");
+        else if (ch == '\n' || ch == '\r')
+            snprintf(what, sizeof what, "a line break");
+        else if (ch == '\\')
+            snprintf(what, sizeof what, "a backslash");
+        else
+            snprintf(what, sizeof what, "\\x%02x", ch);
+        printable(shown, sizeof shown, s);
+        snprintf(why, cap, "'%s' %s %s (character %zu): %s", shown, i == 0 && name_char(s[i], false) ? "begins with" : "contains",
+                 what, i + 1, rule);
+        return why;
+    }
+    if (n > VIBID_CFG_NAME_MAX) {
+        printable(shown, sizeof shown, s);
+        snprintf(why, cap, "'%s' is longer than %d characters: %s", shown, VIBID_CFG_NAME_MAX, rule);
+        return why;
+    }
+    return NULL;
+}
+
+int vibid_cfg_check_name(const vibid_cfg_reader *r, const config_setting_t *s, const char *field, const char *value)
+{
+    char why[512];
+    if (!value) return vibid_cfg_fail(r, s, field, "must be a string (a name)");
+    return vibid_cfg_name_problem(value, why, sizeof why) ? vibid_cfg_fail(r, s, field, "%s", why) : 0;
+}
+
+int vibid_cfg_name(const vibid_cfg_reader *r, const config_setting_t *group, const char *path, const char *name,
+                   const char **out)
+{
+    char f[192];
+    const config_setting_t *s = member(group, path, name, f, sizeof f);
+    if (!s) return 0;
+    if (config_setting_type(s) != CONFIG_TYPE_STRING) return vibid_cfg_fail(r, s, f, "must be a string (a name)");
+    const char *v = config_setting_get_string(s);
+    if (vibid_cfg_check_name(r, s, f, v)) return -1;
+    *out = v;
+    return 1;
 }

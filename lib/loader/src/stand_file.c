@@ -35,11 +35,11 @@ static int require_number(const vibid_cfg_reader *c, const config_setting_t *g, 
                : 0;
 }
 
-/* A non-empty string that must be there. */
-static int require_string(const vibid_cfg_reader *c, const config_setting_t *g, const char *path,
-                          const char *name, const char **out) {
-    return vibid_cfg_require(c, g, path, name, "a string is required") ||
-                   vibid_cfg_string_ref(c, g, path, name, out) < 0
+/* A name that must be there (the safe set of vibid/cfgread.h: names reach every output). */
+static int require_name(const vibid_cfg_reader *c, const config_setting_t *g, const char *path,
+                        const char *name, const char **out) {
+    return vibid_cfg_require(c, g, path, name, "a name is required") ||
+                   vibid_cfg_name(c, g, path, name, out) < 0
                ? -1
                : 0;
 }
@@ -107,6 +107,7 @@ static int read_measure(const vibid_cfg_reader *c, const config_setting_t *g, co
         if (config_setting_type(e) != CONFIG_TYPE_STRING || !config_setting_get_string(e)[0])
             return vibid_cfg_fail(c, e, f,
                                   "channel name missing: a measured quantity needs the name of its channel");
+        if (vibid_cfg_check_name(c, e, f, config_setting_get_string(e))) return -1;
         *mask |= 1u << k;
         names[k] = config_setting_get_string(e);
     }
@@ -184,6 +185,7 @@ void vibid_stand_destroy(vibid_stand *stand) {
 /* Resolves an end name: a node, "ground" or "base". */
 static int resolve_end(const vibid_cfg_reader *c, const vibid_model *m, const config_setting_t *s,
                        const char *f, const char *name, size_t *out) {
+    if (vibid_cfg_check_name(c, s, f, name)) return -1; /* a clean message for any reference */
     if (!strcmp(name, "ground")) {
         *out = VIBID_GROUND;
         return 0;
@@ -252,7 +254,7 @@ static int read_disturbances(const vibid_cfg_reader *c, vibid_model *m, const co
         const char *nm, *node;
         double sd = 0.0, tsd = 0.0;
         int has_true;
-        if (require_string(c, e, p, "name", &nm) || require_string(c, e, p, "node", &node)) return -1;
+        if (require_name(c, e, p, "name", &nm) || require_name(c, e, p, "node", &node)) return -1;
         if (get_number(c, e, p, "std", &sd) < 0 || (has_true = get_number(c, e, p, "true_std", &tsd)) < 0) return -1;
         size_t idx;
         if (vibid_model_find_node(m, node, &idx) != VIBID_OK) {
@@ -371,10 +373,11 @@ static int read_matrices(const vibid_cfg_reader *c, vibid_model *m, const config
         }
         for (size_t i = 0; i < n + r; ++i) {
             const char *s = config_setting_get_string_elem(ch, (unsigned)i);
-            if (!s || !*s) {
+            if (!s) {
                 vibid_cfg_fail(c, ch, f, "element %zu is not a channel name", i);
                 goto out;
             }
+            if (vibid_cfg_check_name(c, config_setting_get_elem(ch, (unsigned)i), f, s)) goto out;
             if (i < n)
                 pd->node_names[i][0] = s;
             else
@@ -425,7 +428,7 @@ vibid_stand *vibid_stand_from_setting(const config_setting_t *g, const char *fil
         }
         snprintf(st->length_unit, sizeof st->length_unit, "%s", lu);
     }
-    if (vibid_cfg_string_ref(&c, g, path, "name", &name) < 0) goto fail;
+    if (vibid_cfg_name(&c, g, path, "name", &name) < 0) goto fail;
     if (require_number(&c, g, path, "sample_rate", &st->sample_rate)) goto fail;
     if (!(st->sample_rate > 0)) {
         vibid_cfg_fail(&c, config_setting_get_member(g, "sample_rate"), "stand.sample_rate",
@@ -471,7 +474,7 @@ vibid_stand *vibid_stand_from_setting(const config_setting_t *g, const char *fil
             double mass = 0;
             bool unknown = false;
             static const char *const node_keys[] = {"name", "mass", "unknown", "true_value", "measure", "noise", NULL};
-            if (vibid_cfg_check_keys(&c, e, p, node_keys) || require_string(&c, e, p, "name", &nm) ||
+            if (vibid_cfg_check_keys(&c, e, p, node_keys) || require_name(&c, e, p, "name", &nm) ||
                 vibid_cfg_bool(&c, e, p, "unknown", &unknown) < 0)
                 goto fail;
             int has_mass = get_number(&c, e, p, "mass", &mass);
@@ -515,7 +518,7 @@ vibid_stand *vibid_stand_from_setting(const config_setting_t *g, const char *fil
             bool unknown = false;
             static const char *const element_keys[] = {"name", "kind", "between", "value", "unknown", "true_value",
                                                        NULL};
-            if (vibid_cfg_check_keys(&c, e, p, element_keys) || require_string(&c, e, p, "name", &nm) ||
+            if (vibid_cfg_check_keys(&c, e, p, element_keys) || require_name(&c, e, p, "name", &nm) ||
                 vibid_cfg_bool(&c, e, p, "unknown", &unknown) < 0)
                 goto fail;
             static const char *const kinds[] = {"spring", "damper", "cubic_spring", NULL};
@@ -565,11 +568,11 @@ vibid_stand *vibid_stand_from_setting(const config_setting_t *g, const char *fil
             bool unknown = false;
             static const char *const input_keys[] = {"name", "node", "gain", "unknown", "true_value", "channel",
                                                      "hold", NULL};
-            if (vibid_cfg_check_keys(&c, e, p, input_keys) || require_string(&c, e, p, "name", &nm) ||
-                require_string(&c, e, p, "node", &node) ||
+            if (vibid_cfg_check_keys(&c, e, p, input_keys) || require_name(&c, e, p, "name", &nm) ||
+                require_name(&c, e, p, "node", &node) ||
                 vibid_cfg_bool(&c, e, p, "unknown", &unknown) < 0 || get_number(&c, e, p, "gain", &gain) < 0)
                 goto fail;
-            if (require_string(&c, e, p, "channel", &chan)) goto fail;
+            if (require_name(&c, e, p, "channel", &chan)) goto fail;
             size_t idx;
             vibid_cfg_field(f, sizeof f, p, "node");
             if (vibid_model_find_node(m, node, &idx) != VIBID_OK) {

@@ -50,9 +50,18 @@ typedef struct vibid_cfg_reader {
     vibid_cfg_error *err;
 } vibid_cfg_reader;
 
+/* Size limits of every configuration file (checked before libconfig reads it, whose time
+ * grows with the square of a line's length): a line at most VIBID_CFG_LINE_MAX characters,
+ * a file together with the files it @includes at most VIBID_CFG_FILE_MAX bytes. Generous
+ * for any stand (a stand of 10^5 elements, one per line, is 8 MiB in lines of ~90
+ * characters); libconfig reads either limit's worth in well under a second. */
+#define VIBID_CFG_LINE_MAX 65536u
+#define VIBID_CFG_FILE_MAX (16u << 20)
+
 /* config_init(cf), @include relative to the file's directory, and reads `path`. 0 on
- * success; -1 with err filled ("file:line: syntax error: ..." or "file: cannot read: ...").
- * The caller calls config_destroy(cf) in both cases. */
+ * success; -1 with err filled ("file:line: syntax error: ...", "file: cannot read: ...",
+ * "file:line: line longer than 65536 characters: ..." or "file: larger than 16 MiB with the
+ * files it @includes: ..."). The caller calls config_destroy(cf) in both cases. */
 int vibid_cfg_read_file(config_t *cf, const char *path, vibid_cfg_error *err);
 
 /* Records an error at setting s (its file and line; the reader's file and line 0 when s
@@ -109,6 +118,33 @@ int vibid_cfg_enum(const vibid_cfg_reader *r, const config_setting_t *group, con
  * *out = the list setting. */
 int vibid_cfg_list(const vibid_cfg_reader *r, const config_setting_t *group, const char *path,
                    const char *name, const config_setting_t **out);
+
+/* Names. Every name that vibid writes into an output (the stand's name, its nodes,
+ * elements, inputs and disturbances, the channel names, vibidd's site and stand tags) is 1
+ * to VIBID_CFG_NAME_MAX characters of the safe set
+ *     A-Z a-z 0-9 _ - .     (the first one a letter, a digit or '_')
+ * so that no output has to escape it and none can be broken by it: CSV headers and rows,
+ * InfluxDB line protocol (measurement, tags, field keys), MQTT topic levels and JSON, the
+ * status file's key=value lines, Prometheus labels, the log. A name outside the set is an
+ * error naming the first offending character and its position, the name itself printed
+ * with anything unprintable escaped (a hostile name must not forge a log line through
+ * the error either). References to names (an element's `between`, an input's `node`, an
+ * alarm's parameter) are checked the same way, so their errors are as clean.
+ * docs/stand-file.md, "Names". */
+#define VIBID_CFG_NAME_MAX 63
+
+/* NULL when s is a name of the safe set; else why (written into why, cap bytes, and
+ * returned), e.g. "'rig,7' contains ',' (character 4): a name is 1..63 of A-Z a-z 0-9 _ - .
+ * (the first a letter, digit or '_')". */
+const char *vibid_cfg_name_problem(const char *s, char *why, size_t cap);
+
+/* A name setting (a string of the safe set) by reference, like vibid_cfg_string_ref. */
+int vibid_cfg_name(const vibid_cfg_reader *r, const config_setting_t *group, const char *path, const char *name,
+                   const char **out);
+
+/* The check of a name already read from setting s (a list element, a reference): 0, or -1
+ * with the error at s and field. */
+int vibid_cfg_check_name(const vibid_cfg_reader *r, const config_setting_t *s, const char *field, const char *value);
 
 /* A file name resolved against the directory of the file that holds the setting (an
  * absolute name stays as it is). "" is an error. */
