@@ -6,6 +6,8 @@
  */
 #include "config.h"
 
+#include <vibid/output_error.h>
+
 #include "log.h"
 #include "metrics.h"
 
@@ -513,7 +515,7 @@ static const char *const acq_known[] = {"ring_size",   "read_batch",   "read_tim
                                         "lock_memory", "handoff_spin", NULL};
 static const char *const est_known[] = {"method",         "forgetting",       "prefilter_hz", "rls_alpha",
                                         "iv_lag",         "difference_order", "decimation",   "warmup_samples",
-                                        "start_values",   "outlier_threshold", NULL};
+                                        "start_values",   "outlier_threshold", "refine_every", "refine_window", NULL};
 static const char *const out_known[] = {"tracks", "influx", "record", "status", "prometheus", "mqtt", NULL};
 static const char *const alarm_known[] = {"enabled", "threshold", "min_relative", "hold", "learn_start",
                                           "learn_duration", "parameters", NULL};
@@ -603,6 +605,64 @@ static int load_start_values(ctx *c, const config_setting_t *sv)
     return 0;
 }
 
+/* Whether the output-error fit (output_error.h) can refine this stand's estimates: NULL, or
+ * why not (written to why). It refuses a stand with a disturbance or an unmeasured base
+ * displacement at create; the EKF, KF+RLS and OE methods are not the equation-error
+ * estimates a refinement starts from. */
+static const char *refine_refusal(const vd_config *cfg, char *why, size_t cap)
+{
+    if (cfg->method != VIBID_ESTIMATOR_LS && cfg->method != VIBID_ESTIMATOR_IV && cfg->method != VIBID_ESTIMATOR_RLS &&
+        cfg->method != VIBID_ESTIMATOR_AUTO) {
+        snprintf(why, cap, "estimator.method \"%s\" is not an equation-error estimator (ls, iv, rls or auto)",
+                 vd_estimator_name(cfg->method));
+        return why;
+    }
+    vibid_oe_config oc;
+    vibid_oe_config_init(&oc, 1.0 / cfg->sample_rate);
+    vibid_oe *oe = vibid_oe_create(vibid_stand_model(cfg->stand), &oc);
+    if (!oe) {
+        snprintf(why, cap, "the output-error fit refuses the stand: %s", vibid_last_error());
+        return why;
+    }
+    vibid_oe_destroy(oe);
+    return NULL;
+}
+
+/* estimator.refine_every / refine_window (docs/vibidd.md "Refinement"). */
+static int load_refine(ctx *c, config_setting_t *g)
+{
+    vd_config *cfg = c->cfg;
+    const double fa = cfg->sample_rate;
+    const char *no = refine_refusal(cfg, cfg->refine_why, sizeof cfg->refine_why);
+    const config_setting_t *every = g ? config_setting_get_member(g, "refine_every") : NULL;
+    cfg->refine_explicit = every != NULL;
+    if (get_double(c, g, "estimator", "refine_every", no ? 0.0 : 10.0, 0.0, 86400.0, &cfg->refine_every_s))
+        return -1;
+    if (cfg->refine_every_s > 0 && no)
+        return vibid_cfg_fail(&c->r, every, "estimator.refine_every", "%g s: no refinement possible: %s",
+                              cfg->refine_every_s, no);
+    /* the forgetting memory h / (1 - gamma): the window covers what the recursive estimate
+     * still remembers, at least 10 s */
+    double memory = cfg->forgetting < 1.0 ? 1.0 / (fa * (1.0 - cfg->forgetting)) : 0.0;
+    double min_window = 8.0 * 50.0 / fa; /* the fit's least: 8 blocks of 50 samples */
+    if (get_double(c, g, "estimator", "refine_window", fmax(10.0, 3.0 * memory), min_window, 86400.0,
+                   &cfg->refine_window_s))
+        return -1;
+    if (cfg->refine_every_s > 0 && cfg->refine_every_s * fa < 1.0)
+        return vibid_cfg_fail(&c->r, every, "estimator.refine_every", "%g s is shorter than one sample",
+                              cfg->refine_every_s);
+    if (cfg->refine_every_s > 0 && (cfg->refine_window_s + 2.0 * cfg->refine_every_s) * fa > 5e7)
+        return vibid_cfg_fail(&c->r, every, "estimator.refine_window",
+                              "window + 2 x refine_every = %g s are more than 5e7 samples at %g Hz",
+                              cfg->refine_window_s + 2.0 * cfg->refine_every_s, fa);
+    if (cfg->refine_every_s > 0)
+        /* the same whether given or defaulted: the printout reads back to the same text */
+        snprintf(cfg->refine_why, sizeof cfg->refine_why, "the output-error fit accepts the stand and the method");
+    else if (!no)
+        snprintf(cfg->refine_why, sizeof cfg->refine_why, "estimator.refine_every = 0");
+    return 0;
+}
+
 static int load_estimator(ctx *c, config_t *cf)
 {
     vd_config *cfg = c->cfg;
@@ -650,7 +710,9 @@ static int load_estimator(ctx *c, config_t *cf)
         return vibid_cfg_fail(&c->r, config_setting_get_member(g, "outlier_threshold"),
                               "estimator.outlier_threshold", "%g: use 0 (off) or a value >= 2",
                               cfg->outlier_threshold);
-    return load_start_values(c, g ? config_setting_get_member(g, "start_values") : NULL);
+    if (load_start_values(c, g ? config_setting_get_member(g, "start_values") : NULL))
+        return -1;
+    return load_refine(c, g);
 }
 
 /* outputs.mqtt.url: mqtt://HOST[:PORT] (1883) or mqtts://HOST[:PORT] (8883); HOST a name, an
@@ -1335,6 +1397,9 @@ void vd_config_print(const vd_config *cfg, FILE *o)
         fprintf(o, "  # difference_order: automatic\n");
     fprintf(o, "  decimation = %u;\n  warmup_samples = %u;\n", cfg->decimation, cfg->warmup_samples);
     fprintf(o, "  outlier_threshold = %s;  # 0 = off\n", num(cfg->outlier_threshold));
+    fprintf(o, "  refine_every = %s;  # s, 0 = off (refinement %s: %s)\n  refine_window = %s;  # s\n",
+            num(cfg->refine_every_s), cfg->refine_every_s > 0 ? "on" : "off", cfg->refine_why,
+            num(cfg->refine_window_s));
     if (cfg->has_start) {
         fprintf(o, "  start_values = (");
         for (size_t k = 0; k < cfg->n_params; k++) {

@@ -106,6 +106,10 @@ typedef struct vd_config {
     unsigned decimation;
     unsigned warmup_samples;
     double outlier_threshold;         /* K of vibid/outlier.h; 0 = no outlier test */
+    double refine_every_s;            /* output-error refinement period, s of sample time; 0 = off */
+    double refine_window_s;           /* the refinement's window, s */
+    bool refine_explicit;             /* refine_every given in the file */
+    char refine_why[512];             /* why refinement is on or off (--check, the log) */
     bool has_start;                   /* estimator.start_values given (RLS only) */
     double start_theta[VD_MAX_PARAMS];/* RLS start values, stand parameter order; the stand's
                                          nominal value for a parameter the list leaves out */

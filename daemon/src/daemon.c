@@ -501,6 +501,12 @@ static void take_snapshot(vd_daemon *d, const char *state, double now)
     s->implausible_rows = d->est.implausible_rows;
     s->nonfinite_samples = d->est.push_errors;
     s->outlier_samples = d->est.outliers;
+    s->refine_on = d->refine.on;
+    s->refine_done = d->refine.done;
+    s->refine_failed = d->refine.failed;
+    s->refine_overruns = d->refine.overruns;
+    s->refine_skipped = d->refine.skipped_busy + d->refine.skipped_gap;
+    s->refine_last_s = d->refine.done + d->refine.failed ? d->refine.last_duration_s : NAN;
     s->lat_p50_us = vd_daemon_latency_us(d, 0.5);
     s->lat_p99_us = vd_daemon_latency_us(d, 0.99);
     s->lat_n = d->lat_n;
@@ -593,6 +599,11 @@ static void format_status(vd_daemon *d, const vd_snapshot *sn)
     S("rows=%llu\nestimate_failures=%llu\nimplausible_rows=%llu\nnonfinite_samples=%llu\noutlier_samples=%llu\n",
       (unsigned long long)sn->rows, (unsigned long long)sn->est_errors, (unsigned long long)sn->implausible_rows,
       (unsigned long long)sn->nonfinite_samples, (unsigned long long)sn->outlier_samples);
+    if (sn->refine_on)
+        S("refinements=%llu\nrefine_failed=%llu\nrefine_overrun=%llu\nrefine_skipped=%llu\n"
+          "refine_last_duration_s=%.3f\n",
+          (unsigned long long)sn->refine_done, (unsigned long long)sn->refine_failed,
+          (unsigned long long)sn->refine_overruns, (unsigned long long)sn->refine_skipped, sn->refine_last_s);
     S("latency_us_p50=%.1f\nlatency_us_p99=%.1f\n", sn->lat_p50_us, sn->lat_p99_us);
     S("write_errors=%llu\ntorn_lines=%llu\ninflux_udp_sent=%llu\ninflux_udp_errors=%llu\n",
       (unsigned long long)sn->write_errors, (unsigned long long)sn->torn_lines, (unsigned long long)sn->udp_sent,
@@ -739,11 +750,83 @@ static void housekeeping(vd_daemon *d, bool final)
 /* The pending row: its estimate and modes (vd_est_finish_row), the alarms, and out to
  * every output. Called when the estimation thread has no record waiting, before a record
  * that may start the next row (process), and at the end. */
+static void emit_row(vd_daemon *d, vd_row *row);
+
 static void finish_row(vd_daemon *d)
 {
     vd_row *row = &d->row;
     d->row_pending = false;
     vd_est_finish_row(&d->est, row);
+    emit_row(d, row);
+}
+
+/* A refinement's result (refine.h): a row flagged R, or a failure counted and logged once
+ * per episode (the equation-error rows go on meanwhile; no row for the failed window). */
+static void take_refinement(vd_daemon *d)
+{
+    vd_refine *r = &d->refine;
+    const vd_refine_result *res = vd_refine_take(r);
+    if (!res)
+        return;
+    if (res->overrun) {
+        r->overruns++;
+        if (r->overruns <= 20 || r->overruns % 1000 == 0)
+            vd_warning("refinement of the window ending at sample %llu given up: %s (%llu overruns)",
+                       (unsigned long long)res->end_index, res->reason, (unsigned long long)r->overruns);
+    } else if (!res->ok) {
+        r->failed++;
+        r->last_duration_s = res->duration_s;
+        if (!r->fail_episode)
+            vd_warning("refinement of the window ending at sample %llu failed: %s (the equation-error estimate "
+                       "stands; no row flagged R until a refinement succeeds again)",
+                       (unsigned long long)res->end_index, res->reason);
+        r->fail_episode = true;
+    } else {
+        r->done++;
+        r->last_duration_s = res->duration_s;
+        if (r->fail_episode)
+            vd_notice("refinement succeeded again at sample %llu (%llu failed so far)",
+                      (unsigned long long)res->end_index, (unsigned long long)r->failed);
+        r->fail_episode = false;
+        vd_est_refined_row(&d->est, &d->refined_row, res->end_index, res->end_t_us, res->theta, res->se, res->cov);
+        emit_row(d, &d->refined_row);
+    }
+    vd_refine_release(r);
+}
+
+/* After the push of a sample: into the refinement's ring, and the hand-over when one is
+ * due. A replay waits for the refinement here, so that its rows come out at the same place
+ * in every replay; a live source never waits (the result is taken when the thread idles). */
+static void refine_sample(vd_daemon *d, const vibid_record *rec)
+{
+    vd_refine *r = &d->refine;
+    if (d->est.gaps != d->refine_gaps_seen) {
+        d->refine_gaps_seen = d->est.gaps;
+        vd_refine_gap(r);
+    }
+    vd_refine_push(r, d->est.chan);
+    const uint64_t index = rec->index - d->est.first_index;
+    if (!vd_refine_due(r, index))
+        return;
+    /* start values: the latest recursive estimate when usable, else the stand's nominal ones */
+    double start[VD_MAX_PARAMS];
+    const bool use_last = d->est.have_last && vd_row_usable(d->est.last.flags);
+    for (size_t k = 0; k < d->cfg->n_params; k++) {
+        vibid_param_info pi;
+        vibid_model_param_info(d->est.model, k, &pi);
+        start[k] = use_last && isfinite(d->est.last.theta[k]) ? d->est.last.theta[k] : pi.nominal;
+    }
+    if (!vd_refine_request(r, start, index, vd_ns_to_us(rec->t_ns)) || !d->file_source)
+        return;
+    vd_refine_wait(r);
+    if (d->row_pending && d->row.index <= index) /* the rows stay in sample order */
+        finish_row(d);
+    take_refinement(d);
+}
+
+/* A row out: plausibility log, alarms, every output. */
+static void emit_row(vd_daemon *d, vd_row *row)
+{
     note_plausibility(d, row);
     run_alarms(d, row);
     vd_writers_row(&d->w, row);
@@ -763,6 +846,7 @@ static void process_released(vd_daemon *d, const vibid_record *rec, int64_t t_rx
         finish_row(d);
     if (rec->kind == VIBID_REC_GAP)
         handle_gap_log(d, rec);
+    const uint64_t samples_before = d->est.samples;
     int due = vd_est_record(&d->est, rec, &d->row);
     if (rec->kind == VIBID_REC_SAMPLE && d->measure_latency) {
         /* the estimate is updated with this sample (pushed; a due row's state kept) */
@@ -778,6 +862,8 @@ static void process_released(vd_daemon *d, const vibid_record *rec, int64_t t_rx
         if (!d->est.twin) /* no twin: the estimator's state moves on with the next sample */
             finish_row(d);
     }
+    if (d->refine.on && d->est.samples != samples_before) /* a sample the estimator took */
+        refine_sample(d, rec);
 }
 
 static void drain_released(vd_daemon *d)
@@ -856,6 +942,10 @@ static void *est_main(void *arg)
             finish_row(d);
             continue;
         }
+        if (vd_refine_take(&d->refine)) { /* then for a refinement's row */
+            take_refinement(d);
+            continue;
+        }
         /* empty: finished, or sleep until the producer wakes us (bounded by 50 ms) */
         if (atomic_load(&d->acq_done) && !vd_ring_peek(d->ring))
             break;
@@ -880,6 +970,9 @@ static void *est_main(void *arg)
     }
     if (d->row_pending)
         finish_row(d);
+    /* a refinement still running is waited for (at most one fit): its row is not lost */
+    vd_refine_wait(&d->refine);
+    take_refinement(d);
     housekeeping(d, true);
     atomic_store(&d->est_done, 1);
     /* End of a replay: wake the main thread now instead of at its next 100 ms tick
@@ -955,6 +1048,25 @@ int vd_daemon_init(vd_daemon *d, vd_config *cfg, const vd_options *opt, char *er
         snprintf(err, cap, "out of memory for a ring of %u records", ring_size);
         return -1;
     }
+    if (cfg->refine_every_s > 0 && d->est.resolved.estimator == VIBID_ESTIMATOR_EKF) {
+        /* auto chose the EKF: not an equation-error estimate to refine */
+        if (cfg->refine_explicit) {
+            snprintf(err, cap, "%s: estimator.refine_every: the automatic estimator chose the EKF for this stand; "
+                               "refinement needs an equation-error estimator (ls, iv, rls)",
+                     cfg->path);
+            return -1;
+        }
+        cfg->refine_every_s = 0;
+        snprintf(cfg->refine_why, sizeof cfg->refine_why, "the automatic estimator chose the EKF");
+    }
+    if (vd_refine_init(&d->refine, cfg, d->est.nch, d->est.p, err, cap))
+        return -1;
+    if (d->refine.on)
+        vd_info("refinement on (%s): an output-error fit over the last %g s every %g s of sample time, in a "
+                "low-priority thread",
+                cfg->refine_why, cfg->refine_window_s, cfg->refine_every_s);
+    else
+        vd_info("refinement off: %s", cfg->refine_why[0] ? cfg->refine_why : "estimator.refine_every = 0");
     vd_est_log_choices(&d->est);
     if (vd_writers_open(&d->w, cfg, &d->rec_chanmap, d->est.choices, err, cap))
         return -1;
@@ -1011,6 +1123,14 @@ int vd_daemon_run(vd_daemon *d)
 
     d->t_start = mono_s();
     d->t_last_flush = d->t_start;
+    {
+        /* before the estimation thread, which hands it work */
+        char err[256];
+        if (vd_refine_start(&d->refine, err, sizeof err)) {
+            vd_error("%s", err);
+            return 1;
+        }
+    }
     if (pthread_create(&d->est_thread, NULL, est_main, d) != 0) {
         vd_error("cannot start the estimation thread: %s", strerror(errno));
         return 1;
@@ -1137,6 +1257,7 @@ void vd_daemon_fini(vd_daemon *d)
     d->src = NULL;
     vd_rate_check_destroy(d->rate);
     d->rate = NULL;
+    vd_refine_fini(&d->refine);
     vd_est_free(&d->est);
     vd_ring_destroy(d->ring);
     d->ring = NULL;

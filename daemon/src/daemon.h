@@ -40,6 +40,7 @@
 #include "mqtt.h"
 #include "notify.h"
 #include "rate_check.h"
+#include "refine.h"
 #include "ring.h"
 #include "writers.h"
 
@@ -73,6 +74,9 @@ typedef struct vd_daemon {
     vd_ring *ring;
     vd_est est;
     vd_row row;                /* the due row, until finished (finish_row in daemon.c) */
+    vd_refine refine;          /* the output-error refinement (refine.h) */
+    vd_row refined_row;
+    uint64_t refine_gaps_seen; /* est.gaps at the last look: a new gap ends the clean window */
     bool row_pending;
     vd_writers w;
     vd_alarm alarm[VD_MAX_PARAMS];

@@ -130,13 +130,14 @@ void vd_est_free(vd_est *e)
     e->held_tag = NULL;
 }
 
-void vd_flag_letters(unsigned flags, char out[8])
+void vd_flag_letters(unsigned flags, char out[VD_FLAG_LETTERS_MAX])
 {
     static const struct {
         unsigned bit;
         char letter;
     } order[] = {{VD_FLAG_GAP, 'G'},        {VD_FLAG_OUTLIER, 'O'},     {VD_FLAG_NOEST, 'E'}, {VD_FLAG_IMPLAUSIBLE, 'P'},
-                 {VD_FLAG_SE_INVALID, 'U'}, {VD_FLAG_NOT_EXCITED, 'I'}, {VD_FLAG_ALARM, 'A'}};
+                 {VD_FLAG_SE_INVALID, 'U'}, {VD_FLAG_NOT_EXCITED, 'I'}, {VD_FLAG_ALARM, 'A'},
+                 {VD_FLAG_REFINED, 'R'}};
     int n = 0;
     for (size_t i = 0; i < sizeof order / sizeof order[0]; i++)
         if (flags & order[i].bit)
@@ -359,6 +360,36 @@ void vd_est_finish_row(vd_est *e, vd_row *row)
                 row->flags |= VD_FLAG_NOT_EXCITED;
         }
     }
+    e->rows++;
+    e->last = *row;
+    e->have_last = true;
+}
+
+void vd_est_refined_row(vd_est *e, vd_row *row, uint64_t index, int64_t t_us, const double *theta, const double *se,
+                        const double *cov)
+{
+    memset(row, 0, sizeof *row);
+    row->t_us = t_us;
+    row->index = index;
+    row->run_s = (double)index / e->cfg->sample_rate;
+    row->flags = VD_FLAG_REFINED;
+    for (size_t k = 0; k < VD_MAX_PARAMS; k++)
+        row->theta[k] = row->se[k] = row->freq[k] = row->freq_se[k] = row->zeta[k] = row->zeta_se[k] = NAN;
+    memcpy(row->theta, theta, e->p * sizeof *theta);
+    memcpy(row->se, se, e->p * sizeof *se);
+    row->est_status = (int)VIBID_OK;
+    vibid_status ms = vibid_model_modal(e->model, row->theta, cov, row->freq, row->freq_se, row->zeta, row->zeta_se,
+                                        NULL, NULL);
+    if (ms != VIBID_OK && ms != VIBID_E_UNSTABLE)
+        for (size_t k = 0; k < e->nmodes; k++)
+            row->freq[k] = row->freq_se[k] = row->zeta[k] = row->zeta_se[k] = NAN;
+    char unstable_why[256];
+    if (ms == VIBID_E_UNSTABLE)
+        snprintf(unstable_why, sizeof unstable_why, "%s", vibid_last_error());
+    check_plausible(e, row, ms == VIBID_E_UNSTABLE ? unstable_why : NULL);
+    for (size_t k = 0; k < e->p; k++)
+        if (!isfinite(row->se[k]))
+            row->flags |= VD_FLAG_NOT_EXCITED;
     e->rows++;
     e->last = *row;
     e->have_last = true;

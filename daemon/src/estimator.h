@@ -67,13 +67,17 @@ enum {
                                  yet, or an LS/RLS estimator) */
     VD_FLAG_NOT_EXCITED = 32u, /* I: some parameter is hardly informed by the data (its
                                   standard error is written as inf) */
-    VD_FLAG_OUTLIER = 64u      /* O: a sample since the previous row had a glitch taken out
+    VD_FLAG_OUTLIER = 64u,     /* O: a sample since the previous row had a glitch taken out
                                   (vibid/outlier.h): the estimator saw it as a gap */
+    VD_FLAG_REFINED = 128u     /* R: the output-error refinement over the window ending at the
+                                  row's sample (refine.h), not the recursive estimate */
 };
 
-/* The row's flags as letters, in the order G O E P U I A (docs/vibidd.md): the one
- * spelling of the tracks, InfluxDB, MQTT and the metrics. out holds at least 8 bytes. */
-void vd_flag_letters(unsigned flags, char out[8]);
+/* The row's flags as letters, in the order G O E P U I A R (docs/vibidd.md): the one
+ * spelling of the tracks, InfluxDB, MQTT and the metrics. out holds at least
+ * VD_FLAG_LETTERS_MAX bytes. */
+#define VD_FLAG_LETTERS_MAX 12
+void vd_flag_letters(unsigned flags, char out[VD_FLAG_LETTERS_MAX]);
 
 /* Rows the alarms may use: an estimate exists (no E) and is physically possible (no P). */
 static inline bool vd_row_usable(unsigned flags)
@@ -175,6 +179,13 @@ int vd_est_record(vd_est *e, const vibid_record *rec, vd_row *row);
  * and keeps it as vd_est.last. Allocates (the estimate, the modal analysis): 30-100 us a
  * row, at the decimated rate. */
 void vd_est_finish_row(vd_est *e, vd_row *row);
+
+/* A row of the output-error refinement (refine.h) over the window ending at sample index
+ * (from the run's start) at time t_us: theta, se, cov (p x p) of the fit; flagged R, its
+ * modes and plausibility as any row's. Counts it and keeps it as vd_est.last. Allocates
+ * (the modal analysis). */
+void vd_est_refined_row(vd_est *e, vd_row *row, uint64_t index, int64_t t_us, const double *theta, const double *se,
+                        const double *cov);
 
 /* 1 when rec may make a row due (or is not a sample): a pending row is finished before
  * such a record, so rows stay in order with everything else the record causes. */

@@ -187,6 +187,19 @@ int vd_metrics_render(char *buf, size_t cap, const vd_snapshot *s)
             s->nonfinite_samples);
     counter(&o, "vibid_outlier_samples_total",
             "Samples with a single-sample glitch taken out before the estimator (flag O).", s->outlier_samples);
+    if (s->refine_on) {
+        counter(&o, "vibid_refinements_total", "Output-error refinements written as rows flagged R.", s->refine_done);
+        counter(&o, "vibid_refinements_failed_total",
+                "Output-error refinements that failed (no convergence, a bound, singular, a non-finite input).",
+                s->refine_failed);
+        counter(&o, "vibid_refinement_overruns_total",
+                "Refinements given up: the window was overwritten before the refine thread copied it.",
+                s->refine_overruns);
+        counter(&o, "vibid_refinements_skipped_total",
+                "Refinements not started: the refine thread was busy or the window spans a gap.", s->refine_skipped);
+        gauge(&o, "vibid_refinement_last_duration_seconds", "Wall time of the last output-error fit.",
+              s->refine_last_s);
+    }
     /* the daemon's 1 us histogram as a Prometheus histogram with a handful of buckets */
     family(&o, "vibid_latency_seconds", "histogram",
            "Receipt of a sample to its estimate (live and paced sources only).");
@@ -272,13 +285,13 @@ int vd_metrics_render(char *buf, size_t cap, const vd_snapshot *s)
                "Flags of the latest row as in the tracks, 1 if set: G samples missing since the previous row, O "
                "a single-sample glitch taken out since the previous row, E "
                "no estimate, P physically impossible, U standard errors do not hold, I a parameter hardly "
-               "informed, A an alarm active.");
+               "informed, A an alarm active, R an output-error refinement.");
         static const struct {
             const char *letter;
             unsigned bit;
         } fl[] = {{"G", VD_FLAG_GAP},        {"O", VD_FLAG_OUTLIER},     {"E", VD_FLAG_NOEST},
                   {"P", VD_FLAG_IMPLAUSIBLE}, {"U", VD_FLAG_SE_INVALID}, {"I", VD_FLAG_NOT_EXCITED},
-                  {"A", VD_FLAG_ALARM}};
+                  {"A", VD_FLAG_ALARM},       {"R", VD_FLAG_REFINED}};
         for (size_t i = 0; i < sizeof fl / sizeof fl[0]; i++) {
             snprintf(a, sizeof a, "flag=\"%s\"", fl[i].letter);
             u64(&o, "vibid_row_flag", a, (s->last_flags & fl[i].bit) ? 1 : 0);

@@ -98,6 +98,10 @@ typedef struct vd_snapshot {
     uint64_t faults_by_kind[16];
     uint64_t rows, est_errors, implausible_rows, nonfinite_samples;
     uint64_t outlier_samples;        /* samples with a glitch taken out (vibid/outlier.h) */
+    /* the output-error refinement (refine.h); refine_on false: off, not shown */
+    bool refine_on;
+    uint64_t refine_done, refine_failed, refine_overruns, refine_skipped;
+    double refine_last_s;            /* the last fit's wall time, s (NaN before one) */
     /* receipt -> estimate latency (live or paced sources; lat_n == 0 otherwise) */
     double lat_p50_us, lat_p99_us;   /* NaN when no sample was measured */
     uint64_t lat_n;

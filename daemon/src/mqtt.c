@@ -123,7 +123,7 @@ int vd_mqtt_format_track(char *buf, size_t cap, const vd_config *cfg, const char
         put_num(&o, row->zeta_se[i]);
         vd_text_put(&o, "}");
     }
-    char fl[8];
+    char fl[VD_FLAG_LETTERS_MAX];
     vd_flag_letters(row->flags, fl);
     vd_text_put(&o, "],\"gap_samples\":%llu,\"flags\":\"%s\",\"dropped_before\":%llu}",
         (unsigned long long)row->gap_samples, fl, (unsigned long long)dropped_before);

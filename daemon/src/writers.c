@@ -84,7 +84,7 @@ int vd_format_track_row(char *buf, size_t cap, const vd_config *cfg, const vd_ro
         if (put_num(buf, cap, &off, row->freq[i]) || put_num(buf, cap, &off, row->freq_se[i]) ||
             put_num(buf, cap, &off, row->zeta[i]) || put_num(buf, cap, &off, row->zeta_se[i]))
             return -1;
-    char fl[8];
+    char fl[VD_FLAG_LETTERS_MAX];
     vd_flag_letters(row->flags, fl);
     if (put(buf, cap, &off, ",%llu,%s\n", (unsigned long long)row->gap_samples, fl))
         return -1;
@@ -153,7 +153,7 @@ int vd_format_influx_row(char *buf, size_t cap, const vd_config *cfg, const char
             put_field(buf, cap, &off, &first, z, "_se", row->zeta_se[i]))
             return -1;
     }
-    char fl[8];
+    char fl[VD_FLAG_LETTERS_MAX];
     vd_flag_letters(row->flags, fl);
     if (put(buf, cap, &off, "%sindex=%llui,gap_samples=%llui,flags=\"%s\" %lld\n", first ? " " : ",",
             (unsigned long long)row->index, (unsigned long long)row->gap_samples, fl, ns_of_us(row->t_us)))

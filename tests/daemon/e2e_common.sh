@@ -11,7 +11,7 @@ SRC=$4
 VIBIDD=$BUILD/daemon/vibidd
 SIM=$BUILD/sim/vibid-sim
 W=$(mktemp -d "/tmp/vd_$1_${CASE}_XXXXXX")
-trap 'rm -rf "$W"' EXIT
+trap '[ -n "${KEEP:-}" ] || rm -rf "$W"' EXIT
 cd "$W" || exit 1
 
 fail() { echo "FAIL [$CASE]: $*" >&2; exit 1; }

@@ -356,11 +356,16 @@ static void test_reopen_each_on_its_own(void **state)
 static void test_flag_letters(void **state)
 {
     (void)state;
-    char l[8];
+    char l[VD_FLAG_LETTERS_MAX];
     vd_flag_letters(VD_FLAG_GAP | VD_FLAG_OUTLIER | VD_FLAG_IMPLAUSIBLE | VD_FLAG_SE_INVALID | VD_FLAG_NOT_EXCITED |
                         VD_FLAG_ALARM,
                     l);
     assert_string_equal(l, "GOPUIA");
+    /* every letter at once: R (a refinement) last */
+    vd_flag_letters(VD_FLAG_GAP | VD_FLAG_OUTLIER | VD_FLAG_NOEST | VD_FLAG_IMPLAUSIBLE | VD_FLAG_SE_INVALID |
+                        VD_FLAG_NOT_EXCITED | VD_FLAG_ALARM | VD_FLAG_REFINED,
+                    l);
+    assert_string_equal(l, "GOEPUIAR");
     vd_flag_letters(VD_FLAG_NOEST | VD_FLAG_OUTLIER, l);
     assert_string_equal(l, "OE");
     vd_flag_letters(0, l);
