@@ -130,8 +130,11 @@ done
 echo "3. live: vibid-sim -> Modbus TCP (loopback, FIFO mode, 1 ms polls) -> vibidd (CPU over 10 s)"
 echo "   shared: both programs wherever the scheduler puts them; pinned: vibid-sim on CPU 1, vibidd"
 echo "   (both its threads) on CPU 0, as a test stand runs the controller on its own hardware"
-for case in 1000:0:shared 1000:1000:shared 10000:0:shared 10000:1000:shared 10000:0:pinned 10000:1000:pinned; do
-    IFS=: read -r rate spin pin <<< "$case"
+echo "   refine: estimator.refine_every in s (0 = off; 2: an output-error fit over the last 10 s"
+echo "   every 2 s in the low-priority refine thread, docs/vibidd.md \"Refinement\")"
+for case in 1000:0:shared:0 1000:1000:shared:0 10000:0:shared:0 10000:1000:shared:0 10000:0:pinned:0 \
+    10000:1000:pinned:0 10000:0:shared:2 10000:0:pinned:2 10000:1000:pinned:2; do
+    IFS=: read -r rate spin pin refine <<< "$case"
     pin_sim=() pin_vd=()
     if [ "$pin" = pinned ]; then
         if [ "$(nproc)" -lt 2 ]; then echo "   (pinned runs need 2 CPUs; skipped)"; continue; fi
@@ -152,6 +155,7 @@ for case in 1000:0:shared 1000:1000:shared 10000:0:shared 10000:1000:shared 1000
     sed -e "s|^stand = .*|stand = \"$W/stand_$rate.cfg\";|" -e "s|tcp://127.0.0.1:[0-9]*|tcp://127.0.0.1:$port|" \
         -e 's|record = { path = "raw.csv"; };||' -e 's|poll_period = 0.02;|poll_period = 0.001;|' \
         -e "s|realtime_priority = 0;|realtime_priority = 0; handoff_spin = $spin;|" \
+        -e "s|^estimator = { decimation = 200; };|estimator = { decimation = 200; refine_every = $refine; refine_window = 10; };|" \
         "$SRC/daemon/examples/modbus_fifo.cfg" > live.cfg
     sed -i 's|path = "vibidd.status"|path = "status"; interval = 0.5|' live.cfg
     "${pin_vd[@]}" "$VIBIDD" -c live.cfg --log-level error &
@@ -172,6 +176,10 @@ for case in 1000:0:shared 1000:1000:shared 10000:0:shared 10000:1000:shared 1000
         -v ns=$((t1 - t0)) -v rate=$rate -v spin=$spin -v p50="$(status_get latency_us_p50 status)" \
         -v p99="$(status_get latency_us_p99 status)" -v n="$(status_get samples status)" \
         -v gaps="$(status_get gaps status)" -v fp="$(status_get source_failed_polls status)" -v pin="$pin" \
-        'BEGIN { w = ns * 1e-9; printf "   %-6s %5d samples/s, handoff_spin %4d: vibidd CPU %5.1f %% (user %.1f, sys %.1f), vibid-sim %4.1f %%; latency p50 %s us, p99 %s us; %s samples, %s gaps, %s failed polls\n",
-                 pin, rate, spin, 100 * (du + ds) / hz / w, 100 * du / hz / w, 100 * ds / hz / w, 100 * sd / hz / w, p50, p99, n, gaps, fp }'
+        -v refine="$refine" -v rd="$(status_get refinements status)" -v rf="$(status_get refine_failed status)" \
+        -v rs="$(status_get refine_skipped status)" -v rt="$(status_get refine_last_duration_s status)" \
+        'BEGIN { w = ns * 1e-9; printf "   %-6s %5d samples/s, handoff_spin %4d, refine %s: vibidd CPU %5.1f %% (user %.1f, sys %.1f), vibid-sim %4.1f %%; latency p50 %s us, p99 %s us; %s samples, %s gaps, %s failed polls",
+                 pin, rate, spin, refine, 100 * (du + ds) / hz / w, 100 * du / hz / w, 100 * ds / hz / w, 100 * sd / hz / w, p50, p99, n, gaps, fp
+                 if (refine > 0) printf "; refinements %s, failed %s, skipped %s, last fit %s s", rd, rf, rs, rt
+                 printf "\n" }'
 done

@@ -795,8 +795,9 @@ static void take_refinement(vd_daemon *d)
 }
 
 /* After the push of a sample: into the refinement's ring, and the hand-over when one is
- * due. A replay waits for the refinement here, so that its rows come out at the same place
- * in every replay; a live source never waits (the result is taken when the thread idles). */
+ * due. An unpaced replay waits for the refinement here, so that its rows come out at the
+ * same place in every replay; a live source or a paced replay (which stands in for one)
+ * never waits: the result is taken when the thread has no sample waiting. */
 static void refine_sample(vd_daemon *d, const vibid_record *rec)
 {
     vd_refine *r = &d->refine;
@@ -816,7 +817,7 @@ static void refine_sample(vd_daemon *d, const vibid_record *rec)
         vibid_model_param_info(d->est.model, k, &pi);
         start[k] = use_last && isfinite(d->est.last.theta[k]) ? d->est.last.theta[k] : pi.nominal;
     }
-    if (!vd_refine_request(r, start, index, vd_ns_to_us(rec->t_ns)) || !d->file_source)
+    if (!vd_refine_request(r, start, index, vd_ns_to_us(rec->t_ns)) || !d->refine_waits)
         return;
     vd_refine_wait(r);
     if (d->row_pending && d->row.index <= index) /* the rows stay in sample order */
@@ -1059,6 +1060,7 @@ int vd_daemon_init(vd_daemon *d, vd_config *cfg, const vd_options *opt, char *er
         cfg->refine_every_s = 0;
         snprintf(cfg->refine_why, sizeof cfg->refine_why, "the automatic estimator chose the EKF");
     }
+    d->refine_waits = d->file_source && !d->measure_latency; /* an unpaced replay */
     if (vd_refine_init(&d->refine, cfg, d->est.nch, d->est.p, err, cap))
         return -1;
     if (d->refine.on)

@@ -76,6 +76,7 @@ typedef struct vd_daemon {
     vd_row row;                /* the due row, until finished (finish_row in daemon.c) */
     vd_refine refine;          /* the output-error refinement (refine.h) */
     vd_row refined_row;
+    bool refine_waits;         /* an unpaced replay waits for each refinement (reproducible rows) */
     uint64_t refine_gaps_seen; /* est.gaps at the last look: a new gap ends the clean window */
     bool row_pending;
     vd_writers w;
