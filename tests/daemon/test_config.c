@@ -6,6 +6,7 @@
 #include <stdint.h>
 #include <cmocka.h>
 
+#include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -55,6 +56,32 @@ static void expect_error(const char *name, const char *text, const char *want_pr
         print_error("got: %s\nwant prefix: %s\nwant substring: %s\n", err.text, prefix, want_sub);
         fail();
     }
+}
+
+/* estimator.refine_every: on by default (10 s, window max(10 s, 3 memories)) where the
+ * output-error fit accepts the stand and the method; an explicit value where it cannot run
+ * is an error naming why; the window at least 8 blocks of 50 samples. */
+static void test_refine(void **state)
+{
+    (void)state;
+    vd_config cfg;
+    vd_config_error err;
+    assert_int_equal(vd_config_load(write_cfg("refine_default.cfg", STAND SOURCE), &cfg, &err), 0);
+    assert_true(cfg.refine_every_s == 10.0 && cfg.refine_window_s == 10.0);
+    vd_config_free(&cfg);
+    assert_int_equal(
+        vd_config_load(write_cfg("refine_mem.cfg", STAND SOURCE "estimator = { forgetting = 0.9999; };\n"), &cfg, &err),
+        0);
+    assert_true(fabs(cfg.refine_window_s - 3.0 / (cfg.sample_rate * 1e-4)) < 1e-6 * cfg.refine_window_s);
+    vd_config_free(&cfg);
+    assert_int_equal(
+        vd_config_load(write_cfg("refine_ekf.cfg", STAND SOURCE "estimator = { method = \"ekf\"; };\n"), &cfg, &err), 0);
+    assert_true(cfg.refine_every_s == 0.0);
+    vd_config_free(&cfg);
+    expect_error("refine_ekf2.cfg", STAND SOURCE "estimator = { method = \"ekf\"; refine_every = 5.0; };\n",
+                 ":12: estimator.refine_every:", "not an equation-error estimator");
+    expect_error("refine_win.cfg", STAND SOURCE "estimator = { refine_window = 0.1; };\n", ":12: estimator.refine_window:",
+                 "outside");
 }
 
 static void test_syntax_error(void **state)
@@ -451,7 +478,7 @@ int main(void)
     if (system(cmd) != 0)
         return 1;
     const struct CMUnitTest tests[] = {
-        cmocka_unit_test(test_syntax_error),      cmocka_unit_test(test_range_error),
+        cmocka_unit_test(test_syntax_error),      cmocka_unit_test(test_range_error), cmocka_unit_test(test_refine),
         cmocka_unit_test(test_type_error),        cmocka_unit_test(test_unknown_directive),
         cmocka_unit_test(test_ring_power_of_two), cmocka_unit_test(test_missing_parts),
         cmocka_unit_test(test_stand_errors),      cmocka_unit_test(test_channel_missing),
