@@ -1049,17 +1049,8 @@ int vd_daemon_init(vd_daemon *d, vd_config *cfg, const vd_options *opt, char *er
         snprintf(err, cap, "out of memory for a ring of %u records", ring_size);
         return -1;
     }
-    if (cfg->refine_every_s > 0 && d->est.resolved.estimator == VIBID_ESTIMATOR_EKF) {
-        /* auto chose the EKF: not an equation-error estimate to refine */
-        if (cfg->refine_explicit) {
-            snprintf(err, cap, "%s: estimator.refine_every: the automatic estimator chose the EKF for this stand; "
-                               "refinement needs an equation-error estimator (ls, iv, rls)",
-                     cfg->path);
-            return -1;
-        }
-        cfg->refine_every_s = 0;
-        snprintf(cfg->refine_why, sizeof cfg->refine_why, "the automatic estimator chose the EKF");
-    }
+    if (vd_refine_resolve(cfg, d->est.resolved.estimator, err, cap))
+        return -1;
     d->refine_waits = d->file_source && !d->measure_latency; /* an unpaced replay */
     if (vd_refine_init(&d->refine, cfg, d->est.nch, d->est.p, err, cap))
         return -1;

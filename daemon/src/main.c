@@ -5,6 +5,7 @@
  * failed, outputs could not be written), 2 usage or configuration error.
  */
 #include "config.h"
+#include "refine.h"
 #include "daemon.h"
 #include "writers.h"
 #include "log.h"
@@ -160,6 +161,13 @@ int main(int argc, char **argv)
         char e2[1024];
         if (vd_est_init(&est, &cfg, e2, sizeof e2)) {
             vd_error("%s", e2);
+            vd_config_free(&cfg);
+            return 2;
+        }
+        /* whether the output-error refinement runs (the printout says so, and why) */
+        if (vd_refine_resolve(&cfg, est.resolved.estimator, e2, sizeof e2)) {
+            vd_error("%s", e2);
+            vd_est_free(&est);
             vd_config_free(&cfg);
             return 2;
         }

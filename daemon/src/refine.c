@@ -200,3 +200,20 @@ void vd_refine_wait(vd_refine *r)
         nanosleep(&ts, NULL);
     }
 }
+
+int vd_refine_resolve(vd_config *cfg, vibid_estimator resolved, char *err, size_t cap)
+{
+    if (!(cfg->refine_every_s > 0) || resolved != VIBID_ESTIMATOR_EKF)
+        return 0;
+    /* auto chose the EKF: not an equation-error estimate to refine */
+    if (cfg->refine_explicit) {
+        snprintf(err, cap,
+                 "%s: estimator.refine_every: the automatic estimator chose the EKF for this stand; refinement "
+                 "needs an equation-error estimator (ls, iv, rls)",
+                 cfg->path);
+        return -1;
+    }
+    cfg->refine_every_s = 0;
+    snprintf(cfg->refine_why, sizeof cfg->refine_why, "the automatic estimator chose the EKF");
+    return 0;
+}

@@ -81,6 +81,10 @@ typedef struct vd_refine {
 /* Prepares the ring, buffers and fit when cfg->refine_every_s > 0 (else r->on = false).
  * 0, or -1 with err. */
 int vd_refine_init(vd_refine *r, const vd_config *cfg, size_t nch, size_t p, char *err, size_t cap);
+/* After the estimator is made (its method resolved): a refinement on by default is turned
+ * off (refine_why says so) when `auto` chose the EKF; an explicit one is an error then.
+ * 0, or -1 with err. Called by the daemon's start and by --check. */
+int vd_refine_resolve(vd_config *cfg, vibid_estimator resolved, char *err, size_t cap);
 /* Starts the refine thread (nice 19). 0, or -1 with err. */
 int vd_refine_start(vd_refine *r, char *err, size_t cap);
 /* Stops and joins the thread (a running fit ends first), frees everything. */
