@@ -128,8 +128,11 @@ int vd_format_influx_row(char *buf, size_t cap, const vd_config *cfg, const char
     char tag[256], site[256];
     vd_influx_escape_tag(tag, sizeof tag, stand);
     vd_influx_escape_tag(site, sizeof site, cfg->influx_site);
-    /* tags in key order (InfluxDB's advice: the server sorts them otherwise) */
-    if (put(buf, cap, &off, "%s%s%s,stand=%s", cfg->influx_measurement, site[0] ? ",site=" : "", site, tag))
+    /* tags in key order (InfluxDB's advice: the server sorts them otherwise). A refinement's
+     * row (flag R) is tagged estimate=refined: it may fall on the sample of a recursive row,
+     * and a point of the same series and time would overwrite that row's fields */
+    if (put(buf, cap, &off, "%s%s%s%s,stand=%s", cfg->influx_measurement,
+            (row->flags & VD_FLAG_REFINED) ? ",estimate=refined" : "", site[0] ? ",site=" : "", site, tag))
         return -1;
     const vibid_model *m = vibid_stand_model(cfg->stand);
     int first = 1;

@@ -128,6 +128,12 @@ static void test_influx(void **state)
     assert_true(!strncmp(buf, "vibid,site=plant\\ 1,stand=s c1=250000,", 38));
     assert_true(vd_format_influx_alarm(buf, sizeof buf, &with_site, "s", "c2", 0, &r, 1.35e6, 1.5e6, 12.0) > 0);
     assert_true(!strncmp(buf, "vibid_alarm,parameter=c2,site=plant\\ 1,stand=s state=\"cleared\",", 63));
+    /* a refinement's row: a series of its own (estimate=refined, tags in key order), so that it
+     * does not overwrite a recursive row of the same sample */
+    r.flags = VD_FLAG_REFINED;
+    assert_true(vd_format_influx_row(buf, sizeof buf, &with_site, "s", &r) > 0);
+    assert_true(!strncmp(buf, "vibid,estimate=refined,site=plant\\ 1,stand=s c1=250000,", 55));
+    assert_non_null(strstr(buf, ",flags=\"R\" "));
 }
 
 static void test_recording_roundtrip(void **state)
