@@ -243,7 +243,10 @@ for s, ls in lines.items():
     msgs = [parse(l) for l in ls]
     by = {}
     for meas, tags, f, ts in msgs:
-        assert meas == "vibid" and tags == {"stand": s}, (s, meas, tags)
+        # a refinement's row (flag R) is a series of its own: tag estimate=refined
+        refined = "R" in f["flags"].strip('"')
+        assert meas == "vibid" and tags == ({"estimate": "refined", "stand": s} if refined else {"stand": s}), (
+            s, meas, tags, f["flags"])
         by.setdefault(f["seq"], (f, ts))
     if sorted(by) != list(range(1, len(rows) + 1)) or not rows:
         sys.exit(f"{s}: seq {sorted(by)[:5]}..{len(by)} for {len(rows)} rows")
