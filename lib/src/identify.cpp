@@ -516,11 +516,14 @@ vibid_status estimate_state_space(vibid_ident &id, double *theta, double *se, vi
 
 }  // namespace
 
+namespace {
+std::unique_ptr<vibid_ident> create_output_error(const vibid_model &model, const vibid_ident_config &cfg);
+vibid_status estimate_output_error(vibid_ident &id, double *theta, double *se, vibid_ident_info *info);
+}  // namespace
+
 extern "C" {
 
 namespace {
-
-std::unique_ptr<vibid_ident> create_output_error(const vibid_model &model, const vibid_ident_config &cfg);
 
 // vibid_ident_create; with_check = false leaves out the discretization check (the
 // check's own estimator) and the pre-filter pilot; prefilter_why: see resolve_config.
@@ -696,98 +699,6 @@ std::unique_ptr<vibid_ident> create_ident(const vibid_model *model, const vibid_
         id->pilot.assign(id->pilot_len * id->n_channels, 0.0);
     }
     return id;
-}
-
-// OE: the automatic equation-error estimator runs on the samples as they come and gives
-// the fit its start values; the fit itself runs at vibid_ident_estimate on every sample
-// kept (output_error.h). Refused here when the fit cannot run on the stand (a disturbance,
-// an unmeasured base).
-std::unique_ptr<vibid_ident> create_output_error(const vibid_model &model, const vibid_ident_config &cfg) {
-    vibid_ident_config ec = cfg;
-    ec.estimator = VIBID_ESTIMATOR_AUTO;
-    auto id = std::make_unique<vibid_ident>();
-    id->ee = create_ident(&model, &ec, true);
-    vibid_oe_config oc;
-    vibid_oe_config_init(&oc, cfg.sample_time);
-    id->oe.reset(vibid_oe_create(&model, &oc));
-    if (!id->oe) throw_error(VIBID_E_DIMENSION, "output error: %s", vibid_last_error());
-    id->model = model;
-    id->cfg = id->ee->cfg;
-    id->cfg.estimator = VIBID_ESTIMATOR_OE;
-    id->requested = cfg;
-    id->n = model.nodes.size();
-    id->p = model.param_term.size();
-    id->n_channels = model.channels.size();
-    id->cov.assign(id->p * id->p, 0.0);
-    std::size_t ny = 0;
-    check_status(vibid_oe_dims(id->oe.get(), &ny, nullptr), "output error");
-    id->offset_channels.resize(ny);
-    check_status(vibid_oe_dims(id->oe.get(), &ny, id->offset_channels.data()), "output error");
-    id->oe_description = "estimator: output error on the stand's model (configured), started from the equation-error "
-                      "estimate above (and from the nominal values where the stand gives them); initial state and "
-                      "an offset per response channel estimated; sandwich error bars\n";
-    id->description = id->ee->description + id->oe_description;
-    return id;
-}
-
-// The fit at vibid_ident_estimate: the equation-error estimate first (its failure is this
-// estimate's failure: no start), then the output-error fit from it. A fit that fails leaves
-// the equation-error estimate, its quality plus VIBID_QUALITY_REFINE_FAILED, and the reason
-// in the description.
-vibid_status estimate_output_error(vibid_ident &id, double *theta, double *se, vibid_ident_info *info) {
-    const std::size_t p = id.p, nc = id.n_channels, ns = id.samples.size() / std::max<std::size_t>(nc, 1);
-    std::vector<double> th_ee(p), se_ee(p);
-    const vibid_status st = vibid_ident_estimate(id.ee.get(), th_ee.data(), se_ee.data(), info);
-    if (st != VIBID_OK) return st;
-    std::vector<double> starts(th_ee);
-    std::vector<double> nominal(p);
-    if (vibid_model_nominal(&id.model, nominal.data()) == VIBID_OK &&
-        std::all_of(nominal.begin(), nominal.end(), [](double v) { return v != 0.0 && std::isfinite(v); }))
-        starts.insert(starts.end(), nominal.begin(), nominal.end());
-    std::vector<double> block(ns * nc);
-    for (std::size_t k = 0; k < ns; ++k)
-        for (std::size_t c = 0; c < nc; ++c) block[k + c * ns] = id.samples[k * nc + c];
-    const vibid_status fs = vibid_oe_fit(id.oe.get(), ns, block.data(), starts.size() / p, starts.data());
-    const std::string why = fs == VIBID_OK ? std::string() : vibid_last_error();
-    vibid_oe_fit_info fi{};
-    std::vector<double> th(p), sd(p), cov(p * p);
-    const std::size_t ny = id.offset_channels.size();
-    id.offsets.assign(ny, 0.0);
-    id.offsets_se.assign(ny, 0.0);
-    if (fs == VIBID_OK)
-        check_status(vibid_oe_result(id.oe.get(), th.data(), sd.data(), cov.data(), id.offsets.data(),
-                                     id.offsets_se.data(), nullptr, &fi),
-                     "output error");
-    if (fs != VIBID_OK) {
-        id.offsets.clear();
-        id.offsets_se.clear();
-        std::copy(th_ee.begin(), th_ee.end(), theta);
-        if (se) std::copy(se_ee.begin(), se_ee.end(), se);
-        check_status(vibid_ident_covariance(id.ee.get(), id.cov.data()), "equation error");
-        id.param_flags.assign(p, 0);
-        check_status(vibid_ident_get_quality(id.ee.get(), &id.quality, id.param_flags.data()), "equation error");
-        id.quality.flags |= VIBID_QUALITY_REFINE_FAILED;
-        for (auto &f : id.param_flags) f |= VIBID_QUALITY_REFINE_FAILED;
-        id.description = id.ee->description + id.oe_description + "output-error refinement failed (the equation-error estimate stands): " + why + "\n";
-    } else {
-        std::copy(th.begin(), th.end(), theta);
-        if (se) std::copy(sd.begin(), sd.end(), se);
-        id.cov = cov;
-        id.quality = vibid_ident_quality{};
-        id.quality.z_consistency = std::nan("");
-        id.quality.n_blocks = fi.n_blocks;
-        id.quality.rcond = fi.rcond;
-        id.param_flags.assign(p, 0);
-        id.description = id.ee->description + id.oe_description + strprintf("output-error fit: %u iterations from start %zu (%s), %zu samples, %zu blocks\n",
-                                                       fi.iterations, fi.start, fi.start == 0 ? "the equation-error estimate" : "the nominal values",
-                                                       fi.n_samples, fi.n_blocks);
-    }
-    id.have_cov = true;
-    if (info) {
-        info->n_samples = ns;
-        info->n_rows = ns;
-    }
-    return VIBID_OK;
 }
 
 }  // namespace
@@ -1449,3 +1360,99 @@ VIBID_API vibid_status vibid_ident_covariance(const vibid_ident *ident, double *
 }
 
 }  // extern "C"
+
+namespace {
+
+// OE: the automatic equation-error estimator runs on the samples as they come and gives
+// the fit its start values; the fit itself runs at vibid_ident_estimate on every sample
+// kept (output_error.h). Refused here when the fit cannot run on the stand (a disturbance,
+// an unmeasured base).
+std::unique_ptr<vibid_ident> create_output_error(const vibid_model &model, const vibid_ident_config &cfg) {
+    vibid_ident_config ec = cfg;
+    ec.estimator = VIBID_ESTIMATOR_AUTO;
+    auto id = std::make_unique<vibid_ident>();
+    id->ee = create_ident(&model, &ec, true);
+    vibid_oe_config oc;
+    vibid_oe_config_init(&oc, cfg.sample_time);
+    id->oe.reset(vibid_oe_create(&model, &oc));
+    if (!id->oe) throw_error(VIBID_E_DIMENSION, "output error: %s", vibid_last_error());
+    id->model = model;
+    id->cfg = id->ee->cfg;
+    id->cfg.estimator = VIBID_ESTIMATOR_OE;
+    id->requested = cfg;
+    id->n = model.nodes.size();
+    id->p = model.param_term.size();
+    id->n_channels = model.channels.size();
+    id->cov.assign(id->p * id->p, 0.0);
+    std::size_t ny = 0;
+    check_status(vibid_oe_dims(id->oe.get(), &ny, nullptr), "output error");
+    id->offset_channels.resize(ny);
+    check_status(vibid_oe_dims(id->oe.get(), &ny, id->offset_channels.data()), "output error");
+    id->oe_description = "estimator: output error on the stand's model (configured), started from the equation-error "
+                      "estimate above (and from the nominal values where the stand gives them); initial state and "
+                      "an offset per response channel estimated; sandwich error bars\n";
+    id->description = id->ee->description + id->oe_description;
+    return id;
+}
+
+// The fit at vibid_ident_estimate: the equation-error estimate first (its failure is this
+// estimate's failure: no start), then the output-error fit from it. A fit that fails leaves
+// the equation-error estimate, its quality plus VIBID_QUALITY_REFINE_FAILED, and the reason
+// in the description.
+vibid_status estimate_output_error(vibid_ident &id, double *theta, double *se, vibid_ident_info *info) {
+    const std::size_t p = id.p, nc = id.n_channels, ns = id.samples.size() / std::max<std::size_t>(nc, 1);
+    std::vector<double> th_ee(p), se_ee(p);
+    const vibid_status st = vibid_ident_estimate(id.ee.get(), th_ee.data(), se_ee.data(), info);
+    if (st != VIBID_OK) return st;
+    std::vector<double> starts(th_ee);
+    std::vector<double> nominal(p);
+    if (vibid_model_nominal(&id.model, nominal.data()) == VIBID_OK &&
+        std::all_of(nominal.begin(), nominal.end(), [](double v) { return v != 0.0 && std::isfinite(v); }))
+        starts.insert(starts.end(), nominal.begin(), nominal.end());
+    std::vector<double> block(ns * nc);
+    for (std::size_t k = 0; k < ns; ++k)
+        for (std::size_t c = 0; c < nc; ++c) block[k + c * ns] = id.samples[k * nc + c];
+    const vibid_status fs = vibid_oe_fit(id.oe.get(), ns, block.data(), starts.size() / p, starts.data());
+    const std::string why = fs == VIBID_OK ? std::string() : vibid_last_error();
+    vibid_oe_fit_info fi{};
+    std::vector<double> th(p), sd(p), cov(p * p);
+    const std::size_t ny = id.offset_channels.size();
+    id.offsets.assign(ny, 0.0);
+    id.offsets_se.assign(ny, 0.0);
+    if (fs == VIBID_OK)
+        check_status(vibid_oe_result(id.oe.get(), th.data(), sd.data(), cov.data(), id.offsets.data(),
+                                     id.offsets_se.data(), nullptr, &fi),
+                     "output error");
+    if (fs != VIBID_OK) {
+        id.offsets.clear();
+        id.offsets_se.clear();
+        std::copy(th_ee.begin(), th_ee.end(), theta);
+        if (se) std::copy(se_ee.begin(), se_ee.end(), se);
+        check_status(vibid_ident_covariance(id.ee.get(), id.cov.data()), "equation error");
+        id.param_flags.assign(p, 0);
+        check_status(vibid_ident_get_quality(id.ee.get(), &id.quality, id.param_flags.data()), "equation error");
+        id.quality.flags |= VIBID_QUALITY_REFINE_FAILED;
+        for (auto &f : id.param_flags) f |= VIBID_QUALITY_REFINE_FAILED;
+        id.description = id.ee->description + id.oe_description + "output-error refinement failed (the equation-error estimate stands): " + why + "\n";
+    } else {
+        std::copy(th.begin(), th.end(), theta);
+        if (se) std::copy(sd.begin(), sd.end(), se);
+        id.cov = cov;
+        id.quality = vibid_ident_quality{};
+        id.quality.z_consistency = std::nan("");
+        id.quality.n_blocks = fi.n_blocks;
+        id.quality.rcond = fi.rcond;
+        id.param_flags.assign(p, 0);
+        id.description = id.ee->description + id.oe_description + strprintf("output-error fit: %u iterations from start %zu (%s), %zu samples, %zu blocks\n",
+                                                       fi.iterations, fi.start, fi.start == 0 ? "the equation-error estimate" : "the nominal values",
+                                                       fi.n_samples, fi.n_blocks);
+    }
+    id.have_cov = true;
+    if (info) {
+        info->n_samples = ns;
+        info->n_rows = ns;
+    }
+    return VIBID_OK;
+}
+
+}  // namespace

@@ -24,7 +24,7 @@ struct Channel {
     double ref = 0.0;      // last accepted value
     bool has_ref = false;
     double scale = 0.0;    // S: peak of the accepted increments, decaying
-    double step = HUGE_VAL;  // smallest non-zero accepted increment (HUGE_VAL: none yet)
+    double step = HUGE_VAL;  // q: smallest non-zero jump seen, accepted or decided (HUGE_VAL: none)
     bool pending = false;  // the oldest undecided sample is a suspect in this channel
     double jump = 0.0;     // its jump |x - ref|
 };
@@ -36,12 +36,12 @@ struct vibid_outlier {
     double K = VIBID_OUTLIER_THRESHOLD_DEFAULT;
     double decay = 1.0;  // exp(-1 / memory)
     std::size_t warmup = VIBID_OUTLIER_WARMUP_DEFAULT;
-    std::size_t cap = 0;  // queued samples at most: warmup + 1
+    std::size_t cap = 0;  // queued samples at most: max(warmup, kLookahead + 1) + 1
 
     std::vector<Channel> ch;
     // Queue of samples in push order: [0, n_released) were released by the last call,
     // [n_released, n_decided) are decided, [n_decided, n_queued) wait. A sample waits for
-    // its successor when it is a suspect in some channel, or for the warm-up's end.
+    // its successors when it is a suspect in some channel, or for the warm-up's end.
     std::vector<double> vals;          // cap x n, values (outliers already NaN)
     std::vector<unsigned char> out;    // cap x n, 1 = taken out
     std::size_t n_queued = 0, n_decided = 0, n_released = 0;
@@ -195,7 +195,7 @@ struct vibid_outlier {
         }
     }
 
-    // Decides what can be decided; true when everything queued is.
+    // Decides what can be decided (at_end: with the successors there are).
     void decide(bool at_end) {
         if (!warm) {
             if (!at_end && n_queued < warmup) return;

@@ -15,6 +15,7 @@ extern "C" {
 #include <vibid/lsq.h>
 #include <vibid/rls.h>
 #include <vibid/modal.h>
+#include <vibid/outlier.h>
 #include <vibid/plausibility.h>
 #include <vibid/regressor.h>
 #include <vibid/stand_file.h>
@@ -351,6 +352,41 @@ void check_theta(const Stand &st, const std::vector<double> &theta, const char *
                                     " values for " + std::to_string(st.dims().n_params) + " unknowns");
     for (double v : theta)
         if (!std::isfinite(v)) throw std::invalid_argument(std::string(what) + ": theta is not finite");
+}
+
+// The outlier test of vibid/outlier.h (vibidd's, with its default threshold) over a capture,
+// row by row: the values it takes out, as (row, column) pairs in row order.
+std::vector<std::tuple<size_t, size_t>> outliers(nb::ndarray<const double, nb::ndim<2>, nb::device::cpu> data) {
+    const size_t n = data.shape(0), nc = data.shape(1);
+    vibid_outlier_config cfg;
+    vibid_outlier_config_init(&cfg, nc);
+    std::unique_ptr<vibid_outlier, void (*)(vibid_outlier *)> det(vibid_outlier_create(&cfg), vibid_outlier_destroy);
+    if (!det) throw VibidError(vibid_last_error());
+    std::vector<std::tuple<size_t, size_t>> out;
+    const double *base = data.data();
+    const int64_t rs = data.stride(0), cs = data.stride(1);
+    {
+        nb::gil_scoped_release release;
+        std::vector<double> sample(nc);
+        std::vector<unsigned char> mark(nc);
+        size_t row = 0;  // of the next released sample
+        for (size_t k = 0; k <= n; ++k) {
+            size_t nr = 0;
+            if (k < n) {
+                for (size_t c = 0; c < nc; ++c) sample[c] = base[k * rs + c * cs];
+                vibid_outlier_push(det.get(), sample.data(), &nr);
+            } else {
+                vibid_outlier_flush(det.get(), &nr);
+            }
+            for (size_t i = 0; i < nr; ++i, ++row) {
+                size_t no = 0;
+                vibid_outlier_released(det.get(), i, nullptr, mark.data(), &no);
+                for (size_t c = 0; no && c < nc; ++c)
+                    if (mark[c]) out.emplace_back(row, c);
+            }
+        }
+    }
+    return out;
 }
 
 // The equation errors e_k = y_k - x_k^T theta of the regression the estimators fit
@@ -1333,6 +1369,7 @@ NB_MODULE(_core, m) {
     // vibid check and the report (issue 13): see stand_identifiability and below.
     m.def("stand_identifiability", &stand_identifiability, "stand"_a);
     m.def("stand_channel_info", &stand_channel_info, "stand"_a);
+    m.def("outliers", &outliers, "data"_a);  // vibid/outlier.h over a capture (identify)
     m.def("stand_residuals", &stand_residuals, "stand"_a, "theta"_a, "data"_a, "prefilter_hz"_a, "order"_a);
     m.def("stand_simulate", &stand_simulate, "stand"_a, "theta"_a, "data"_a, "substeps"_a = 8);
     m.def("bench_identify_c", &bench_identify_c, "stand"_a, "data"_a, "estimator"_a, "forgetting"_a,

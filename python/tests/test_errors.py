@@ -57,6 +57,18 @@ def test_nan_names_channel_and_row(example1_stand, ex1_clean):
         vibid.identify(example1_stand, bad)
 
 
+def test_glitch_names_channel_and_row(example1_stand, ex1_clean):
+    # Issue 30, item 2: one wild value used to poison every later estimate without a word;
+    # identify takes no gaps, so the outlier test vibidd runs (vibid/outlier.h) names it.
+    # The clean capture (a multisine, both modes) has none: every other test identifies it.
+    data, _ = ex1_clean
+    for g in (1.0, 1e3, 1e300):
+        bad = {k: v.copy() for k, v in data.items()}
+        bad["x1"][8000] = g
+        with pytest.raises(ValueError, match=r"channel 'x1': value .* at row 8000 is a single-sample glitch \(1 in"):
+            vibid.identify(example1_stand, bad)
+
+
 def test_time_column_at_another_rate(example1_stand, ex1_clean):
     data, t = ex1_clean
     df = pd.DataFrame({"t": t * 1.02, **data})  # 2 % slower clock

@@ -123,6 +123,16 @@ def _columns(stand: Stand, data: Any, dbc: Any = None,
         row = int(np.argmin(finite[:, col]))
         raise ValueError(f"channel {channels[col]!r}: non-finite value {float(block[row, col])!r} at row {row} "
                          "(the estimators would restart their difference windows there; remove or fill gaps first)")
+    # One wild value (1.0 or 1e300 in millimetre motions) enters every sum of the estimators
+    # and stays there. vibidd takes such single-sample glitches out (vibid/outlier.h, its
+    # flag O); identify takes no gaps, so it names the first one instead of answering wrong.
+    bad = _core.outliers(block)
+    if bad:
+        row, col = bad[0]
+        raise ValueError(f"channel {channels[col]!r}: value {float(block[row, col])!r} at row {row} is a "
+                         f"single-sample glitch ({len(bad)} in this capture; the outlier test of "
+                         "vibid/outlier.h, as vibidd's): remove or repair it (vibid.replay takes such "
+                         "glitches out as vibidd does)")
     if t is not None and len(t) > 2:
         # As vibidd: a capture whose rate is more than 1 % off the stand's is refused,
         # naming both rates (the estimates would be off by that much without a word).

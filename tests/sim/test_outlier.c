@@ -94,6 +94,7 @@ static scan run(const char *stand_path, const char *sim_path, size_t n, uint64_t
     s.outlier_values = os.outlier_values;
     vibid_outlier_destroy(det);
     sim_engine_destroy(e);
+    sim_config_free(&cfg);
     vibid_stand_destroy(st);
     return s;
 }

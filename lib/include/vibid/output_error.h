@@ -131,9 +131,11 @@ VIBID_API vibid_status vibid_oe_result(const vibid_oe *oe, double *theta, double
 
 /* Simulates the model with parameters theta (p), initial state x0 (2 n, NULL = at rest)
  * and offsets (n_response, NULL = none) driven by the inputs of channels (n_samples x
- * n_channels, column-major; response columns are not read): out receives n_samples x
- * n_response simulated response channels (column-major, offsets added). VIBID_E_NUMERICAL
- * when the simulation diverges. Allocates. */
+ * n_channels, column-major): out receives n_samples x n_response simulated response
+ * channels (column-major, offsets added). The response columns are read only for their
+ * size: the largest measured displacement sets a cubic stand's first guess of RK4 steps,
+ * and a simulation beyond 10^6 times the largest measured value counts as diverged (NaN
+ * there is fine). VIBID_E_NUMERICAL when the simulation diverges. Allocates. */
 VIBID_API vibid_status vibid_oe_simulate(const vibid_oe *oe, const double *theta, const double *x0,
                                          const double *offsets, size_t n_samples, const double *channels,
                                          double *out);
