@@ -18,8 +18,11 @@
 #     1 kHz and 10 kHz: CPU use of vibidd and of the simulator, latency from the poll
 #     response received to the estimate updated (p50/p99), samples, gaps; at 10 kHz also with
 #     vibid-sim pinned to CPU 1 and vibidd to CPU 0 (issue 15's measure: p99 under 100 us).
+#     Each 10 kHz setting runs with the output-error refinement off, then on (refine_every
+#     = 2 s over 5 s windows), back to back, and the latencies are printed beside each other.
 #  2 and 3 run with acquisition.handoff_spin = 0 (the estimation thread sleeps when the ring
 #  is empty) and 1000 us (it busy-waits first), to show what the thread wake-up costs.
+#  BENCH_PARTS selects parts (default 123; BENCH_PARTS=3: the live runs alone, ~3 min).
 set -u
 BUILD=$(cd "${1:?usage: bench_vibidd.sh BUILD_DIR [SECONDS]}" && pwd) # needs vibidd, vibid-sim, bench/ (build/release has them)
 DUR=${2:-60}
@@ -36,10 +39,15 @@ cd "$W"
 # 60 dB sensor noise), as candump log and CSV.
 "$SIM" -c "$STAND" -s "$SRC/examples/demo/loopback_sim.cfg" --duration "$DUR" --fast --epoch 1700000000 \
     --candump cap.log --csv cap.csv -q || exit 1
-"$SIM" -c "$STAND" -s "$SRC/examples/demo/loopback_sim.cfg" --duration "$RDUR" --fast --epoch 1700000000 \
-    --candump long.log --csv long.csv -q || exit 1
-head -3 long.log > one.log   # one sample: its three frames
-head -2 long.csv > one.csv   # the header and one sample
+# BENCH_PARTS: which parts run (default 123; e.g. BENCH_PARTS=3 for the live runs alone)
+PARTS=${BENCH_PARTS:-123}
+want() { case $PARTS in *"$1"*) return 0 ;; esac; return 1; }
+if want 1; then # the long capture is part 1's alone
+    "$SIM" -c "$STAND" -s "$SRC/examples/demo/loopback_sim.cfg" --duration "$RDUR" --fast --epoch 1700000000 \
+        --candump long.log --csv long.csv -q || exit 1
+    head -3 long.log > one.log # one sample: its three frames
+    head -2 long.csv > one.csv # the header and one sample
+fi
 N=$((RDUR * 2000))
 cat > chanmap.cfg <<CFG
 counter = "SampleCounter";
@@ -71,6 +79,7 @@ for kind in cd csv; do
 done
 
 echo "vibidd benchmark: paper example 1, $N samples ($RDUR s at 2 kHz) for 1., $((DUR * 2000)) ($DUR s) for 2. and the baseline, $(nproc) CPUs, $(uname -r), load $(cut -d' ' -f1-3 /proc/loadavg)"
+if want 1; then
 echo "1. replay throughput (best of 3, wall clock incl. start-up)"
 # run_ns CFG PIN -> wall-clock ns of one vibidd run
 run_ns() {
@@ -106,6 +115,9 @@ echo "   (last run: $samples samples estimated, $(status_get rows status) track 
 echo "   baseline, same capture, one thread, no estimator:"
 "$BUILD/bench/bench_replay_source" cap.log "$DBC" chanmap.cfg 2000 3 | sed -n '2,$p' | sed 's/^/ /'
 
+fi
+
+if want 2; then
 echo "2. paced replay, sample by sample (CPU over 10 s; latency from the daemon's histogram);"
 echo "   handoff_spin = estimation thread busy-waits this long (us) before sleeping"
 sed 's/^estimator = /acquisition = { handoff_spin = 1000; };\nestimator = /' cd.cfg > cd_spin.cfg
@@ -126,18 +138,19 @@ for rate in 1000 10000; do
                  rate, spin, 100 * (du + ds) / hz / w, 100 * du / hz / w, 100 * ds / hz / w, p50, p99 }'
   done
 done
+fi
 
+if want 3; then
 echo "3. live: vibid-sim -> Modbus TCP (loopback, FIFO mode, 1 ms polls) -> vibidd (CPU over 10 s)"
 echo "   shared: both programs wherever the scheduler puts them; pinned: vibid-sim on CPU 1, vibidd"
-echo "   (both its threads) on CPU 0, as a test stand runs the controller on its own hardware"
-echo "   refine: estimator.refine_every in s (0 = off; 2: an output-error fit over the last 10 s"
-echo "   every 2 s in the low-priority refine thread, docs/vibidd.md \"Refinement\")"
-for case in 1000:0:shared:0 1000:1000:shared:0 10000:0:shared:0 10000:1000:shared:0 10000:0:pinned:0 \
-    10000:1000:pinned:0 10000:0:shared:2 10000:0:pinned:2 10000:1000:pinned:2; do
-    IFS=: read -r rate spin pin refine <<< "$case"
-    pin_sim=() pin_vd=()
+echo "   (all its threads) on CPU 0, as a test stand runs the controller on its own hardware"
+echo "   refine: estimator.refine_every in s (0 = off; 2: an output-error fit over the last 5 s"
+echo "   every 2 s in the SCHED_IDLE refine thread, docs/vibidd.md \"Refinement\"); at 10 kHz each"
+echo "   setting runs with refine 0, then 2, back to back (the same machine load as near as can be)"
+# live RATE SPIN PIN REFINE: one 10 s measurement; prints its line, sets P50 and P99
+live() {
+    local rate=$1 spin=$2 pin=$3 refine=$4 pin_sim=() pin_vd=() sim pid port u0 s0 u1 s1 su0 ss0 su1 ss1 t0 t1
     if [ "$pin" = pinned ]; then
-        if [ "$(nproc)" -lt 2 ]; then echo "   (pinned runs need 2 CPUs; skipped)"; continue; fi
         pin_sim=(taskset -c 1) pin_vd=(taskset -c 0)
     fi
     sed "s/sample_rate = 2000.0;/sample_rate = $rate.0;/" "$STAND" > stand_$rate.cfg
@@ -147,7 +160,7 @@ for case in 1000:0:shared:0 1000:1000:shared:0 10000:0:shared:0 10000:1000:share
     sim=$!
     port=
     for _ in $(seq 100); do
-        port=$(sed -n 's/.*listening on 127.0.0.1:\([0-9]*\).*/\1/p' sim.out)
+        port=$(sed -n 's/.*listening on 127.0.0.1:\([0-9]*\).*/\1/p' sim.out 2> /dev/null)
         [ -n "$port" ] && break
         sleep 0.1
     done
@@ -155,7 +168,7 @@ for case in 1000:0:shared:0 1000:1000:shared:0 10000:0:shared:0 10000:1000:share
     sed -e "s|^stand = .*|stand = \"$W/stand_$rate.cfg\";|" -e "s|tcp://127.0.0.1:[0-9]*|tcp://127.0.0.1:$port|" \
         -e 's|record = { path = "raw.csv"; };||' -e 's|poll_period = 0.02;|poll_period = 0.001;|' \
         -e "s|realtime_priority = 0;|realtime_priority = 0; handoff_spin = $spin;|" \
-        -e "s|^estimator = { decimation = 200; };|estimator = { decimation = 200; refine_every = $refine; refine_window = 10; };|" \
+        -e "s|^estimator = { decimation = 200; };|estimator = { decimation = 200; refine_every = $refine; refine_window = 5; };|" \
         "$SRC/daemon/examples/modbus_fifo.cfg" > live.cfg
     sed -i 's|path = "vibidd.status"|path = "status"; interval = 0.5|' live.cfg
     "${pin_vd[@]}" "$VIBIDD" -c live.cfg --log-level error &
@@ -172,9 +185,9 @@ for case in 1000:0:shared:0 1000:1000:shared:0 10000:0:shared:0 10000:1000:share
     wait $pid
     kill -TERM $sim 2>/dev/null
     wait $sim 2>/dev/null
+    P50=$(status_get latency_us_p50 status) P99=$(status_get latency_us_p99 status)
     awk -v du=$((u1 - u0)) -v ds=$((s1 - s0)) -v sd=$((su1 - su0 + ss1 - ss0)) -v hz="$(getconf CLK_TCK)" \
-        -v ns=$((t1 - t0)) -v rate=$rate -v spin=$spin -v p50="$(status_get latency_us_p50 status)" \
-        -v p99="$(status_get latency_us_p99 status)" -v n="$(status_get samples status)" \
+        -v ns=$((t1 - t0)) -v rate=$rate -v spin=$spin -v p50="$P50" -v p99="$P99" -v n="$(status_get samples status)" \
         -v gaps="$(status_get gaps status)" -v fp="$(status_get source_failed_polls status)" -v pin="$pin" \
         -v refine="$refine" -v rd="$(status_get refinements status)" -v rf="$(status_get refine_failed status)" \
         -v rs="$(status_get refine_skipped status)" -v rt="$(status_get refine_last_duration_s status)" \
@@ -182,4 +195,19 @@ for case in 1000:0:shared:0 1000:1000:shared:0 10000:0:shared:0 10000:1000:share
                  pin, rate, spin, refine, 100 * (du + ds) / hz / w, 100 * du / hz / w, 100 * ds / hz / w, 100 * sd / hz / w, p50, p99, n, gaps, fp
                  if (refine > 0) printf "; refinements %s, failed %s, skipped %s, last fit %s s", rd, rf, rs, rt
                  printf "\n" }'
+}
+side=()
+for case in 1000:0:shared 1000:1000:shared 10000:0:shared 10000:1000:shared 10000:0:pinned 10000:1000:pinned; do
+    IFS=: read -r rate spin pin <<< "$case"
+    if [ "$pin" = pinned ] && [ "$(nproc)" -lt 2 ]; then echo "   (pinned runs need 2 CPUs; skipped)"; continue; fi
+    live "$rate" "$spin" "$pin" 0
+    [ "$rate" = 10000 ] || continue
+    off50=$P50 off99=$P99
+    live "$rate" "$spin" "$pin" 2
+    side+=("$(printf "   %-6s handoff_spin %4d: p50 %6s -> %6s us, p99 %7s -> %7s us" "$pin" "$spin" "$off50" "$P50" "$off99" "$P99")")
 done
+if [ ${#side[@]} -gt 0 ]; then
+    echo "   10 kHz receipt -> estimate latency, refine off -> on (the runs above; figures, not a verdict):"
+    printf '%s\n' "${side[@]}"
+fi
+fi

@@ -951,7 +951,11 @@ static void *est_main(void *arg)
         if (atomic_load(&d->acq_done) && !vd_ring_peek(d->ring))
             break;
         housekeeping(d, false);
-        if (d->cfg->handoff_spin_us && spin_for_record(d))
+        /* no spinning while a refinement runs: a busy-waiting thread is never woken, so when
+         * the idle-class refine thread shares its CPU it gets the CPU back only at the
+         * scheduler's tick (1-4 ms; docs/vibidd.md "Refinement"); asleep, the acquisition
+         * thread's wake-up preempts the refine thread at once */
+        if (d->cfg->handoff_spin_us && !vd_refine_busy(&d->refine) && spin_for_record(d))
             continue;
         atomic_store(&d->consumer_sleeping, 1);
         atomic_thread_fence(memory_order_seq_cst);

@@ -102,11 +102,15 @@ static void refine_once(vd_refine *r)
 static void *refine_main(void *arg)
 {
     vd_refine *r = arg;
-    /* low priority: the fit takes whatever CPU the acquisition and estimation threads leave */
+    /* low priority: the fit takes whatever CPU the acquisition and estimation threads leave
+     * (SCHED_IDLE: a waking thread of the daemon preempts it at once) */
     struct sched_param sp = {.sched_priority = 0};
-    if (pthread_setschedparam(pthread_self(), SCHED_IDLE, &sp) != 0 &&
-        setpriority(PRIO_PROCESS, (id_t)gettid(), 19) != 0)
-        vd_warning("refinement thread: neither SCHED_IDLE nor nice 19 permitted (%s)", strerror(errno));
+    int rc = pthread_setschedparam(pthread_self(), SCHED_IDLE, &sp);
+    if (rc != 0 && setpriority(PRIO_PROCESS, (id_t)gettid(), 19) != 0)
+        vd_warning("refinement thread: neither SCHED_IDLE (%s) nor nice 19 (%s) permitted", strerror(rc),
+                   strerror(errno));
+    /* named once its priority is set (ps -L, top -H; e2e_refine.sh reads it by this name) */
+    pthread_setname_np(pthread_self(), "vibidd-refine");
     for (;;) {
         while (sem_wait(&r->wake) != 0 && errno == EINTR) {
         }
@@ -191,6 +195,11 @@ const vd_refine_result *vd_refine_take(vd_refine *r)
 void vd_refine_release(vd_refine *r)
 {
     atomic_store_explicit(&r->state, VD_REFINE_IDLE, memory_order_release);
+}
+
+bool vd_refine_busy(const vd_refine *r)
+{
+    return r->on && atomic_load_explicit(&r->state, memory_order_acquire) == VD_REFINE_REQUESTED;
 }
 
 void vd_refine_wait(vd_refine *r)

@@ -5,7 +5,8 @@
  * into a preallocated ring of window + 2 x refine_every seconds (vd_refine_push: one
  * memcpy, no allocation). Every refine_every seconds of sample time, when the refine thread
  * is idle, it hands over the ring range of the last window and the current recursive
- * estimate as the start (vd_refine_request). The refine thread (low priority: nice 19)
+ * estimate as the start (vd_refine_request). The refine thread (low priority: SCHED_IDLE,
+ * else nice 19; named vibidd-refine)
  * copies the range into its own column-major buffer, checks with the ring's sequence
  * counter that nothing it copied was overwritten meanwhile (else: an overrun, counted),
  * runs vibid_oe_fit and publishes the result; the estimation thread picks it up
@@ -85,7 +86,7 @@ int vd_refine_init(vd_refine *r, const vd_config *cfg, size_t nch, size_t p, cha
  * off (refine_why says so) when `auto` chose the EKF; an explicit one is an error then.
  * 0, or -1 with err. Called by the daemon's start and by --check. */
 int vd_refine_resolve(vd_config *cfg, vibid_estimator resolved, char *err, size_t cap);
-/* Starts the refine thread (nice 19). 0, or -1 with err. */
+/* Starts the refine thread (SCHED_IDLE, else nice 19). 0, or -1 with err. */
 int vd_refine_start(vd_refine *r, char *err, size_t cap);
 /* Stops and joins the thread (a running fit ends first), frees everything. */
 void vd_refine_fini(vd_refine *r);
@@ -117,6 +118,8 @@ int vd_refine_request(vd_refine *r, const double *theta, uint64_t end_index, int
  * vd_refine_release), else NULL. */
 const vd_refine_result *vd_refine_take(vd_refine *r);
 void vd_refine_release(vd_refine *r);
+/* Estimation thread: true while a fit is requested or runs (the thread is not idle). */
+bool vd_refine_busy(const vd_refine *r);
 /* Estimation thread: waits (sleeping 100 us at a time) while a refinement runs (replay:
  * reproducible rows; the end of a run: nothing lost). */
 void vd_refine_wait(vd_refine *r);

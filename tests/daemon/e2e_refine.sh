@@ -91,6 +91,43 @@ failed)
     awk -F, -v c="$idx" '$c == 7999 { f = 1 } END { exit !f }' r || fail "no R row after the glitch"
     note "refine_failed=$(status_val refine_failed), $(wc -l < r) refined rows, none for the window with the glitch"
     ;;
+priority)
+    # The refine thread (named vibidd-refine once its priority is set) runs at SCHED_IDLE (policy 5 in
+    # /proc/PID/task/TID/stat, field 41), or at nice 19 with a warning where SCHED_IDLE is
+    # refused; every other thread of the daemon keeps SCHED_OTHER (0) at nice 0. A paced
+    # replay (stands in for a live source: the estimation thread never waits for a fit) at 2x
+    # still writes its refined rows.
+    config cap.csv
+    sed -i 's|status = { path = "status"; }|status = { path = "status"; interval = 0.2; }|' v.cfg
+    timeout 60 "$VIBIDD" -c v.cfg --replay cap.csv --pace --speed 2 2> log &
+    tpid=$!
+    pid= tid=
+    for _ in $(seq 50); do
+        [ -n "$pid" ] || pid=$(cat /proc/$tpid/task/$tpid/children 2> /dev/null | awk '{ print $1 }') # vibidd under timeout
+        [ -n "$pid" ] && tid=$(grep -lx vibidd-refine /proc/$pid/task/*/comm 2> /dev/null | head -1 | cut -d/ -f5)
+        [ -n "$tid" ] && break
+        sleep 0.1
+    done
+    [ -n "$tid" ] || fail "no thread named vibidd-refine in vibidd ($(cat /proc/$pid/task/*/comm 2> /dev/null | tr '\n' ' '))"
+    # stat fields after the ")" that ends the name: 19 nice, 41 policy (proc(5)); fields 3.. here
+    thread_sched() { sed 's/.*) //' "/proc/$pid/task/$1/stat" | awk '{ print $(41 - 2), $(19 - 2) }'; }
+    read -r policy nice < <(thread_sched "$tid")
+    if [ "$policy" != 5 ]; then
+        [ "$nice" = 19 ] || fail "vibidd-refine: policy $policy, nice $nice (expected SCHED_IDLE = 5, or nice 19)"
+        note "SCHED_IDLE refused here; nice 19"
+    fi
+    for t in /proc/$pid/task/*; do
+        t=${t##*/}
+        [ "$t" = "$tid" ] && continue
+        read -r p n < <(thread_sched "$t" 2> /dev/null) || continue # a thread that ended meanwhile
+        [ "$p" = 0 ] && [ "$n" = 0 ] || fail "thread $t ($(cat /proc/$pid/task/$t/comm)): policy $p, nice $n (expected 0, 0)"
+    done
+    wait $tpid || fail "vibidd exit $? ($(cat log))"
+    n=$(refined_rows tracks.csv | wc -l)
+    [ "$n" -ge 3 ] || fail "$n rows flagged R in the paced replay (4 windows due; at most one skipped): $(grep -i refine log)"
+    [ "$(status_val refine_failed)" = 0 ] || fail "refine_failed=$(status_val refine_failed)"
+    note "vibidd-refine: policy $policy (5 = SCHED_IDLE), nice $nice; the other threads SCHED_OTHER, nice 0; $n refined rows paced"
+    ;;
 *)
     fail "unknown case $CASE"
     ;;
