@@ -344,3 +344,26 @@ def unavailable(why: str, segment: Optional[tuple[int, int]] = None) -> dict:
     return {"nrmse": math.nan, "ljung_box_q": math.nan, "ljung_box_dof": 0, "ljung_box_p": math.nan,
             "structured": math.nan, "flag": "", "why": "", "channels": pd.DataFrame(), "simulated": pd.DataFrame(),
             "x0": np.array([]), "unavailable": why, "segment": segment}
+
+
+# Blocks of the held-out part for the standard error of a difference of squared errors
+# (batch means: the residuals are correlated over a mode's decay time, blocks of a
+# twentieth of the part hold several of them), and the t it must exceed.
+COMPARE_BLOCKS = 20
+COMPARE_T = 2.0
+
+
+def compare(stand, a: dict, b: dict, block: np.ndarray) -> tuple[float, float]:
+    """Whether validation b fits the same segment better than a: (mean over the segment of
+    d_k = sum_j (e_a,jk^2 - e_b,jk^2) / (ny var z_j), whose mean is NRMSE_a^2 - NRMSE_b^2,
+    and its standard error by batch means over COMPARE_BLOCKS blocks)."""
+    oe = simulator(stand)
+    resp = list(oe.response_channels())
+    z = block[:, resp]
+    w = 1.0 / (len(resp) * np.maximum(z.var(axis=0), 1e-300))
+    ea = z - a["simulated"].to_numpy()
+    eb = z - b["simulated"].to_numpy()
+    d = np.sum(w * (ea * ea - eb * eb), axis=1)
+    nb = min(COMPARE_BLOCKS, len(d) // 10)
+    means = np.array([c.mean() for c in np.array_split(d, nb)])
+    return float(d.mean()), float(means.std(ddof=1) / math.sqrt(nb))

@@ -564,10 +564,17 @@ def identify(stand: Stand | str | os.PathLike, data: Any, method: str = "auto",
         oe_wins, because = True, (f"the instruments of the IV are weak (first-stage F {instruments['f_stat']:.3g} "
                                   f"< {_adequacy.WEAK_F:g}, smallest canonical correlation "
                                   f"{instruments['rho_min']:.3g}): IV is not used")
-    elif not math.isfinite(nr_ee) or nr_oe < nr_ee:
+    elif not math.isfinite(nr_ee):
         oe_wins, because = True, f"held-out NRMSE: output error {nr_oe:.4g}, {lib} {nr_ee:.4g}"
     else:
-        oe_wins, because = False, f"held-out NRMSE: {lib} {nr_ee:.4g}, output error {nr_oe:.4g}"
+        # better by more than the held-out noise of the comparison (docs/python.md): a
+        # difference within it is no evidence, and the equation-error estimate is consistent
+        # with noisy inputs, which bias the output error
+        diff, se = _adequacy.compare(stand, v_ee, v_oe, block[split:n])
+        tval = diff / se if se > 0 else (math.inf if diff > 0 else 0.0)
+        oe_wins = tval > _adequacy.COMPARE_T
+        because = (f"held-out NRMSE: output error {nr_oe:.4g}, {lib} {nr_ee:.4g} (difference of the squares "
+                   f"{tval:.3g} standard errors, {'above' if oe_wins else 'not above'} {_adequacy.COMPARE_T:g})")
     if not oe_wins:
         why = f"{head}; kept {lib}: {because}"
         ee_cfg["choice"] = why
