@@ -22,8 +22,9 @@ from vibid import _adequacy
 from conftest import EXAMPLE1, example1_capture, sim_path
 
 # 1 DOF with a hardening cubic spring, the issue's real capture in kind: its resonance at
-# 68 Hz sampled at 610 Hz (9 samples per period), the force band-limited noise, x and F
-# measured with 0.5 % noise (46 dB). Nominal values 10-25 % off the truth, as a stand file
+# 68 Hz sampled at 610 Hz (9 samples per period), the force band-limited noise, x measured
+# with 0.5 % noise (46 dB), the force exactly (the output-error fit takes its inputs as
+# exact: noise on the force biases it, see the chain below and docs/python.md). Nominal values 10-25 % off the truth, as a stand file
 # gives them (they are the output-error fit's second start). Seed 9 and 10 s: vibid-sim's
 # ARKODE fails on this stand for some seeds and durations (e.g. seed 9 over 20 s, at
 # 17.2 s), reported to the lead.
@@ -34,7 +35,7 @@ SILVER = """stand = { name = "silver"; sample_rate = 610.35;
                { name = "eps"; kind = "cubic_spring"; between = ["m", "ground"]; unknown = true; value = 1.5e10; true_value = 2.0e10; } );
   inputs = ( { name = "u"; node = "m"; gain = 1.1; unknown = true; true_value = 1.0; channel = "F"; } ); };
 simulation = { seed = 9; excitation = ( { target = "u"; kind = "noise"; amplitude = 20.0; f_low = 5.0; f_high = 150.0; } );
-  noise = ( { channel = "x"; snr_db = 46.0; }, { channel = "F"; snr_db = 46.0; } ); };
+  noise = ( { channel = "x"; snr_db = 46.0; } ); };
 """
 # The same stand without nominal values: the output-error fit has only the equation-error
 # estimate to start from.
@@ -63,14 +64,18 @@ CHAIN_NOISE = ("noise = ( " + ", ".join(f'{{ channel = "{c}"; snr_db = 46.0; }}'
                                        for c in ["x1", "x2", "x3", "a1", "a2", "a3", "F"]) + " );")
 
 # 1 DOF with a cubic spring whose force reaches the linear one at 1 mm (the library's cubic
-# stand with a 5 N force: cubic force about 25 % of the linear one at the RMS displacement),
-# and the same stand without the cubic spring: a model that cannot explain the data.
+# stand, damped to zeta 0.2: cubic force 58 % of the linear one at the RMS displacement),
+# and the same stand without the cubic spring: a model that cannot explain the data. The
+# damping matters for the validation: lightly damped (zeta 0.025) this stand's response
+# depends so sensitively on its state that an estimate within 1.5 se of the truth, simulated
+# over 8 s, drifts off the measurement (NRMSE 0.55): no simulation-error check can tell a
+# right model there (docs/python.md, "Model adequacy").
 DUFFING = """stand = { name = "duffing"; sample_rate = 2000.0;
   nodes = ( { name = "m"; mass = 1.0; measure = { displacement = "x"; }; } );
   elements = ( { name = "k"; kind = "spring"; between = ["m", "ground"]; unknown = true; true_value = 1.0e4; },
-               { name = "d"; kind = "damper"; between = ["m", "ground"]; unknown = true; true_value = 5.0; }CUBIC );
+               { name = "d"; kind = "damper"; between = ["m", "ground"]; unknown = true; true_value = 40.0; }CUBIC );
   inputs = ( { name = "f"; node = "m"; gain = 1.0; channel = "F"; } ); };
-simulation = { seed = 4; excitation = ( { target = "f"; kind = "noise"; amplitude = 5.0; f_low = 2.0; f_high = 80.0; } );
+simulation = { seed = 4; excitation = ( { target = "f"; kind = "noise"; amplitude = 15.0; f_low = 2.0; f_high = 80.0; } );
   noise = ( { channel = "x"; snr_db = 46.0; } ); };
 """
 CUBIC = ',\n { name = "eps"; kind = "cubic_spring"; between = ["m", "ground"]; unknown = true; true_value = 1.0e10; }'
@@ -339,10 +344,11 @@ def duffing(tmp_path_factory):
 
 def test_flag_m_on_a_model_that_cannot_explain_the_data(duffing):
     # Data of a stand with a cubic spring, identified with the stand file that lacks it: the
-    # linear model's held-out simulation misses most of the response (NRMSE 0.86 measured)
-    # and its residuals are structure, not noise: flagged M, with the reason. The matching
-    # stand file (IV: the output-error fit does not converge on this stand, docs) explains the
-    # same held-out samples to the noise (NRMSE 0.007): no M.
+    # linear model's held-out simulation misses half the response (NRMSE 0.48 measured) and
+    # its residuals are structure, not noise (predictable part 0.48): flagged M, with the
+    # reason. The matching stand file (IV: the library's output-error fit is slow on cubic
+    # stands at 2 kHz, docs) explains the same held-out samples to the 0.5 % noise (NRMSE
+    # 0.005, Ljung-Box p 0.9): no M. The same on the whole capture through validate.
     cubic, linear, df = duffing
     wrong = vibid.identify(linear, df)
     show(wrong)
@@ -352,7 +358,7 @@ def test_flag_m_on_a_model_that_cannot_explain_the_data(duffing):
     right = vibid.identify(cubic, df, method="iv")
     show(right)
     assert "M" not in right.flags and right.adequacy["flag"] == ""
-    assert right.adequacy["nrmse"] < 0.02
+    assert right.adequacy["nrmse"] < 0.01
     # validate on the whole capture says the same
     assert wrong.validate(df)["flag"] == "M" and right.validate(df)["flag"] == ""
 
@@ -411,9 +417,8 @@ def test_held_out_error_at_least_as_good_as_the_analysts(silver, silver_auto):
     # first 80 % and start from the stand's nominal values; both estimates are validated
     # the same way on the last 20 % (Result.adequacy's convention: initial state and offset
     # fitted). The two minimise the same cost with different integrators (vibid: RK4 with
-    # step doubling to 1e-6 of the peak; the analyst: 4 fixed steps per sample), so their
-    # held-out errors agree to far better than the noise: vibid's may exceed the analyst's
-    # by 1e-4 relative at most (measured below).
+    # step doubling to 1e-6 of the peak; the analyst: 4 fixed steps per sample); measured:
+    # vibid 0.14 % below the analyst, and equal to the truth's to 1e-5.
     stand, df, _ = silver
     n = len(df)
     split = n - round(0.2 * n)
@@ -427,4 +432,4 @@ def test_held_out_error_at_least_as_good_as_the_analysts(silver, silver_auto):
     o_rms = ours["channels"].loc["x", "rms_residual"]
     print(f"\nheld-out RMS error of x: vibid {o_rms:.6g} m, analyst {a_rms:.6g} m (ratio {o_rms / a_rms:.6f}); "
           f"analyst's fit {seconds:.1f} s, {nfev} simulations; theta {theta[:4]}")
-    assert o_rms <= a_rms * (1 + 1e-4)
+    assert o_rms <= a_rms
