@@ -3,7 +3,7 @@
     python python/bench/bench_oe.py            # 10^5 samples; ~2-5 min (the scipy fit)
     python python/bench/bench_oe.py --quick    # 10^4 samples: a smoke run
 
-The 3-DOF chain of the library's tests (tests/ident/chain_stand.h: held force on m3, x and a
+The 3-DOF chain of the library's tests (examples/stands/chain3.cfg: held force on m3, x and a
 of every node, modes 11.5 / 26.4 / 37.5 Hz) simulated by vibid-sim at 2 kHz with 0.5 % noise
 on the response channels, no offset; 10^5 samples (50 s). Both fit the same model (six
 springs and dampers, the initial state, one offset per response channel: 18 numbers) by
@@ -40,18 +40,8 @@ from vibid import _core
 
 REPO = Path(__file__).resolve().parents[2]
 
-CHAIN = """stand = { name = "chain3"; sample_rate = 2000.0;
-  nodes = ( { name = "m1"; mass = 2.0; measure = { displacement = "x1"; acceleration = "a1"; }; },
-            { name = "m2"; mass = 1.5; measure = { displacement = "x2"; acceleration = "a2"; }; },
-            { name = "m3"; mass = 1.0; measure = { displacement = "x3"; acceleration = "a3"; }; } );
-  elements = ( { name = "k1"; kind = "spring"; between = ["m1", "ground"]; unknown = true; true_value = 4.0e4; },
-               { name = "d1"; kind = "damper"; between = ["m1", "ground"]; unknown = true; true_value = 20.0; },
-               { name = "k2"; kind = "spring"; between = ["m2", "m1"]; unknown = true; true_value = 3.0e4; },
-               { name = "d2"; kind = "damper"; between = ["m2", "m1"]; unknown = true; true_value = 15.0; },
-               { name = "k3"; kind = "spring"; between = ["m3", "m2"]; unknown = true; true_value = 2.0e4; },
-               { name = "d3"; kind = "damper"; between = ["m3", "m2"]; unknown = true; true_value = 10.0; } );
-  inputs = ( { name = "f"; node = "m3"; gain = 1.0; channel = "F"; hold = "zoh"; } ); };
-simulation = { seed = 3; excitation = ( { target = "f"; kind = "noise"; amplitude = 20.0; f_high = 150.0; } );
+CHAIN = REPO / "examples" / "stands" / "chain3.cfg"
+SIM = """simulation = { seed = 3; excitation = ( { target = "f"; kind = "noise"; amplitude = 20.0; f_high = 150.0; } );
   noise = ( NOISE ); };
 """
 RESPONSES = ["x1", "a1", "x2", "a2", "x3", "a3"]
@@ -67,12 +57,12 @@ def sim_path() -> Path:
 
 
 def capture(n: int, tmp: Path):
-    cfg = tmp / "chain.cfg"
-    cfg.write_text(CHAIN.replace("NOISE", ", ".join(f'{{ channel = "{c}"; snr_db = 46.0; }}' for c in RESPONSES)))
+    cfg = tmp / "chain_sim.cfg"
+    cfg.write_text(SIM.replace("NOISE", ", ".join(f'{{ channel = "{c}"; snr_db = 46.0; }}' for c in RESPONSES)))
     out = tmp / "chain.csv"
-    subprocess.run([str(sim_path()), "-c", str(cfg), "--csv", str(out), "--fast", "-d", repr(n / 2000.0)],
-                   check=True, capture_output=True)
-    return vibid.Stand.load(cfg), pd.read_csv(out, comment="#").rename(columns={"t": "time_s"})
+    subprocess.run([str(sim_path()), "-c", str(CHAIN), "-s", str(cfg), "--csv", str(out), "--fast", "-d",
+                    repr(n / 2000.0)], check=True, capture_output=True)
+    return vibid.Stand.load(CHAIN), pd.read_csv(out, comment="#").rename(columns={"t": "time_s"})
 
 
 def analyst_fit(df: pd.DataFrame, start: np.ndarray):

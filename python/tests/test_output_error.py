@@ -19,7 +19,7 @@ import pytest
 
 import vibid
 from vibid import _adequacy
-from conftest import EXAMPLE1, example1_capture, sim_path
+from conftest import REPO, example1_capture, sim_path
 
 # 1 DOF with a hardening cubic spring, the issue's real capture in kind: its resonance at
 # 68 Hz sampled at 610 Hz (9 samples per period), the force band-limited noise, x measured
@@ -44,20 +44,11 @@ SILVER_BARE = (SILVER.replace(" value = 1.5e5;", "").replace(" value = 40.0;", "
 # Offset of the displacement sensor: 5 % of x's RMS (the issue: a few %).
 OFFSET = 0.05
 
-# The 3-DOF chain of the library's tests (tests/ident/chain_stand.h): held force on m3, x
-# and a of every node measured, 0.5 % noise on every channel, the force included.
-CHAIN = """stand = { name = "chain3"; sample_rate = 2000.0;
-  nodes = ( { name = "m1"; mass = 2.0; measure = { displacement = "x1"; acceleration = "a1"; }; },
-            { name = "m2"; mass = 1.5; measure = { displacement = "x2"; acceleration = "a2"; }; },
-            { name = "m3"; mass = 1.0; measure = { displacement = "x3"; acceleration = "a3"; }; } );
-  elements = ( { name = "k1"; kind = "spring"; between = ["m1", "ground"]; unknown = true; true_value = 4.0e4; },
-               { name = "d1"; kind = "damper"; between = ["m1", "ground"]; unknown = true; true_value = 20.0; },
-               { name = "k2"; kind = "spring"; between = ["m2", "m1"]; unknown = true; true_value = 3.0e4; },
-               { name = "d2"; kind = "damper"; between = ["m2", "m1"]; unknown = true; true_value = 15.0; },
-               { name = "k3"; kind = "spring"; between = ["m3", "m2"]; unknown = true; true_value = 2.0e4; },
-               { name = "d3"; kind = "damper"; between = ["m3", "m2"]; unknown = true; true_value = 10.0; } );
-  inputs = ( { name = "f"; node = "m3"; gain = 1.0; channel = "F"; hold = "zoh"; } ); };
-simulation = { seed = 3; excitation = ( { target = "f"; kind = "noise"; amplitude = 20.0; f_high = 150.0; } );
+# The 3-DOF chain of the library's tests (examples/stands/chain3.cfg): held force on m3, x
+# and a of every node measured; simulated with 0.5 % noise on every channel, the force
+# included.
+CHAIN = REPO / "examples" / "stands" / "chain3.cfg"
+CHAIN_SIM = """simulation = { seed = 3; excitation = ( { target = "f"; kind = "noise"; amplitude = 20.0; f_high = 150.0; } );
   NOISE };
 """
 CHAIN_NOISE = ("noise = ( " + ", ".join(f'{{ channel = "{c}"; snr_db = 46.0; }}'
@@ -81,19 +72,21 @@ simulation = { seed = 4; excitation = ( { target = "f"; kind = "noise"; amplitud
 CUBIC = ',\n { name = "eps"; kind = "cubic_spring"; between = ["m", "ground"]; unknown = true; true_value = 1.0e10; }'
 
 
-def simulate(tmp, name, text, seconds):
-    """vibid-sim's capture of a stand file (its simulation group), as a DataFrame with
-    time_s, and the stand."""
+def simulate(tmp, name, text, seconds, stand=None):
+    """vibid-sim's capture of a stand file and its simulation group, as a DataFrame with
+    time_s, and the stand: text is the whole file, or with stand= (a stand file) the
+    simulation group alone (vibid-sim -s)."""
     sim = sim_path()
     assert sim.exists(), f"no vibid-sim at {sim}: build the C tree first (target vibid-sim) or set VIBID_SIM"
     cfg = tmp / f"{name}.cfg"
     cfg.write_text(text)
     out = tmp / f"{name}.csv"
-    proc = subprocess.run([str(sim), "-c", str(cfg), "--csv", str(out), "--fast", "-d", repr(float(seconds))],
+    args = ["-c", str(stand), "-s", str(cfg)] if stand else ["-c", str(cfg)]
+    proc = subprocess.run([str(sim), *args, "--csv", str(out), "--fast", "-d", repr(float(seconds))],
                           capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
     df = pd.read_csv(out, comment="#").rename(columns={"t": "time_s"})
-    return vibid.Stand.load(cfg), df
+    return vibid.Stand.load(stand or cfg), df
 
 
 @pytest.fixture(scope="module")
@@ -235,8 +228,8 @@ def chain(tmp_path_factory):
     """The chain's capture with 0.5 % noise on every channel, and the same run without
     measurement noise (same seed: the same excitation)."""
     tmp = tmp_path_factory.mktemp("chain")
-    stand, df = simulate(tmp, "chain", CHAIN.replace("NOISE", CHAIN_NOISE), 10)
-    _, clean = simulate(tmp, "chain_clean", CHAIN.replace("NOISE", ""), 10)
+    stand, df = simulate(tmp, "chain", CHAIN_SIM.replace("NOISE", CHAIN_NOISE), 10, CHAIN)
+    _, clean = simulate(tmp, "chain_clean", CHAIN_SIM.replace("NOISE", ""), 10, CHAIN)
     return stand, df, clean
 
 

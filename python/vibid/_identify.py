@@ -520,7 +520,10 @@ def identify(stand: Stand | str | os.PathLike, data: Any, method: str = "auto",
             raise VibidError(f"vibid_ident_estimate after {n} samples: {est['message']}")
         tr = ("\ntracks: the automatic estimator's (the output-error fit runs once, on the whole capture)"
               if len(tracks) else "")
-        return result(est, oe.describe() + tr, cfg, oe.offsets(), adequacy)
+        # a failed refinement reports the automatic estimate: IV's, whose instruments are checked
+        instruments = (_first_stage(stand, block, config) if est["quality"] & _core.QUALITY_REFINE_FAILED
+                       and lib == "iv" else None)
+        return result(est, oe.describe() + tr, cfg, oe.offsets(), adequacy, instruments)
 
     if method != "auto" or no_segment:
         cfg = config
