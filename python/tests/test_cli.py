@@ -142,6 +142,8 @@ def test_report_is_self_contained(identified):
     assert '<section id="flags">' in doc
     assert html.escape(ref.description) in doc
     assert "Not available" not in doc  # every section drawn for this stand
+    held = doc[doc.index('<section id="holdout">'):doc.index('<section id="residual-spectrum">')]
+    assert html.escape(vibid._identify.adequacy_line(ref)) in held
 
 
 def test_report_model_response_table(identified, capture):

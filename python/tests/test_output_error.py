@@ -426,3 +426,36 @@ def test_held_out_error_at_least_as_good_as_the_analysts(silver, silver_auto):
     print(f"\nheld-out RMS error of x: vibid {o_rms:.6g} m, analyst {a_rms:.6g} m (ratio {o_rms / a_rms:.6f}); "
           f"analyst's fit {seconds:.1f} s, {nfev} simulations; theta {theta[:4]}")
     assert o_rms <= a_rms
+
+
+def test_command_prints_offsets_and_adequacy(tmp_path, chain):
+    # vibid identify --method oe on the chain's capture: the offsets table holds
+    # identify(method="oe")'s offsets to the ten printed digits, the adequacy line its figures;
+    # the report's held-out section quotes the same line and draws both new figures.
+    import re
+    import sys
+    from pathlib import Path
+
+    stand, df, _ = chain
+    cap = tmp_path / "chain.csv"
+    df.to_csv(cap, index=False, float_format="%.17g")
+    report = tmp_path / "r.html"
+    exe = Path(sys.executable).with_name("vibid")
+    proc = subprocess.run([str(exe), "identify", str(CHAIN), str(cap), "--method", "oe", "--report", str(report)],
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    r = vibid.identify(stand, cap, method="oe", track_every=200)
+    lines = proc.stdout.splitlines()
+    i = next(k for k, line in enumerate(lines) if line.startswith("offset "))
+    rows = [re.split(r"\s{2,}", line.strip()) for line in lines[i + 1:i + 1 + len(r.offsets)]]
+    assert [row[0] for row in rows] == list(r.offsets.index) == ["x1", "a1", "x2", "a2", "x3", "a3"]
+    for row in rows:
+        assert row[1] == f"{r.offsets.loc[row[0], 'value']:.10g}" and row[2] == f"{r.offsets.loc[row[0], 'se']:.10g}"
+    assert [row[3] for row in rows] == ["m", "m/s^2"] * 3
+    line = vibid._identify.adequacy_line(r)
+    assert line in proc.stdout and "method oe" in proc.stdout
+    doc = report.read_text()
+    held = doc[doc.index('<section id="holdout">'):doc.index('<section id="residual-spectrum">')]
+    assert "adequacy on held-out samples 16000..19999" in held
+    spec = doc[doc.index('<section id="residual-spectrum">'):]
+    assert held.count('src="data:image/png;base64,') == 1 and spec.count('src="data:image/png;base64,') == 1
