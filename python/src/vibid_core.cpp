@@ -1,5 +1,5 @@
 // vibid._core: the thin nanobind layer over libvibid's C API (identify.h, modal.h,
-// plausibility.h; lsq.h, rls.h, iv.h for the estimator classes) and the stand loader (stand_file.h). All numerics stay in the C library;
+// plausibility.h, output_error.h; lsq.h, rls.h, iv.h for the estimator classes) and the stand loader (stand_file.h). All numerics stay in the C library;
 // this file converts arrays and statuses and nothing else. The Pythonic API (channel names,
 // DataFrames, tracks) is in vibid/*.py.
 #include <nanobind/nanobind.h>

@@ -277,53 +277,47 @@ def _spectrum_figure(result: Result, block: np.ndarray):
     return fig, chans
 
 
-def _response_figure(result: Result, block: np.ndarray, sim: np.ndarray, start: int):
+def _last_periods(result: Result, first: int, stop: int) -> np.ndarray:
+    """Sample indices of a window of five periods of the lowest identified mode (at least
+    0.2 s) at the end of [first, stop): the whole capture would be a solid band at this scale."""
+    fs = result.stand.sample_rate
+    fmin = min([f for f in result.modes["freq_hz"] if math.isfinite(f) and f > 0] or [fs / 100])
+    w = int(min(stop - first, max(0.2 * fs, 5 * fs / fmin)))
+    return np.arange(stop - w, stop)
+
+
+def _overlay_figure(result: Result, k: np.ndarray, rows, label: str):
+    """One axis per (channel, measured, model) of rows, both over the samples k."""
     from ._plot import _figure
 
-    roles = [(i, ch) for i, (ch, kind, idx, _) in enumerate(channel_roles(result.stand)) if kind != "input" and idx != -2]
-    fs = result.stand.sample_rate
-    # A window of five periods of the lowest identified mode (at least 0.2 s) at the end of
-    # the capture: the whole capture would be a solid band at this scale.
-    fmin = min([f for f in result.modes["freq_hz"] if math.isfinite(f) and f > 0] or [fs / 100])
-    w = int(min(block.shape[0] - start, max(0.2 * fs, 5 * fs / fmin)))
-    sl = slice(block.shape[0] - w, block.shape[0])
-    t = np.arange(block.shape[0])[sl] / fs
-    fig = _figure(figsize=(8.0, 2.0 * len(roles) + 0.5), layout="constrained")
-    axes = fig.subplots(len(roles), 1, sharex=True, squeeze=False)[:, 0]
-    for ax, (i, ch) in zip(axes, roles):
-        ax.plot(t, block[sl, i], color="k", linewidth=1.0, label="measured")
-        ax.plot(t, sim[sl, i], color="C1", linewidth=1.0, linestyle="--", label="model (identified)")
+    t = k / result.stand.sample_rate
+    fig = _figure(figsize=(8.0, 2.0 * len(rows) + 0.5), layout="constrained")
+    axes = fig.subplots(len(rows), 1, sharex=True, squeeze=False)[:, 0]
+    for ax, (ch, measured, model) in zip(axes, rows):
+        ax.plot(t, measured, color="k", linewidth=1.0, label="measured")
+        ax.plot(t, model, color="C1", linewidth=1.0, linestyle="--", label=label)
         ax.set_ylabel(ch)
         ax.grid(True, alpha=0.3)
         ax.legend(fontsize="small", loc="upper right")
     axes[-1].set_xlabel("time [s]")
     return fig
+
+
+def _response_figure(result: Result, block: np.ndarray, sim: np.ndarray, start: int):
+    k = _last_periods(result, start, block.shape[0])
+    rows = [(ch, block[k, i], sim[k, i]) for i, (ch, kind, idx, _) in enumerate(channel_roles(result.stand))
+            if kind != "input" and idx != -2]
+    return _overlay_figure(result, k, rows, "model (identified)")
 
 
 def _holdout_figure(result: Result, block: np.ndarray):
     """Measured against simulated response channels on the held-out part (the adequacy's
-    fitted simulation), the last five periods of the lowest mode (at least 0.2 s) of it."""
-    from ._plot import _figure
-
-    a = result.adequacy
-    start, stop = a["segment"]
-    sim = a["simulated"]
-    fs = result.stand.sample_rate
-    fmin = min([f for f in result.modes["freq_hz"] if math.isfinite(f) and f > 0] or [fs / 100])
-    w = int(min(stop - start, max(0.2 * fs, 5 * fs / fmin)))
-    k = np.arange(stop - w, stop)
-    fig = _figure(figsize=(8.0, 2.0 * sim.shape[1] + 0.5), layout="constrained")
-    axes = fig.subplots(sim.shape[1], 1, sharex=True, squeeze=False)[:, 0]
-    for ax, ch in zip(axes, sim.columns):
-        i = result.stand.channels.index(ch)
-        ax.plot(k / fs, block[k, i], color="k", linewidth=1.0, label="measured")
-        ax.plot(k / fs, sim[ch].to_numpy()[k - start], color="C1", linewidth=1.0, linestyle="--",
-                label="simulated (estimate of the first part)")
-        ax.set_ylabel(ch)
-        ax.grid(True, alpha=0.3)
-        ax.legend(fontsize="small", loc="upper right")
-    axes[-1].set_xlabel("time [s]")
-    return fig
+    fitted simulation), over its last five periods of the lowest mode (at least 0.2 s)."""
+    start, stop = result.adequacy["segment"]
+    sim = result.adequacy["simulated"]
+    k = _last_periods(result, start, stop)
+    rows = [(ch, block[k, result.stand.channels.index(ch)], sim[ch].to_numpy()[k - start]) for ch in sim.columns]
+    return _overlay_figure(result, k, rows, "simulated (estimate of the first part)")
 
 
 def _residual_spectrum_figure(result: Result, block: np.ndarray):
