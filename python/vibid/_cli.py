@@ -110,6 +110,8 @@ def warnings_of(result: Result) -> list[str]:
         out.append("implausible: " + result.why)
     if result.adequacy.get("flag"):
         out.append("the model cannot explain the data: " + result.adequacy["why"])
+    if result.unsure:
+        out.append(result.unsure)
     ins = result.instruments
     if ins and ins.get("weak"):
         out.append(f"the instruments of the IV are weak: first-stage F {ins['f_stat']:.3g} < {_adequacy.WEAK_F:g} "

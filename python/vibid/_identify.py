@@ -193,7 +193,7 @@ class Result:
 
     def __init__(self, stand: Stand, est: Any, description: str, config: dict, tracks: pd.DataFrame,
                  n_samples: int, diverged_samples: int, offsets: Any = None, adequacy: Optional[dict] = None,
-                 instruments: Optional[dict] = None):
+                 instruments: Optional[dict] = None, unsure: str = ""):
         self.stand = stand
         self.description = description
         self.config = config
@@ -204,7 +204,10 @@ class Result:
         truth = np.asarray(stand.true_values, dtype=float)
         with np.errstate(divide="ignore", invalid="ignore"):
             z = (theta - truth) / se
-        weak = bool(instruments and instruments.get("weak"))
+        # U beyond the library's: weak instruments of an IV estimate, or an output-error
+        # estimate that disagrees with the IV one beyond both error bars (unsure: the reason)
+        weak = bool(instruments and instruments.get("weak")) or bool(unsure)
+        self.unsure = unsure
         pflags = []
         for i in range(len(theta)):
             f = _flags(True, est["param_implausible"][i], est["param_quality"][i])
@@ -422,6 +425,44 @@ def _first_stage(stand: Stand, block: np.ndarray, config: dict) -> Optional[dict
         return None
 
 
+# Agreement of the output-error and the equation-error (IV) estimates of the same capture:
+# below this p-value they disagree beyond their error bars.
+AGREEMENT_P = 1e-3
+
+
+def _agreement(oe: dict, ee: dict) -> Optional[tuple[float, int, float]]:
+    """A Hausman-type test of the output-error estimate against the IV one: chi2 =
+    d' (V_oe + V_ee)^-1 d with d their difference (the two are positively correlated, so the
+    sum over-states the variance of d and the test errs towards agreement), p-value with p
+    degrees of freedom. None where either has no usable covariance."""
+    d = np.asarray(oe["theta"]) - np.asarray(ee["theta"])
+    V = np.asarray(oe["covariance"]) + np.asarray(ee["covariance"])
+    if not (np.isfinite(d).all() and np.isfinite(V).all()):
+        return None
+    try:
+        c = float(d @ np.linalg.solve(V, d))
+    except np.linalg.LinAlgError:
+        return None
+    return c, len(d), _adequacy.chi2_sf(c, len(d))
+
+
+def _disagrees(est: dict, ee: dict, lib: str, instruments: Optional[dict]) -> str:
+    """Why the output-error estimate's error bars do not hold ("" when they may): it and the
+    library's IV estimate of the same samples disagree beyond both error bars, so an assumption
+    of one fails (exact and piecewise-linear inputs for the output error, no sensor offset for
+    the IV); the IV's bars are the tested ones (coverage, README), so the output error's row
+    is flagged U. Not where the IV is not used (weak instruments) or is the EKF."""
+    if lib != "iv" or (instruments and instruments.get("weak")) or est["quality"] & _core.QUALITY_REFINE_FAILED:
+        return ""
+    a = _agreement(est, ee)
+    if a is None or a[2] >= AGREEMENT_P:
+        return ""
+    return (f"the output-error and IV estimates disagree beyond their error bars (chi2 {a[0]:.3g} on {a[1]} "
+            f"degrees of freedom, p {a[2]:.2g} < {AGREEMENT_P:g}): an assumption of one fails (noise on an input "
+            "or a smooth input for the output error, a sensor offset for the IV); the output error's standard "
+            "errors do not hold (U)")
+
+
 def _oe_failure(ident: Any) -> str:
     """The reason of a failed output-error refinement (vibid_ident_describe's line)."""
     for line in ident.describe().splitlines():
@@ -498,8 +539,8 @@ def identify(stand: Stand | str | os.PathLike, data: Any, method: str = "auto",
     ee_code = _core.ESTIMATOR_EKF if config["method"] == "ekf" else _core.ESTIMATOR_IV
     lib = "ekf" if ee_code == _core.ESTIMATOR_EKF else "iv"
 
-    def result(est, description, cfg, offsets=None, adequacy=None, instruments=None):
-        return Result(stand, est, description, cfg, tracks, n, run.diverged, offsets, adequacy, instruments)
+    def result(est, description, cfg, offsets=None, adequacy=None, instruments=None, unsure=""):
+        return Result(stand, est, description, cfg, tracks, n, run.diverged, offsets, adequacy, instruments, unsure)
 
     def held(est):
         return _adequacy.unavailable(no_segment, None) if no_segment else _validate(stand, est, block, segment)
@@ -520,10 +561,13 @@ def identify(stand: Stand | str | os.PathLike, data: Any, method: str = "auto",
             raise VibidError(f"vibid_ident_estimate after {n} samples: {est['message']}")
         tr = ("\ntracks: the automatic estimator's (the output-error fit runs once, on the whole capture)"
               if len(tracks) else "")
-        # a failed refinement reports the automatic estimate: IV's, whose instruments are checked
-        instruments = (_first_stage(stand, block, config) if est["quality"] & _core.QUALITY_REFINE_FAILED
-                       and lib == "iv" else None)
-        return result(est, oe.describe() + tr, cfg, oe.offsets(), adequacy, instruments)
+        # the automatic estimate's instruments: checked where it is reported (a failed
+        # refinement) and before it is compared with the output error's
+        ins = _first_stage(stand, block, config) if lib == "iv" else None
+        unsure = _disagrees(est, final, lib, ins)
+        failed = est["quality"] & _core.QUALITY_REFINE_FAILED
+        return result(est, oe.describe() + tr + (f"\n{unsure}" if unsure else ""), cfg, oe.offsets(), adequacy,
+                      ins if failed else None, unsure)
 
     if method != "auto" or no_segment:
         cfg = config
@@ -592,7 +636,10 @@ def identify(stand: Stand | str | os.PathLike, data: Any, method: str = "auto",
         why += (f"; but its fit on the whole capture failed ({_oe_failure(oe)}): the equation-error estimate "
                 "stands, flagged R")
         cfg["method"] = f"auto({lib})"
+    unsure = _disagrees(est, final, lib, instruments)
+    if unsure:
+        why += "; " + unsure
     cfg["choice"] = why
     tr = "\ntracks: the automatic estimator's (the output-error fit runs on the whole capture once)" if len(tracks) else ""
     return result(est, why + "\n" + oe.describe() + tr, cfg, oe.offsets(), v_oe,
-                  instruments if cfg["method"] != "oe" else None)
+                  instruments if cfg["method"] != "oe" else None, unsure)
