@@ -4,7 +4,7 @@ the same process; never passes or fails on time (the project's rule for speed).
     python python/bench/bench_python.py            # the figures of docs/python.md "Benchmark"
     python python/bench/bench_python.py --quick    # tiny sizes: a smoke run (python/tests/test_bench.py)
 
-a. vibid.identify on 10^6 samples of the paper's example 1 (0.5 % noise, method auto) from
+a. vibid.identify on 10^6 samples of the paper's example 1 (0.5 % noise, method auto, holdout 0: the library's automatic estimator) from
    numpy arrays, against the same work done in C in this process (_core.bench_identify_c:
    vibid_ident_create with the same config, every sample through vibid_ident_push in one C
    loop from a buffer already in memory, vibid_ident_estimate; timed in C++ with the GIL
@@ -67,18 +67,20 @@ def spread(times) -> str:
 def bench_identify(stand, n: int, repeats: int) -> None:
     data, _ = example1_capture(n=n, noise=NOISE, seed=11)
     fblock = np.asfortranarray(np.column_stack([data[c] for c in stand.channels]))
-    print(f"\na. identify, example 1, {n:,} samples, 0.5 % noise, method auto; best of {repeats}, interleaved")
+    print(f"\na. identify, example 1, {n:,} samples, 0.5 % noise, method auto, holdout 0; best of {repeats}, interleaved")
     t_dict, t_arr, t_c, t_cols = [], [], [], []
     for _ in range(repeats):
         t0 = time.perf_counter()
-        r = vibid.identify(stand, data)
+        # holdout=0: the library's automatic estimator alone, what the C loop below runs
+        # (auto's validated choice adds the output-error fit: python/bench/bench_oe.py)
+        r = vibid.identify(stand, data, holdout=0)
         t_dict.append(time.perf_counter() - t0)
         # The yardstick with identify's settings: auto, forgetting 1, automatic pre-filter and
         # lag (identify passes exactly these for its defaults).
         sec, theta_c, se_c = _core.bench_identify_c(stand._core, fblock, METHODS["auto"], 1.0, -1.0, 0)
         t_c.append(sec)
         t0 = time.perf_counter()
-        r_arr = vibid.identify(stand, fblock)
+        r_arr = vibid.identify(stand, fblock, holdout=0)
         t_arr.append(time.perf_counter() - t0)
         # What the Python layer does before the C calls: gather the dict into one column-major
         # block and check every value is finite.
@@ -190,7 +192,7 @@ def hand_ls(df: pd.DataFrame, h: float) -> np.ndarray:
 
 
 def vibid_fit(stand, df):
-    return vibid.identify(stand, df).parameters["value"].to_numpy()
+    return vibid.identify(stand, df, holdout=0).parameters["value"].to_numpy()
 
 
 def _peak_rss_kib() -> tuple[int, int]:

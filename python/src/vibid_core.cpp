@@ -1,5 +1,5 @@
 // vibid._core: the thin nanobind layer over libvibid's C API (identify.h, modal.h,
-// plausibility.h; lsq.h, rls.h, iv.h for the estimator classes) and the stand loader (stand_file.h). All numerics stay in the C library;
+// plausibility.h, output_error.h; lsq.h, rls.h, iv.h for the estimator classes) and the stand loader (stand_file.h). All numerics stay in the C library;
 // this file converts arrays and statuses and nothing else. The Pythonic API (channel names,
 // DataFrames, tracks) is in vibid/*.py.
 #include <nanobind/nanobind.h>
@@ -16,6 +16,7 @@ extern "C" {
 #include <vibid/rls.h>
 #include <vibid/modal.h>
 #include <vibid/outlier.h>
+#include <vibid/output_error.h>
 #include <vibid/plausibility.h>
 #include <vibid/regressor.h>
 #include <vibid/stand_file.h>
@@ -154,7 +155,10 @@ public:
         ident_.reset(id);
         vibid_ident_config used;
         vibid_ident_get_config(id, &used);
-        state_space_ = used.estimator == VIBID_ESTIMATOR_EKF || used.estimator == VIBID_ESTIMATOR_KF_RLS;
+        // OE's start estimator is the EKF on stands that are not fully measured: its
+        // divergences are reported and skipped in the same way.
+        state_space_ = used.estimator == VIBID_ESTIMATOR_EKF || used.estimator == VIBID_ESTIMATOR_KF_RLS ||
+                       used.estimator == VIBID_ESTIMATOR_OE;
         // The reference for the damping-ratio rule, once (it allocates), as vibidd does.
         if (vibid_plausibility_ref_init(model_, nullptr, &pref_) != VIBID_OK) pref_.n_modes = 0;
     }
@@ -283,6 +287,19 @@ public:
         return e;
     }
 
+    // The last estimate's constant offsets (vibid_ident_offsets: OE only, else none):
+    // (channel indices in the sample, values, standard errors).
+    std::tuple<std::vector<size_t>, std::vector<double>, std::vector<double>> offsets() const {
+        size_t n = 0;
+        vibid_status s = vibid_ident_offsets(ident_.get(), 0, &n, nullptr, nullptr, nullptr);
+        if (s != VIBID_OK) raise_status("vibid_ident_offsets", s);
+        std::vector<size_t> ch(n);
+        std::vector<double> v(n), se(n);
+        s = vibid_ident_offsets(ident_.get(), n, &n, ch.data(), v.data(), se.data());
+        if (s != VIBID_OK) raise_status("vibid_ident_offsets", s);
+        return {ch, v, se};
+    }
+
     std::string describe() const {
         size_t len = 0;
         std::vector<char> buf(4096);
@@ -389,17 +406,19 @@ std::vector<std::tuple<size_t, size_t>> outliers(nb::ndarray<const double, nb::n
     return out;
 }
 
-// The equation errors e_k = y_k - x_k^T theta of the regression the estimators fit
-// (regressor.h: the same differences and pre-filter), one column per equation (node),
-// and the sample index each row describes (k - latency). Structured form only: the ZOH
-// form's coefficients are not the stand's parameters.
-std::tuple<std::vector<long>, Array2> stand_residuals(const Stand &st, const std::vector<double> &th,
-                                                      nb::ndarray<const double, nb::ndim<2>, nb::device::cpu> data,
-                                                      double prefilter_hz, unsigned order) {
-    check_theta(st, th, "residuals");
+// The regression the estimators fit (regressor.h: the same differences and pre-filter),
+// run over the capture: the sample index each row describes (k - latency), the regressors
+// X (rows x m equations, p columns: row r * m + i is equation i of row r, column-major) and
+// the targets Y (rows * m). Structured form only: the ZOH form's coefficients are not the
+// stand's parameters. For the equation errors of the report (stand_residuals) and the
+// first-stage strength of the instrumental variables (vibid/_adequacy.py), which are
+// products of these in numpy.
+std::tuple<std::vector<long>, Array2, Array1> stand_regression(const Stand &st,
+                                                               nb::ndarray<const double, nb::ndim<2>, nb::device::cpu> data,
+                                                               double prefilter_hz, unsigned order) {
     const size_t n = data.shape(0), nc = data.shape(1), p = st.dims().n_params;
     if (nc != st.dims().n_channels)
-        throw std::invalid_argument("residuals: " + std::to_string(nc) + " columns for " +
+        throw std::invalid_argument("regression: " + std::to_string(nc) + " columns for " +
                                     std::to_string(st.dims().n_channels) + " channels");
     std::unique_ptr<vibid_regressor, void (*)(vibid_regressor *)> reg(
         vibid_regressor_create_order(st.model(), 1.0 / st.sample_rate(), prefilter_hz, order), vibid_regressor_destroy);
@@ -408,12 +427,13 @@ std::tuple<std::vector<long>, Array2> stand_residuals(const Stand &st, const std
     vibid_status s = vibid_regressor_get_dims(reg.get(), &rd);
     if (s != VIBID_OK) raise_status("vibid_regressor_get_dims", s);
     if (rd.n_outputs != 1 || rd.n_regressors != p)
-        throw VibidError("residuals: the stand's regression is the ZOH difference form, whose coefficients are not "
-                         "the stand's parameters; no residuals of the structured equations");
+        throw VibidError("regression: the stand's regression is the ZOH difference form, whose coefficients are not "
+                         "the stand's parameters; no equations of the structured form");
     const size_t m = rd.n_equations;
-    std::vector<double> x(p * m), y(m), e;
+    std::vector<double> x(p * m), y(m), xs, ys;
     std::vector<long> rows;
-    e.reserve(n * m);
+    xs.reserve(n * m * p);
+    ys.reserve(n * m);
     const double *base = data.data();
     const int64_t rs = data.stride(0), cs = data.stride(1);
     size_t bad_row = 0;
@@ -430,20 +450,17 @@ std::tuple<std::vector<long>, Array2> stand_residuals(const Stand &st, const std
             }
             if (!ready) continue;
             rows.push_back(static_cast<long>(k - rd.latency));
-            for (size_t i = 0; i < m; ++i) {
-                double r = y[i];
-                for (size_t l = 0; l < p; ++l) r -= x[l + i * p] * th[l];
-                e.push_back(r);
-            }
+            xs.insert(xs.end(), x.begin(), x.end());  // x[l + i * p]: equation i, regressor l
+            ys.insert(ys.end(), y.begin(), y.end());
         }
     }
     if (s != VIBID_OK) raise_status(("vibid_regressor_push (row " + std::to_string(bad_row) + ")").c_str(), s);
-    // e is row-major (rows x m); the numpy array is column-major: transpose.
-    const size_t nr = rows.size();
-    std::vector<double> cm(nr * m);
+    // xs is row-major ((rows * m) x p); the numpy array is column-major: transpose.
+    const size_t nr = ys.size();
+    std::vector<double> cm(nr * p);
     for (size_t r = 0; r < nr; ++r)
-        for (size_t i = 0; i < m; ++i) cm[r + i * nr] = e[r * m + i];
-    return {rows, to_numpy(std::move(cm), nr, m)};
+        for (size_t l = 0; l < p; ++l) cm[r + l * nr] = xs[r * p + l];
+    return {rows, to_numpy(std::move(cm), nr, p), to_numpy(std::move(ys))};
 }
 
 // The model at theta driven by the capture's measured inputs (force channels, base
@@ -812,6 +829,113 @@ bool row_finite(const AnyArray3 &A, size_t k) {
                                        std::to_string(k - 1) + ")");
     raise_status(what.c_str(), s);
 }
+
+// ---- Output error (output_error.h, issue 29) ----
+// The stand's model simulated by the output-error fit's own simulator (vibid_oe_simulate:
+// linear stands exactly, cubic ones by RK4 with the fit's step doubling), for
+// Result.simulate / Result.validate and auto's held-out comparison (vibid/_adequacy.py),
+// and the fit itself (vibid_oe_fit; python/bench/bench_oe.py and the analyst comparison of
+// the tests). As thin as the rest: shapes are checked, arrays handed over.
+class Oe {
+public:
+    Oe(const Stand &st, bool offsets) : dims_(st.dims()) {
+        vibid_oe_config cfg;
+        vibid_oe_config_init(&cfg, 1.0 / st.sample_rate());
+        cfg.offsets = offsets ? 1 : 0;
+        vibid_oe *o = vibid_oe_create(st.model(), &cfg);
+        if (!o) throw VibidError(vibid_last_error());  // names the function and the reason
+        oe_.reset(o);
+        size_t ny = 0;
+        vibid_status s = vibid_oe_dims(o, &ny, nullptr);
+        if (s != VIBID_OK) raise_status("vibid_oe_dims", s);
+        resp_.resize(ny);
+        s = vibid_oe_dims(o, &ny, resp_.data());
+        if (s != VIBID_OK) raise_status("vibid_oe_dims", s);
+    }
+
+    // The response channels' indices in the sample (the offsets' order).
+    std::vector<size_t> response_channels() const { return resp_; }
+
+    // n_samples x n_response simulated response channels (offsets added when given).
+    Array2 simulate(const std::vector<double> &theta, const std::optional<std::vector<double>> &x0,
+                    const std::optional<std::vector<double>> &offsets, const AnyArray2 &data) {
+        check_vector("simulate", "theta", theta, dims_.n_params, true);
+        if (x0) check_vector("simulate", "x0", *x0, 2 * dims_.n_dof, false);
+        if (offsets) check_vector("simulate", "offsets", *offsets, resp_.size(), false);
+        const size_t n = data.shape(0), ny = resp_.size();
+        if (data.shape(1) != dims_.n_channels)
+            throw std::invalid_argument("simulate: data has " + std::to_string(data.shape(1)) + " columns for " +
+                                        std::to_string(dims_.n_channels) + " channels");
+        std::vector<double> out(n * ny), buf;
+        vibid_status s;
+        {
+            Unlocked u(mutex_);
+            s = vibid_oe_simulate(oe_.get(), theta.data(), x0 ? x0->data() : nullptr,
+                                  offsets ? offsets->data() : nullptr, n, column_major(data, buf), out.data());
+        }
+        if (s != VIBID_OK) raise_status("vibid_oe_simulate", s);
+        return to_numpy(std::move(out), n, ny);
+    }
+
+    // The fit from the start vectors (p x n_starts); a failed fit is not raised: status,
+    // message and the best parameters found are in the dict (output_error.h).
+    nb::dict fit(const AnyArray2 &data, const AnyArray2 &starts) {
+        const size_t n = data.shape(0), p = dims_.n_params, ny = resp_.size(), n2 = 2 * dims_.n_dof;
+        if (data.shape(1) != dims_.n_channels)
+            throw std::invalid_argument("fit: data has " + std::to_string(data.shape(1)) + " columns for " +
+                                        std::to_string(dims_.n_channels) + " channels");
+        if (starts.shape(0) != p || starts.shape(1) < 1)
+            throw std::invalid_argument("fit: starts has shape " + shape_str(starts.shape(0), starts.shape(1)) +
+                                        ", needs (" + std::to_string(p) + ", n_starts >= 1)");
+        std::vector<double> th(p), se(p), cov(p * p), off(ny), off_se(ny), x0(n2), b1, b2;
+        vibid_oe_fit_info info{};
+        vibid_status s, rs;
+        std::string message;
+        {
+            Unlocked u(mutex_);
+            s = vibid_oe_fit(oe_.get(), n, column_major(data, b1), starts.shape(1), column_major(starts, b2));
+            if (s != VIBID_OK) message = vibid_last_error();
+            rs = vibid_oe_result(oe_.get(), th.data(), se.data(), cov.data(), off.data(), off_se.data(), x0.data(),
+                                 &info);
+        }
+        if (rs != VIBID_OK) raise_status(("vibid_oe_fit: " + message + "; vibid_oe_result").c_str(), rs);
+        nb::dict d;
+        d["status"] = static_cast<int>(s);
+        d["message"] = message;
+        d["theta"] = to_numpy(std::move(th)).cast();
+        d["se"] = to_numpy(std::move(se)).cast();
+        d["covariance"] = to_numpy(std::move(cov), p, p).cast();
+        d["offsets"] = to_numpy(std::move(off)).cast();
+        d["offsets_se"] = to_numpy(std::move(off_se)).cast();
+        d["x0"] = to_numpy(std::move(x0)).cast();
+        d["failure"] = info.failure;
+        d["iterations"] = info.iterations;
+        d["start"] = info.start;
+        d["n_samples"] = info.n_samples;
+        d["n_blocks"] = info.n_blocks;
+        d["cost"] = info.cost;
+        d["rcond"] = info.rcond;
+        return d;
+    }
+
+private:
+    static void check_vector(const char *method, const char *name, const std::vector<double> &v, size_t want,
+                             bool finite) {
+        if (v.size() != want)
+            throw std::invalid_argument(std::string(method) + ": " + name + " has " + std::to_string(v.size()) +
+                                        " values, needs " + std::to_string(want));
+        if (finite)
+            for (double x : v)
+                if (!std::isfinite(x)) throw std::invalid_argument(std::string(method) + ": " + name + " is not finite");
+    }
+    struct Deleter {
+        void operator()(vibid_oe *o) const { vibid_oe_destroy(o); }
+    };
+    vibid_model_dims dims_;
+    std::vector<size_t> resp_;
+    std::unique_ptr<vibid_oe, Deleter> oe_;
+    std::mutex mutex_;
+};
 
 class Lsq {
 public:
@@ -1364,25 +1488,28 @@ NB_MODULE(_core, m) {
                  return d;
              })
         .def("describe", &Ident::describe)
+        .def("offsets", &Ident::offsets)
         .def("config", &Ident::config);
 
     // vibid check and the report (issue 13): see stand_identifiability and below.
     m.def("stand_identifiability", &stand_identifiability, "stand"_a);
     m.def("stand_channel_info", &stand_channel_info, "stand"_a);
     m.def("outliers", &outliers, "data"_a);  // vibid/outlier.h over a capture (identify)
-    m.def("stand_residuals", &stand_residuals, "stand"_a, "theta"_a, "data"_a, "prefilter_hz"_a, "order"_a);
+    m.def("stand_regression", &stand_regression, "stand"_a, "data"_a, "prefilter_hz"_a, "order"_a);
     m.def("stand_simulate", &stand_simulate, "stand"_a, "theta"_a, "data"_a, "substeps"_a = 8);
     m.def("bench_identify_c", &bench_identify_c, "stand"_a, "data"_a, "estimator"_a, "forgetting"_a,
           "prefilter_hz"_a, "iv_lag"_a);  // python/bench/bench_python.py
 
     m.attr("QUALITY_SE_INVALID") = VIBID_QUALITY_SE_INVALID;
     m.attr("QUALITY_NOT_EXCITED") = VIBID_QUALITY_NOT_EXCITED;
+    m.attr("QUALITY_REFINE_FAILED") = VIBID_QUALITY_REFINE_FAILED;
     m.attr("ESTIMATOR_LS") = static_cast<int>(VIBID_ESTIMATOR_LS);
     m.attr("ESTIMATOR_IV") = static_cast<int>(VIBID_ESTIMATOR_IV);
     m.attr("ESTIMATOR_RLS") = static_cast<int>(VIBID_ESTIMATOR_RLS);
     m.attr("ESTIMATOR_AUTO") = static_cast<int>(VIBID_ESTIMATOR_AUTO);
     m.attr("ESTIMATOR_EKF") = static_cast<int>(VIBID_ESTIMATOR_EKF);
     m.attr("ESTIMATOR_KF_RLS") = static_cast<int>(VIBID_ESTIMATOR_KF_RLS);
+    m.attr("ESTIMATOR_OE") = static_cast<int>(VIBID_ESTIMATOR_OE);
 
     // vibid/units.h, the one unit table of every vibid program, for the capture readers:
     // (value in SI) = factor * (value in unit). ValueError naming the accepted spellings
@@ -1461,6 +1588,13 @@ NB_MODULE(_core, m) {
         .def("set_prior", &Riv::set_prior, "theta0"_a.none(), "P0"_a.none())
         .def_prop_ro("p", &Riv::p)
         .def_prop_ro("q", &Riv::q);
+    nb::class_<Oe>(m, "Oe")
+        // vibid_oe_create copies the model: the stand may go first
+        .def(nb::init<const Stand &, bool>(), "stand"_a, "offsets"_a = true)
+        .def("response_channels", &Oe::response_channels)
+        .def("simulate", &Oe::simulate, "theta"_a, "x0"_a.none(), "offsets"_a.none(), "data"_a)
+        .def("fit", &Oe::fit, "data"_a, "starts"_a);
+
     m.attr("RLS_FORM_BIERMAN_UD") = static_cast<int>(VIBID_RLS_FORM_BIERMAN_UD);
     m.attr("RLS_FORM_COVARIANCE") = static_cast<int>(VIBID_RLS_FORM_COVARIANCE);
 }

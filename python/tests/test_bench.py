@@ -63,3 +63,24 @@ def test_bench_quick_prints_every_figure():
     # tolerance test_identify.py asserts for this case. (The hand LS is biased by the noise;
     # its error is printed, not asserted: showing it is the point of the comparison.)
     assert values["vibid.identify: largest |error| vs truth"] < 1.0
+
+
+def test_bench_oe_quick_runs():
+    # python/bench/bench_oe.py --quick (10^4 samples of the 3-DOF chain): it runs to the end,
+    # prints both times and their ratio, and both fits land on the truth: the chain's
+    # estimates are within 0.05 % (3 se of the dampers' 0.017 %) for both, since they fit the
+    # same model to the same data (times are printed, never asserted).
+    bench = REPO / "python" / "bench" / "bench_oe.py"
+    proc = subprocess.run([sys.executable, str(bench), "--quick"], cwd=REPO, capture_output=True, text=True,
+                          timeout=900)
+    assert proc.returncode == 0, proc.stderr
+    print(proc.stdout)
+    out = proc.stdout
+    assert "the fit alone (vibid_oe_fit)" in out and "ratio analyst / vibid fit:" in out
+    ratio = float(out.split("ratio analyst / vibid fit:")[1].split("x")[0])
+    assert math.isfinite(ratio) and ratio > 0
+    for who in ("vibid", "analyst"):
+        line = next(s for s in out.splitlines() if s.strip().startswith(f"{who} ") and "error %" in s)
+        errs = [float(v) for v in line.split(":", 1)[1].split()[1::2]]
+        assert len(errs) == 6 and max(abs(e) for e in errs) < 0.05, line
+    assert "identify(method='oe') equals the fit alone: True" in out

@@ -16,7 +16,8 @@ import pandas as pd
 import pytest
 
 import vibid
-from conftest import EX1_TRUTH, EXAMPLE1, REPO, example1_capture
+from vibid import _adequacy
+from conftest import EX1_TRUTH, EXAMPLE1, REPO, example1_capture, sim_path
 from vibid import _cli
 
 # The console script pip installed next to the interpreter running the tests (the venv's).
@@ -103,7 +104,9 @@ def test_identify_prints_the_estimate(identified):
         assert r["f_se"] == f"{m['freq_hz_se']:.10g}" and r["zeta_se"] == f"{m['zeta_se']:.10g}"
     # what the automatic estimator chose, in the library's words
     assert ref.description.splitlines()[0] in proc.stdout
-    assert "settings in force: method auto" in proc.stdout
+    # auto's validated choice (test_output_error.py): its method and its reason are printed
+    assert f"settings in force: method {ref.method}" in proc.stdout
+    assert ref.config["choice"] in proc.stdout
     assert proc.stderr == ""
 
 
@@ -128,8 +131,9 @@ def test_report_is_self_contained(identified):
     assert "http://" not in doc and "https://" not in doc
     assert "<script" not in doc and "<link" not in doc and "href=" not in doc
     srcs = re.findall(r'src="([^"]*)"', doc)
-    # tracks, residuals, excitation spectrum, measured against model
-    assert len(srcs) == 4, srcs
+    # tracks, residuals, excitation spectrum, measured against model, held-out part measured
+    # against simulated, residual spectrum
+    assert len(srcs) == 6, srcs
     for s in srcs:
         assert s.startswith("data:image/png;base64,"), s[:40]
         assert base64.b64decode(s.split(",", 1)[1])[:8] == b"\x89PNG\r\n\x1a\n"
@@ -138,6 +142,8 @@ def test_report_is_self_contained(identified):
     assert '<section id="flags">' in doc
     assert html.escape(ref.description) in doc
     assert "Not available" not in doc  # every section drawn for this stand
+    held = doc[doc.index('<section id="holdout">'):doc.index('<section id="residual-spectrum">')]
+    assert html.escape(vibid._identify.adequacy_line(ref)) in held
 
 
 def test_report_model_response_table(identified, capture):
@@ -154,11 +160,19 @@ def test_report_model_response_table(identified, capture):
     assert set(nrmse) == {"x1", "x2"}
     for v in nrmse.values():
         assert f"<td>{v:.10g}</td>" in section, (v, section[:2000])
-    # The estimate is off by 1e-5 relative (c1), which moves the 22.8/48.1 Hz resonances by
-    # 5e-6; near a resonance (zeta 0.065, 0.043) the response changes by about that shift /
-    # zeta, ~1e-4. Measured 4.9e-5 (x1), 3.8e-5 (x2); the simulation's own floor is 3e-6
-    # (next test).
-    assert all(v < 2e-4 for v in nrmse.values()), nrmse
+    # auto keeps the output-error estimate on this capture (test_output_error.py), whose
+    # damper is 6.5e-4 low (the fit's inputs are linear between samples, the multisine is
+    # not: docs/python.md); near a resonance the response changes by about that relative
+    # change of zeta. Measured 5.0e-4 (x1), 4.5e-4 (x2); the simulation's own floor is 3e-6
+    # (next test). The library's automatic estimate alone (1e-5 off) stays below 2e-4.
+    assert all(v < 1e-3 for v in nrmse.values()), nrmse
+    ee = vibid.identify(EXAMPLE1, capture, holdout=0)
+    sim, start = _cli.model_response(ee, block)
+    fit = _cli.response_fit(ee, block, sim, start)
+    # the IV estimate is off by 1e-5 relative (c1), which moves the 22.8/48.1 Hz resonances
+    # by 5e-6; near a resonance (zeta 0.065, 0.043) the response changes by about that shift
+    # / zeta, ~1e-4. Measured 4.9e-5 (x1), 3.8e-5 (x2).
+    assert (fit["nrmse"] < 2e-4).all(), fit
 
 
 def test_model_response_with_the_truth_reproduces_the_capture(capture):
@@ -186,11 +200,11 @@ def test_residuals_at_the_truth_are_the_stencil_bias(capture):
     # Measured 0.033 N (m1) and 0.52 N (m2) at the truth, 0.035 and 0.50 N at the estimate:
     # 2e-4 of the force scale (1.3 N) holds both with a factor 2.5, and a spring off by 1e-3
     # fails it (c1: 3.1 N, c2: 12.8 N, asserted below for c2).
-    r = vibid.identify(EXAMPLE1, capture)
+    r = vibid.identify(EXAMPLE1, capture, holdout=0)  # the equation-error estimate
     block, _ = vibid._identify._columns(r.stand, capture)
     truth = [EX1_TRUTH[p] for p in r.stand.parameters]
-    idx, e_true = vibid._core.stand_residuals(r.stand._core, truth, block, r.config["prefilter_hz"],
-                                              r.config["difference_order"])
+    idx, e_true = _adequacy.equation_errors(r.stand, truth, block, r.config["prefilter_hz"],
+                                            r.config["difference_order"])
     assert e_true.shape == (len(idx), 2)  # one equation per node
     # five-point stencils: the first row describes sample 2 (window 0..4), the last N - 3
     assert idx[0] == 2 and idx[-1] == len(block) - 3
@@ -203,8 +217,8 @@ def test_residuals_at_the_truth_are_the_stencil_bias(capture):
     assert (rms_est < 2e-4 * force).all(), (rms_est, force)
     off = list(truth)
     off[r.stand.parameters.index("c2")] *= 1.001
-    _, e_off = vibid._core.stand_residuals(r.stand._core, off, block, r.config["prefilter_hz"],
-                                           r.config["difference_order"])
+    _, e_off = _adequacy.equation_errors(r.stand, off, block, r.config["prefilter_hz"],
+                                         r.config["difference_order"])
     assert np.sqrt(np.mean(e_off[skip:, 1] ** 2)) > 5 * 2e-4 * force  # m2's equation holds c2
 
 
@@ -305,10 +319,40 @@ def test_simulate_with_vibid_sim(tmp_path):
     assert {"x1", "x2", "s"} <= set(df.columns) and len(df) == 4000  # 2 s at 2 kHz
 
 
+@pytest.mark.parametrize("stand_file, sim_file", [
+    ("examples/stands/paper_example1.cfg", "sim/examples/paper_example1_sim.cfg"),
+    ("examples/stands/paper_example2.cfg", "sim/examples/paper_example2_sim.cfg"),
+    ("examples/stands/paper_example1.cfg", "examples/demo/loopback_sim.cfg"),
+])
+def test_shipped_example_pairs_agree(tmp_path, stand_file, sim_file):
+    # Every shipped pair of stand and simulation files (docs/sim.md, the demo) must be a
+    # model that fits its data. The example pairs once disagreed: the simulations held the
+    # base over each sample, the stands declare it smooth, and example 1's estimate was off
+    # by 3.4 % at z up to 98, unflagged (issues 29, 33); example 2's by up to 17 se, and its
+    # simulation had no noise, so its error bars were the integrator's tolerance. Now the
+    # simulations follow the stands' declarations and carry 60 dB sensor noise: the first
+    # 5 s (example 1's shipped crack is at 6 s), every unknown within 3 of its standard
+    # errors (a 2-se interval covers 95 % of realisations; 3 se leaves these seed-fixed
+    # runs far from chance) and no flag.
+    sim = sim_path()
+    if not sim.is_file():
+        pytest.skip(f"no vibid-sim at {sim} (build the C suite, or set VIBID_SIM)")
+    out = tmp_path / "pair.csv"
+    proc = run("simulate", REPO / stand_file, out, "--sim", REPO / sim_file, "--duration", "5",
+               env=dict(os.environ, VIBID_SIM=str(sim)))
+    assert proc.returncode == 0, proc.stderr
+    stand = vibid.Stand.load(REPO / stand_file)
+    res = vibid.identify(stand, pd.read_csv(out, comment="#"))
+    assert res.flags == "", res.description  # "" = no flag (the table prints "-")
+    z = (res.parameters["value"] - res.parameters["true_value"]) / res.parameters["se"]
+    assert (z.abs() < 3.0).all(), z
+
+
 def test_report_of_a_state_space_estimate(tmp_path):
-    # A stand that is not fully measured (test_state_space.py): auto takes the EKF, which
-    # fits no regression, so the residual section says why it is missing; the rest is drawn,
-    # the model response included (the unmeasured m2 starts from rest).
+    # A stand that is not fully measured (test_state_space.py): the library's automatic
+    # estimator (--holdout 0: no validated choice) takes the EKF, which fits no regression, so
+    # the residual section says why it is missing, and so does the held-out section; the rest
+    # is drawn, the model response included (the unmeasured m2 starts from rest).
     from test_state_space import STAND, capture as ss_capture
     from vibid._stand import to_libconfig
     cfg = tmp_path / "pm.cfg"
@@ -316,12 +360,14 @@ def test_report_of_a_state_space_estimate(tmp_path):
     cap = tmp_path / "pm.csv"
     pd.DataFrame(ss_capture(n=5000)).to_csv(cap, index=False, float_format="%.17g")
     report = tmp_path / "pm.html"
-    proc = run("identify", cfg, cap, "--report", report)
+    proc = run("identify", cfg, cap, "--report", report, "--holdout", "0")
     assert proc.returncode == 0, proc.stderr
-    assert "method ekf" in proc.stdout
+    assert "method auto(ekf)" in proc.stdout
     doc = report.read_text()
     res = doc[doc.index('<section id="residuals">'):doc.index('<section id="excitation">')]
-    assert "Not available" in res and "state-space estimator ekf" in res, res
+    assert "Not available" in res and "state-space estimator auto(ekf)" in res, res
+    held = doc[doc.index('<section id="holdout">'):]
+    assert "Not available: holdout = 0" in held, held[:300]
     assert len(re.findall(r'src="data:image/png;base64,', doc)) == 3  # tracks, spectrum, response
 
 

@@ -1,7 +1,7 @@
 """The `vibid` command: identify a capture, check a stand, simulate one (docs/python.md).
 
     vibid identify STAND CAPTURE [--method M] [--forgetting G] [--prefilter-hz F]
-                   [--iv-lag L] [--track-every N] [--tracks OUT.csv] [--report OUT.html]
+                   [--iv-lag L] [--holdout H] [--track-every N] [--tracks OUT.csv] [--report OUT.html]
     vibid check STAND
     vibid simulate STAND OUT.csv [--sim SIM.cfg] [--duration S] [--seed N]
 
@@ -24,8 +24,8 @@ from typing import Optional, Sequence
 import numpy as np
 import pandas as pd
 
-from . import _core
-from ._identify import METHODS, Result, _columns, identify
+from . import _adequacy, _core
+from ._identify import HOLDOUT, METHODS, Result, _columns, adequacy_line, identify
 from ._stand import Stand
 
 PROG = "vibid"
@@ -38,6 +38,11 @@ FLAG_MEANING = {
     "U": "the standard errors do not hold (ls/rls always; auto/iv: the older and newer halves of the blocks "
          "disagree, or too few blocks)",
     "I": "hardly informed by the data (its se is inf)",
+    "R": "the output-error refinement failed (no convergence, a bound, a singular information matrix, a diverged "
+         "simulation): the equation-error estimate stands, the reason in the estimator's description",
+    "M": "the model cannot explain the data: on the held-out part its simulation leaves more than "
+         f"{_adequacy.NRMSE_LIMIT:g} NRMSE, or residuals that are not white with a predictable part above "
+         f"{_adequacy.STRUCTURED_LIMIT:g} of the outputs' RMS (docs/python.md, \"Model adequacy\")",
 }
 
 
@@ -75,6 +80,13 @@ def parameter_table(result: Result) -> str:
     return _table(header, rows)
 
 
+def offset_table(result: Result) -> str:
+    """The output-error estimate's sensor offsets (measured = true + offset)."""
+    rows = [[str(name), _fmt(r["value"]), _fmt(r["se"]), r["unit"], r["quantity"]]
+            for name, r in result.offsets.iterrows()]
+    return _table(["offset", "value", "se", "unit", "quantity"], rows)
+
+
 def mode_table(result: Result) -> str:
     rows = [[str(i), _fmt(r["freq_hz"]), _fmt(r["freq_hz_se"]), _fmt(r["zeta"]), _fmt(r["zeta_se"]), r["flags"] or "-"]
             for i, r in result.modes.iterrows()]
@@ -96,6 +108,14 @@ def warnings_of(result: Result) -> list[str]:
             out.append(f"mode {i} flagged P: {FLAG_MEANING['P']}")
     if result.why:
         out.append("implausible: " + result.why)
+    if result.adequacy.get("flag"):
+        out.append("the model cannot explain the data: " + result.adequacy["why"])
+    if result.unsure:
+        out.append(result.unsure)
+    ins = result.instruments
+    if ins and ins.get("weak"):
+        out.append(f"the instruments of the IV are weak: first-stage F {ins['f_stat']:.3g} < {_adequacy.WEAK_F:g} "
+                   f"(smallest canonical correlation {ins['rho_min']:.3g}): its estimate and error bars are unreliable")
     if math.isfinite(result.z_consistency):
         out.append(f"consistency of the older and newer halves of the blocks: largest |z| = "
                    f"{result.z_consistency:.3g} (U above 4)")
@@ -103,7 +123,7 @@ def warnings_of(result: Result) -> list[str]:
         out.append(f"the state-space filter diverged at {result.diverged_samples} samples and restarted")
     if len(result.tracks):
         fl = result.tracks["flags"].astype(str)
-        for letter in "EPUI":
+        for letter in "EPUIR":
             k = int(fl.str.contains(letter).sum())
             if k:
                 out.append(f"{k} of {len(fl)} track rows flagged {letter}")
@@ -186,9 +206,8 @@ def residuals(result: Result, block: np.ndarray) -> tuple[np.ndarray, np.ndarray
     pre-filter and differences), one column per node's equation, and the sample index of
     each row."""
     c = result.config
-    idx, e = _core.stand_residuals(result.stand._core, list(result.parameters["value"].to_numpy(float)), block,
-                                   float(c["prefilter_hz"]), int(c["difference_order"]))
-    return np.asarray(idx), np.asarray(e)
+    return _adequacy.equation_errors(result.stand, result.parameters["value"].to_numpy(float), block,
+                                     float(c["prefilter_hz"]), int(c["difference_order"]))
 
 
 def _residual_figure(result: Result, block: np.ndarray):
@@ -260,26 +279,74 @@ def _spectrum_figure(result: Result, block: np.ndarray):
     return fig, chans
 
 
-def _response_figure(result: Result, block: np.ndarray, sim: np.ndarray, start: int):
+def _last_periods(result: Result, first: int, stop: int) -> np.ndarray:
+    """Sample indices of a window of five periods of the lowest identified mode (at least
+    0.2 s) at the end of [first, stop): the whole capture would be a solid band at this scale."""
+    fs = result.stand.sample_rate
+    fmin = min([f for f in result.modes["freq_hz"] if math.isfinite(f) and f > 0] or [fs / 100])
+    w = int(min(stop - first, max(0.2 * fs, 5 * fs / fmin)))
+    return np.arange(stop - w, stop)
+
+
+def _overlay_figure(result: Result, k: np.ndarray, rows, label: str):
+    """One axis per (channel, measured, model) of rows, both over the samples k."""
     from ._plot import _figure
 
-    roles = [(i, ch) for i, (ch, kind, idx, _) in enumerate(channel_roles(result.stand)) if kind != "input" and idx != -2]
-    fs = result.stand.sample_rate
-    # A window of five periods of the lowest identified mode (at least 0.2 s) at the end of
-    # the capture: the whole capture would be a solid band at this scale.
-    fmin = min([f for f in result.modes["freq_hz"] if math.isfinite(f) and f > 0] or [fs / 100])
-    w = int(min(block.shape[0] - start, max(0.2 * fs, 5 * fs / fmin)))
-    sl = slice(block.shape[0] - w, block.shape[0])
-    t = np.arange(block.shape[0])[sl] / fs
-    fig = _figure(figsize=(8.0, 2.0 * len(roles) + 0.5), layout="constrained")
-    axes = fig.subplots(len(roles), 1, sharex=True, squeeze=False)[:, 0]
-    for ax, (i, ch) in zip(axes, roles):
-        ax.plot(t, block[sl, i], color="k", linewidth=1.0, label="measured")
-        ax.plot(t, sim[sl, i], color="C1", linewidth=1.0, linestyle="--", label="model (identified)")
+    t = k / result.stand.sample_rate
+    fig = _figure(figsize=(8.0, 2.0 * len(rows) + 0.5), layout="constrained")
+    axes = fig.subplots(len(rows), 1, sharex=True, squeeze=False)[:, 0]
+    for ax, (ch, measured, model) in zip(axes, rows):
+        ax.plot(t, measured, color="k", linewidth=1.0, label="measured")
+        ax.plot(t, model, color="C1", linewidth=1.0, linestyle="--", label=label)
         ax.set_ylabel(ch)
         ax.grid(True, alpha=0.3)
         ax.legend(fontsize="small", loc="upper right")
     axes[-1].set_xlabel("time [s]")
+    return fig
+
+
+def _response_figure(result: Result, block: np.ndarray, sim: np.ndarray, start: int):
+    k = _last_periods(result, start, block.shape[0])
+    rows = [(ch, block[k, i], sim[k, i]) for i, (ch, kind, idx, _) in enumerate(channel_roles(result.stand))
+            if kind != "input" and idx != -2]
+    return _overlay_figure(result, k, rows, "model (identified)")
+
+
+def _holdout_figure(result: Result, block: np.ndarray):
+    """Measured against simulated response channels on the held-out part (the adequacy's
+    fitted simulation), over its last five periods of the lowest mode (at least 0.2 s)."""
+    start, stop = result.adequacy["segment"]
+    sim = result.adequacy["simulated"]
+    k = _last_periods(result, start, stop)
+    rows = [(ch, block[k, result.stand.channels.index(ch)], sim[ch].to_numpy()[k - start]) for ch in sim.columns]
+    return _overlay_figure(result, k, rows, "simulated (estimate of the first part)")
+
+
+def _residual_spectrum_figure(result: Result, block: np.ndarray):
+    """Welch PSD of the held-out simulation residuals per response channel, beside the
+    measured channel's, the identified natural frequencies dotted."""
+    from ._plot import _figure, welch_psd
+
+    a = result.adequacy
+    start, stop = a["segment"]
+    sim = a["simulated"]
+    fs = result.stand.sample_rate
+    fig = _figure(figsize=(8.0, 2.2 * sim.shape[1] + 0.5), layout="constrained")
+    axes = fig.subplots(sim.shape[1], 1, sharex=True, squeeze=False)[:, 0]
+    for ax, ch in zip(axes, sim.columns):
+        z = block[start:stop, result.stand.channels.index(ch)]
+        f, pz = welch_psd(z, fs)
+        _, pe = welch_psd(z - sim[ch].to_numpy(), fs)
+        ax.semilogy(f[1:], pz[1:], color="0.5", linewidth=0.8, label=f"{ch} measured")
+        ax.semilogy(f[1:], pe[1:], color="C3", linewidth=0.8, label="residual (measured - simulated)")
+        for fm in result.modes["freq_hz"]:
+            if math.isfinite(fm):
+                ax.axvline(fm, color="k", linestyle=":", linewidth=0.8)
+        ax.set_ylabel("PSD")
+        ax.grid(True, alpha=0.3, which="both")
+        ax.legend(fontsize="small")
+    axes[-1].set_xlabel("frequency [Hz]")
+    axes[-1].set_xlim(0, fs / 2)
     return fig
 
 
@@ -300,7 +367,9 @@ def write_report(result: Result, block: np.ndarray, capture: str, path: str) -> 
         sec.append(f'<section id="{id_}"><h2>{esc(title)}</h2>\n{body}\n</section>')
 
     st = result.stand
-    section("parameters", "Parameters", _html_table(result.parameters))
+    section("parameters", "Parameters", _html_table(result.parameters)
+            + ("<p>Sensor offsets of the output-error estimate (measured = true + offset):</p>"
+               + _html_table(result.offsets) if len(result.offsets) else ""))
     section("modes", "Modes", _html_table(result.modes))
     warns = warnings_of(result)
     body = ("<ul>" + "".join(f"<li>{esc(w)}</li>" for w in warns) + "</ul>") if warns else \
@@ -314,7 +383,7 @@ def write_report(result: Result, block: np.ndarray, capture: str, path: str) -> 
             "<p>No tracks (--track-every 0): the final estimate with its 2-se error bar per parameter.</p>"
             + figure(result.plot(), "parameters with 2-se error bars"))
     try:
-        if result.method in ("ekf", "kf_rls"):
+        if result.method in ("ekf", "kf_rls", "auto(ekf)"):
             raise ValueError(f"the state-space estimator {result.method} fits the states' equations through a "
                              "Kalman filter, not the regression whose equation errors are shown here")
         fig, n, band, outside, max_lag = _residual_figure(result, block)
@@ -349,6 +418,21 @@ def write_report(result: Result, block: np.ndarray, capture: str, path: str) -> 
                 + figure(_response_figure(result, block, sim, start), "measured against model response"))
     except (_core.VibidError, ValueError) as e:
         section("response", "Measured against model response", f"<p>Not available: {esc(str(e))}</p>")
+    a = result.adequacy
+    if a.get("unavailable"):
+        section("holdout", "Held-out part: measured against simulated", f"<p>Not available: {esc(a['unavailable'])}</p>")
+    else:
+        start, stop = a["segment"]
+        section("holdout", "Held-out part: measured against simulated",
+                f"<p>The estimate from samples 0..{start - 1} simulated on the held-out samples {start}..{stop - 1} "
+                f"(the library's output-error simulator, its initial state and one offset per channel fitted with "
+                f"the parameters fixed; docs/python.md \"Model adequacy\"). {esc(adequacy_line(result))}.</p>"
+                + _html_table(a["channels"]) + figure(_holdout_figure(result, block), "held-out measured and simulated"))
+        section("residual-spectrum", "Residual spectrum (held-out part)",
+                "<p>Welch PSD (Hann, 4096-sample segments, 50 % overlap) of the held-out simulation residuals beside "
+                "the measured channels'; the identified natural frequencies dotted. Residuals of a model that explains "
+                "the data are flat (white sensor noise); peaks at or between the modes are dynamics the model does not "
+                "have.</p>" + figure(_residual_spectrum_figure(result, block), "residual spectrum"))
     head = (f"<h1>vibid identify: {esc(st.name)}</h1><p>stand <code>{esc(st.source)}</code>, capture "
             f"<code>{esc(capture)}</code>, {result.n_samples} samples at {st.sample_rate:g} Hz "
             f"({result.n_samples / st.sample_rate:.6g} s), method {esc(result.method)}, flags "
@@ -390,10 +474,13 @@ def cmd_identify(a: argparse.Namespace) -> int:
         # with decimation = f_a / 10), so that the report shows how the estimate settled.
         track_every = max(1, int(round(stand.sample_rate / 10)))
     result = identify(stand, data, method=a.method, forgetting=a.forgetting, prefilter_hz=a.prefilter_hz,
-                      iv_lag=a.iv_lag, track_every=track_every)
+                      iv_lag=a.iv_lag, track_every=track_every, holdout=a.holdout)
     out = [f"stand {stand.name} ({stand.source}), capture {a.capture}: {result.n_samples} samples at "
            f"{stand.sample_rate:g} Hz, method {result.method}, flags {result.flags or '-'}", "",
-           parameter_table(result), "", mode_table(result), ""]
+           parameter_table(result), ""]
+    if len(result.offsets):
+        out += [offset_table(result), ""]
+    out += [mode_table(result), "", adequacy_line(result), ""]
     warns = warnings_of(result)
     out += ["warnings:"] + [f"  {w}" for w in warns] if warns else ["warnings: none"]
     out += ["", config_line(result), "estimator:"] + [f"  {line}" for line in result.description.splitlines()]
@@ -482,6 +569,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--forgetting", type=float, metavar="G", help="forgetting factor in (0, 1]")
     p.add_argument("--prefilter-hz", type=float, metavar="F", help="pre-filter cutoff in Hz, 0 = off")
     p.add_argument("--iv-lag", type=int, metavar="L", help="instrument delay in samples")
+    p.add_argument("--holdout", type=float, metavar="H", default=HOLDOUT,
+                   help=f"held-out fraction at the capture's end for auto's choice and the adequacy figures "
+                   f"(default {HOLDOUT:g}; 0: none, auto is the library's automatic estimator alone)")
     p.add_argument("--track-every", type=int, metavar="N", help="a track row every N samples (default with "
                    "--tracks/--report: 0.1 s of samples; else identify's default)")
     p.add_argument("--tracks", metavar="OUT.csv", help="write the tracks here (overwritten)")

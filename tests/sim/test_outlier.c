@@ -142,8 +142,8 @@ static void test_shipped(void **state)
     (void)state;
     snprintf(stand_dir, sizeof stand_dir, "%s/..", VIBID_SIM_SOURCE_DIR);
     const char *ex1 = shipped("examples/stands/paper_example1.cfg"), *ex2 = shipped("examples/stands/paper_example2.cfg");
-    clean("example 1, shipped simulation (held base)", ex1, shipped("sim/examples/paper_example1_sim.cfg"), 20000);
-    clean("example 2, shipped simulation (cubic, no noise)", ex2, shipped("sim/examples/paper_example2_sim.cfg"),
+    clean("example 1, shipped simulation", ex1, shipped("sim/examples/paper_example1_sim.cfg"), 20000);
+    clean("example 2, shipped simulation (cubic, 60 dB)", ex2, shipped("sim/examples/paper_example2_sim.cfg"),
           20000);
     clean("example 1, demo (smooth base, 60 dB)", ex1, shipped("examples/demo/loopback_sim.cfg"), 20000);
     clean("example 1, daemon tests' steady run", ex1, shipped("tests/daemon/data/sim_steady.cfg"), 20000);
