@@ -41,7 +41,18 @@ def test_tracks_equal_vibidd_replay(tmp_path, ex1_clean, method):
     cfg.write_text(CONFIG.format(stand=EXAMPLE1, capture=capture, method=method, tracks=tracks))
     subprocess.run([str(vibidd), "-c", str(cfg), "--replay", str(capture)], check=True, cwd=tmp_path,
                    capture_output=True, timeout=120)
-    theirs = pd.read_csv(tracks, comment="#")
+    every = pd.read_csv(tracks, comment="#")
+    # vibidd adds the output-error refinement's row (flag R) of the 10 s window ending at the
+    # last sample (estimator.refine_every, docs/vibidd.md "Refinement"); identify has none
+    refined = every[every["flags"].fillna("").str.contains("R")]
+    theirs = every[~every.index.isin(refined.index)].reset_index(drop=True)
+    assert list(refined["index"]) == [19999]
+    # the refinement on these noise-free responses: c1, c2 within 1e-4 of the truth, d within
+    # 1e-3 (measured: -0.068 %, some 51 of its standard errors: the output-error fit treats the
+    # smooth base as linear between samples, a known gap of output_error.h; the row is not
+    # flagged for it, README "Daemon vibidd")
+    for name, truth, rtol in (("c1", 2.5e5, 1e-4), ("d", 300.0, 1e-3), ("c2", 1.5e6, 1e-4)):
+        assert abs(refined[name].iloc[0] / truth - 1) < rtol, (name, refined[name].iloc[0])
     ours = vibid.identify(EXAMPLE1, capture, method=method, track_every=500).tracks
     assert list(theirs["index"]) == list(ours["index"])
     value_cols = [c for c in ours.columns if c not in ("time_s", "index", "flags")]
