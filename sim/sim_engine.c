@@ -57,6 +57,9 @@ struct sim_engine {
     /* channels */
     vibid_channel_info *ch;
     double *noise_std, *resolution;
+    double *noise_offset; /* per channel: constant sensor zero error (simulation.noise offset) */
+    double *noise_ar;     /* per channel: AR(1) coefficient exp(-h / correlation_time); 0 = white */
+    double *noise_state;  /* per channel: the coloured noise's last value (channel units) */
     sim_rng noise_rng;
     uint64_t k;
     double tk;
@@ -358,8 +361,12 @@ sim_engine *sim_engine_create_internal(const vibid_stand *stand, const sim_confi
     e->ch = calloc(e->nch + 1, sizeof *e->ch);
     e->noise_std = calloc(e->nch + 1, sizeof(double));
     e->resolution = calloc(e->nch + 1, sizeof(double));
+    e->noise_offset = calloc(e->nch + 1, sizeof(double));
+    e->noise_ar = calloc(e->nch + 1, sizeof(double));
+    e->noise_state = calloc(e->nch + 1, sizeof(double));
     if (!e->theta0 || !e->theta || !e->theta_k || !e->M || !e->Minv || !e->work || !e->u || !e->f || !e->in_exc ||
-        !e->w_exc || !e->w_node || !e->d_base || !e->ch || !e->noise_std || !e->resolution)
+        !e->w_exc || !e->w_node || !e->d_base || !e->ch || !e->noise_std || !e->resolution || !e->noise_offset ||
+        !e->noise_ar || !e->noise_state)
         CFAIL("out of memory");
     if (e->p) memcpy(e->theta0, vibid_stand_true_values(stand), e->p * sizeof(double));
     for (size_t i = 0; i < e->p; i++) {
@@ -469,6 +476,8 @@ sim_engine *sim_engine_create_internal(const vibid_stand *stand, const sim_confi
     for (size_t i = 0; with_noise && i < cfg->n_noise; i++) {
         const sim_noise_spec *ns = &cfg->noise[i];
         e->resolution[ns->channel] = ns->resolution;
+        e->noise_offset[ns->channel] = ns->offset;
+        e->noise_ar[ns->channel] = ns->corr_time > 0.0 ? exp(-e->h / ns->corr_time) : 0.0;
         if (!isnan(ns->snr_db)) need_pilot = 1;
         else if (!isnan(ns->std)) e->noise_std[ns->channel] = ns->std;
     }
@@ -538,6 +547,9 @@ void sim_engine_destroy(sim_engine *e)
     free(e->ch);
     free(e->noise_std);
     free(e->resolution);
+    free(e->noise_offset);
+    free(e->noise_ar);
+    free(e->noise_state);
     free(e);
 }
 
@@ -703,7 +715,15 @@ int sim_engine_next(sim_engine *e, uint64_t *kout, double *tout, double *values,
         case VIBID_CHANNEL_INPUT: v = e->in_exc[ci->index] ? sim_exc_sample_value(e->in_exc[ci->index]) : 0.0; break;
         }
         if (clean) clean[c] = v;
-        if (e->noise_std[c] > 0.0) v += e->noise_std[c] * sim_rng_normal(&e->noise_rng);
+        if (e->noise_std[c] > 0.0) {
+            /* one normal draw per noisy channel and sample, white or coloured, so that colouring
+             * one channel leaves every other channel's noise as it was. Coloured: AR(1) with the
+             * stationary std noise_std from the first sample on (n_0 ~ N(0, std^2)). */
+            double w = e->noise_std[c] * sim_rng_normal(&e->noise_rng), a = e->noise_ar[c];
+            e->noise_state[c] = (a > 0.0 && k > 0) ? a * e->noise_state[c] + sqrt(1.0 - a * a) * w : w;
+            v += e->noise_state[c];
+        }
+        v += e->noise_offset[c];
         if (e->resolution[c] > 0.0) v = nearbyint(v / e->resolution[c]) * e->resolution[c];
         values[c] = v;
     }
