@@ -141,8 +141,11 @@ void BlockIV::merge_pairs() {
 
 std::size_t BlockIV::blocks_with_data() const { return n_closed_ + (cur_.n > 0 ? 1 : 0); }
 
-BlockIVResult BlockIV::solve(const double *theta_ref) const {
-    const Index P = static_cast<Index>(p_), Q = static_cast<Index>(q_);
+BlockIVResult BlockIV::solve(const double *theta_ref, std::size_t p_use) const {
+    if (p_use == 0 || p_use > p_) p_use = p_;
+    // The leading p_use regressors and their instruments: the sums of the others are kept
+    // but left out (identify.cpp: the constant-force columns come last).
+    const Index P = static_cast<Index>(p_use), Q = static_cast<Index>(q_);
     // Blocks in time order with their weights (discount to now for gamma < 1).
     struct View {
         const MatrixXd *G, *c;
@@ -168,10 +171,10 @@ BlockIVResult BlockIV::solve(const double *theta_ref) const {
         MatrixXd A = MatrixXd::Zero(P, P), C = MatrixXd::Zero(P, Q);
         VectorXd xx = VectorXd::Zero(P), ww = VectorXd::Zero(P);
         for (std::size_t b = from; b < to; ++b) {
-            A += views[b].w * *views[b].G;
-            C += views[b].w * *views[b].c;
-            xx += views[b].w * *views[b].xx;
-            ww += views[b].w * *views[b].ww;
+            A += views[b].w * views[b].G->topLeftCorner(P, P);
+            C += views[b].w * views[b].c->topRows(P);
+            xx += views[b].w * views[b].xx->head(P);
+            ww += views[b].w * views[b].ww->head(P);
         }
         // Scale rows (instruments) and columns (regressors) to unit norm, so that units
         // (N/m next to N/m^3) do not decide rank or conditioning.
@@ -189,7 +192,7 @@ BlockIVResult BlockIV::solve(const double *theta_ref) const {
         // Informed directions: scaled singular value at least 1e-7 of the largest. The
         // parameters that load on the others are marked; there the estimate keeps the
         // reference's component (a pseudo-inverse about theta_ref).
-        out.weak.assign(p_, 0);
+        out.weak.assign(p_use, 0);
         VectorXd sinv = VectorXd::Zero(P);
         out.rank = 0;
         for (Index k = 0; k < P; ++k) {
@@ -227,16 +230,16 @@ BlockIVResult BlockIV::solve(const double *theta_ref) const {
         VectorXd sv(PQ);
         double h2 = 0.0, hmax = 0.0;
         for (std::size_t b = from; b < to; ++b) {
-            const double h = views[b].w * (*views[b].G * Ainv).trace();
+            const double h = views[b].w * (views[b].G->topLeftCorner(P, P) * Ainv).trace();
             h2 += h * h;
             hmax = std::max(hmax, h);
-            const MatrixXd sb = views[b].w * (*views[b].c - *views[b].G * out.theta);
+            const MatrixXd sb = views[b].w * (views[b].c->topRows(P) - views[b].G->topLeftCorner(P, P) * out.theta);
             sv = Eigen::Map<const VectorXd>(sb.data(), PQ);
             meat.noalias() += sv * sv.transpose();
         }
         const double rk = static_cast<double>(out.rank);
         out.n_eff = h2 > 0.0 ? rk * rk / h2 : 0.0;
-        const bool usable = to - from > p_ + 1 && hmax < 0.9 && out.n_eff > rk + 1.0;
+        const bool usable = to - from > p_use + 1 && hmax < 0.9 && out.n_eff > rk + 1.0;
         if (usable) meat *= out.n_eff / (out.n_eff - rk);
         if (!usable) meat.setConstant(std::numeric_limits<double>::quiet_NaN());
         MatrixXd bread = MatrixXd::Zero(PQ, PQ);
@@ -257,7 +260,7 @@ BlockIVResult BlockIV::solve(const double *theta_ref) const {
     r.n_eff = all.n_eff;
     r.not_excited = all.weak;
     r.z_max = std::numeric_limits<double>::quiet_NaN();
-    if (K >= 2 * (p_ + 2)) {
+    if (K >= 2 * (p_use + 2)) {
         const Partial older = solve_range(0, K / 2, true), newer = solve_range(K / 2, K, true);
         if (older.ok && newer.ok) {
             double z = 0.0;

@@ -73,8 +73,11 @@ public:
     // separate some parameters in this window), the estimate keeps theta_ref's component
     // there and solves the informed directions only; those parameters are marked in
     // not_excited. Throws vibid::Error (VIBID_E_INSUFFICIENT_DATA when nothing is
-    // informed at all).
-    BlockIVResult solve(const double *theta_ref) const;
+    // informed at all). p_use (0 = all p): solve for the leading p_use regressors only,
+    // with their own instruments, leaving the others out of the model (their sums are
+    // kept: both fits come from the same sums); theta_ref then has p_use x q entries
+    // (column stride p_use) and the result is p_use x q.
+    BlockIVResult solve(const double *theta_ref, std::size_t p_use = 0) const;
 
 private:
     struct Block {
