@@ -85,6 +85,40 @@ void BlockIV::add(std::size_t n_rows, const double *X, const double *W, const do
     }
 }
 
+void BlockIV::add_constants(std::size_t n_rows, const double *X, const double *W, const double *Y, double ux,
+                            double uw) {
+    // add()'s loops on the leading pl columns, plus row r's constant column b (the only
+    // nonzero of the constant columns in that row): what add() would sum on the explicit
+    // columns, the zeros left out.
+    const double f = cur_scale_;
+    const Index pl = static_cast<Index>(p_ - n_rows), Q = static_cast<Index>(q_);
+    for (std::size_t r = 0; r < n_rows; ++r) {
+        const Index b = pl + static_cast<Index>(r);
+        const double wb = -uw, xb = -ux * f;
+        for (Index j = 0; j < pl; ++j) {
+            const double xj = X[r + static_cast<std::size_t>(j) * n_rows] * f;
+            cur_.xx(j) += xj * X[r + static_cast<std::size_t>(j) * n_rows];
+            if (xj == 0.0) continue;
+            for (Index i = 0; i < pl; ++i) cur_.G(i, j) += W[r + static_cast<std::size_t>(i) * n_rows] * xj;
+            cur_.G(b, j) += wb * xj;
+        }
+        cur_.xx(b) += xb * -ux;
+        if (xb != 0.0) {
+            for (Index i = 0; i < pl; ++i) cur_.G(i, b) += W[r + static_cast<std::size_t>(i) * n_rows] * xb;
+            cur_.G(b, b) += wb * xb;
+        }
+        for (Index i = 0; i < pl; ++i) {
+            const double wi = W[r + static_cast<std::size_t>(i) * n_rows];
+            cur_.ww(i) += f * wi * wi;
+            const double fwi = f * wi;
+            for (Index k = 0; k < Q; ++k) cur_.c(i, k) += fwi * Y[r + static_cast<std::size_t>(k) * n_rows];
+        }
+        cur_.ww(b) += f * wb * wb;
+        const double fwb = f * wb;
+        for (Index k = 0; k < Q; ++k) cur_.c(b, k) += fwb * Y[r + static_cast<std::size_t>(k) * n_rows];
+    }
+}
+
 void BlockIV::end_sample() {
     ++cur_.n;
     ++samples_;
@@ -141,7 +175,7 @@ void BlockIV::merge_pairs() {
 
 std::size_t BlockIV::blocks_with_data() const { return n_closed_ + (cur_.n > 0 ? 1 : 0); }
 
-BlockIVResult BlockIV::solve(const double *theta_ref, std::size_t p_use) const {
+BlockIVResult BlockIV::solve(const double *theta_ref, std::size_t p_use, bool consistency) const {
     if (p_use == 0 || p_use > p_) p_use = p_;
     // The leading p_use regressors and their instruments: the sums of the others are kept
     // but left out (identify.cpp: the constant-force columns come last).
@@ -260,7 +294,7 @@ BlockIVResult BlockIV::solve(const double *theta_ref, std::size_t p_use) const {
     r.n_eff = all.n_eff;
     r.not_excited = all.weak;
     r.z_max = std::numeric_limits<double>::quiet_NaN();
-    if (K >= 2 * (p_use + 2)) {
+    if (consistency && K >= 2 * (p_use + 2)) {
         const Partial older = solve_range(0, K / 2, true), newer = solve_range(K / 2, K, true);
         if (older.ok && newer.ok) {
             double z = 0.0;

@@ -60,7 +60,7 @@ struct vibid_ident {
     // Wald test's p-value (NaN: none made).
     std::size_t nb = 0;
     std::unique_ptr<vibid_lsq, LsqFree> lsq_c;
-    std::vector<double> ring_unit, rows_xc, rows_wc;
+    std::vector<double> ring_unit, rows_xc;  // rows_xc: LS's rows with the constant columns
     std::vector<double> const_values, const_se;
     double const_p = std::nan("");
     // IV and AUTO on the structured form, the discretization check: the same estimator
@@ -659,10 +659,7 @@ std::unique_ptr<vibid_ident> create_ident(const vibid_model *model, const vibid_
     id->rows_w.assign(id->p_reg * id->m, 0.0);
     id->nb = has_constant_columns(*model, rcfg) ? id->n : 0;
     const std::size_t pa = id->p_reg + id->nb;
-    if (id->nb) {
-        id->rows_xc.assign(pa * id->m, 0.0);
-        id->rows_wc.assign(pa * id->m, 0.0);
-    }
+    if (id->nb) id->rows_xc.assign(pa * id->m, 0.0);
     switch (rcfg.estimator) {
     case VIBID_ESTIMATOR_EKF: break;  // create_state_space
     case VIBID_ESTIMATOR_KF_RLS: break;
@@ -1123,9 +1120,8 @@ vibid_status push_sample(vibid_ident *ident, const double *channels) {
             transpose_into(old, p, m, ident->rows_w.data());
             if (ident->nb) {
                 // The constant's instrument is the constant column of the delayed row.
-                constant_rows(*ident, ident->rows_x.data(), unit, ident->rows_xc.data());
-                constant_rows(*ident, ident->rows_w.data(), ident->ring_unit[old_slot], ident->rows_wc.data());
-                ident->biv->add(m, ident->rows_xc.data(), ident->rows_wc.data(), ident->y.data());
+                ident->biv->add_constants(m, ident->rows_x.data(), ident->rows_w.data(), ident->y.data(), unit,
+                                          ident->ring_unit[old_slot]);
             } else {
                 ident->biv->add(m, ident->rows_x.data(), ident->rows_w.data(), ident->y.data());
             }
@@ -1256,11 +1252,15 @@ VIBID_API vibid_status vibid_ident_estimate(vibid_ident *ident, double *theta, d
             const double *ref = id.have_theta ? id.last_theta.data() : nullptr;
             vibid::BlockIVResult res;
             if (id.nb) {
+                // AUTO: the test needs the fit with the constants, not its consistency
+                // check (two more solves), which only the fit kept needs.
+                const bool on = id.cfg.constant_terms == VIBID_CONSTANT_ON;
                 try {
-                    res = id.biv->solve(ref, pa);
+                    res = id.biv->solve(ref, pa, on);
                     with_c = choose_constants(id, res.theta.col(0), res.cov);
+                    if (with_c && !on) res = id.biv->solve(ref, pa);
                 } catch (const vibid::Error &) {
-                    if (id.cfg.constant_terms == VIBID_CONSTANT_ON) throw;
+                    if (on) throw;
                 }
             }
             if (with_c) {
