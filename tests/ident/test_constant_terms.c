@@ -13,8 +13,11 @@
  *    p < 1e-3), every parameter within 3 of its standard errors of the truth, and each f0
  *    within 3 of its standard errors of C o; without constant terms the same data are more
  *    than 3.5 se off (IV, AUTO) and LS more than 10 of its se from its own offset-free
- *    estimate. LS itself is biased by the noise (identify.h: its textbook se are flagged not
- *    valid), so its 3-se check against the truth runs at 0.05 % noise;
+ *    estimate. LS itself is biased by the noise and its textbook se (flagged not valid)
+ *    are too small for coloured equation errors, so against the truth it is checked at
+ *    0.05 % noise by relative error: with constants every parameter and f0 within 0.1 %
+ *    (measured 0.014 %; 2.4 of its se in this realisation, in another realisation more than 3), without
+ *    some parameter more than 1 % off (k1 -1.8 %);
  *  - without offsets (100 noise realisations) the automatic rule keeps the plain estimate
  *    (AUTO) in at least 90 of them (measured 100 of 100; 99 bit-identical to OFF, one differs
  *    through the pre-filter pilot, whose candidate estimates make their own choice), and
@@ -26,6 +29,10 @@
  *    coverage of the plain estimator on the same noise without offsets (measured 98.0 %: the
  *    estimator is conservative on this short capture with or without constants; binomial sd
  *    0.6-0.9 % at 600), and that of the constants (300; measured 98.3 %) in [88 %, 99.5 %];
+ *  - the cubic stand at 9 samples per period (the issue's real capture in kind) with the same
+ *    offset: without constants the automatic estimate is useless (gain -35 %, d -15549 %,
+ *    no valid error bars); with them k, d and the gain within 1.4 se and 1.6 % (asserted: 3 se,
+ *    3 %); the cubic coefficient stays 29 % off (the offset's x^2 term), not asserted;
  *  - settings: OFF gives no constants and no test; ON with RLS is refused. */
 #include <math.h>
 #include <setjmp.h>
@@ -188,9 +195,14 @@ static void test_offsets(void **state)
     print_run("LS 0.05 %", &c, &l);
     print_run("  without", &c, &m);
     assert_int_equal(l.n_const, 3);
-    assert_true(max_z(&c, &l, c.truth) < 3.0);
-    for (size_t j = 0; j < 3; j++) assert_true(fabs(l.f0[j] - f0[j]) < 3.0 * l.f0_se[j]);
-    assert_true(max_z(&c, &m, c.truth) > 10.0);
+    double worst_l = 0.0, worst_m = 0.0;
+    for (size_t i = 0; i < c.p; i++) {
+        worst_l = fmax(worst_l, fabs(l.theta[i] / c.truth[i] - 1.0));
+        worst_m = fmax(worst_m, fabs(m.theta[i] / c.truth[i] - 1.0));
+    }
+    assert_true(worst_l < 1e-3);
+    for (size_t j = 0; j < 3; j++) assert_true(fabs(l.f0[j] / f0[j] - 1.0) < 1e-3);
+    assert_true(worst_m > 1e-2);
     free(plain);
     capture_free(&c);
 }
@@ -287,11 +299,49 @@ static void test_settings(void **state)
     capture_free(&c);
 }
 
+/* 1 DOF with a hardening cubic spring and an unknown input gain at 9 samples per period of
+ * its resonance (the issue's real capture in kind; as ident.output_error's silver stand). */
+static const char *silver_stand =
+    "stand = { name = \"silver\"; sample_rate = 610.35;\n"
+    "  nodes = ( { name = \"m\"; mass = 1.0; measure = { displacement = \"x\"; }; } );\n"
+    "  elements = ( { name = \"k\"; kind = \"spring\"; between = [\"m\", \"ground\"]; unknown = true; true_value = 1.8e5; },\n"
+    "               { name = \"d\"; kind = \"damper\"; between = [\"m\", \"ground\"]; unknown = true; true_value = 30.0; },\n"
+    "               { name = \"eps\"; kind = \"cubic_spring\"; between = [\"m\", \"ground\"]; unknown = true; true_value = 2.0e10; } );\n"
+    "  inputs = ( { name = \"u\"; node = \"m\"; gain = 1.0; unknown = true; true_value = 1.0; channel = \"F\"; } ); };\n"
+    "simulation = { seed = 9; excitation = ( { target = \"u\"; kind = \"noise\"; amplitude = 20.0; f_low = 5.0; f_high = 150.0; } ); };\n";
+
+/* The cubic stand with the offset: without constants the automatic estimate is useless (the
+ * issue's failure in kind); with them k, d and the gain are within 3 se and 3 %. The cubic
+ * coefficient is not checked: the offset also makes 3 eps o x^2 and 3 eps o^2 x, which a
+ * constant does not absorb (eps +29 %, 4 se, identify.h). */
+static void test_cubic_offset(void **state)
+{
+    (void)state;
+    capture c;
+    simulate(&c, "ct_silver.cfg", silver_stand, 8000);
+    double o[3];
+    add_noise(&c, 0.005);
+    add_offsets(&c, OFFSET, o);
+    const run a = identify(&c, c.noisy, VIBID_ESTIMATOR_AUTO, VIBID_CONSTANT_AUTO);
+    const run b = identify(&c, c.noisy, VIBID_ESTIMATOR_AUTO, VIBID_CONSTANT_OFF);
+    print_run("cubic, offset", &c, &a);
+    print_run("  without", &c, &b);
+    assert_int_equal(a.n_const, 1);
+    const size_t checked[3] = {0, 1, 3}; /* k, d, gain */
+    for (size_t i = 0; i < 3; i++) {
+        const size_t j = checked[i];
+        assert_true(fabs(a.theta[j] - c.truth[j]) < 3.0 * a.se[j]);
+        assert_true(fabs(a.theta[j] / c.truth[j] - 1.0) < 0.03);
+    }
+    assert_true(fabs(b.theta[3] / c.truth[3] - 1.0) > 0.2); /* the gain */
+    capture_free(&c);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_exact),    cmocka_unit_test(test_offsets),  cmocka_unit_test(test_no_offsets),
-        cmocka_unit_test(test_coverage), cmocka_unit_test(test_settings),
+        cmocka_unit_test(test_coverage), cmocka_unit_test(test_settings), cmocka_unit_test(test_cubic_offset),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
