@@ -214,9 +214,18 @@ typedef enum vibid_estimator {
  *      both fits); at each estimate the fit with them is formed, and a Wald test of all
  *      constants = 0 (chi-square with n degrees of freedom, on the estimator's own
  *      covariance) decides: p-value below 1e-3 keeps the fit with the constants, otherwise
- *      the plain fit stands, exactly as without this setting (README has the measured rates
- *      and precision costs). The last estimate's choice and p-value:
- *      vibid_ident_constant_forces; the rule itself: vibid_ident_describe.
+ *      the plain fit stands, the same as OFF (but for the pre-filter pilot, whose candidate
+ *      estimates each choose for themselves: 1 of 100 offset-free realisations differed in
+ *      ident.constant_terms). No covariance for the fit with the constants (too few blocks
+ *      early in a run, or n_eff <= p + n + 1: block_iv.hpp), no test: the plain fit stands.
+ *      With forgetting < 1 the blocks span about 6 memories, n_eff is about 10, so a stand
+ *      with p + n >= 9 gets no test (the chain of ident.constant_terms, p 6 + n 3, with
+ *      forgetting 0.9997: plain fit kept, d1 +28 % from the offsets; ON gives the fit with
+ *      the constants, flagged VIBID_QUALITY_SE_INVALID). LS's test uses its textbook
+ *      covariance, too small for coloured equation errors: it keeps the constants in about
+ *      half of offset-free captures, which costs it no accuracy. README has the measured
+ *      rates and costs. The last estimate's choice and p-value: vibid_ident_constant_forces;
+ *      the rule itself: vibid_ident_describe.
  *  ON:  always with the constants.
  *  OFF: never (the regression as before this setting; nothing is accumulated for them).
  * Estimators: LS, IV and AUTO on the structured form (central differences), also with
