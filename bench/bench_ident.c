@@ -222,7 +222,7 @@ int main(int argc, char **argv)
     } stands[2] = {{"example 1 (p = 3)", bench_example1()}, {"chain 3 DOF (p = 6)", bench_chain3()}};
     printf("%-22s %-44s %12s %12s %9s\n", "stand", "estimator", "ns/sample", "estimate us", "ratio");
     for (int s = 0; s < 2; s++) {
-        vibid_ident_config rls, aut, aut_f;
+        vibid_ident_config rls, aut, aut_f, aut_off;
         vibid_ident_config_init(&rls, H);
         rls.estimator = VIBID_ESTIMATOR_RLS; /* the former daemon default */
         rls.prefilter_hz = 200.0;
@@ -230,16 +230,21 @@ int main(int argc, char **argv)
         vibid_ident_config_init(&aut, H); /* the automatic estimator, all defaults */
         vibid_ident_config_init(&aut_f, H);
         aut_f.forgetting = 0.999;
-        double e0, e1, e2;
+        vibid_ident_config_init(&aut_off, H); /* without the constant-force columns */
+        aut_off.constant_terms = VIBID_CONSTANT_OFF;
+        double e0, e1, e2, e3;
         double t_rls = time_push(stands[s].m, &rls, n, &e0);
         double t_auto = time_push(stands[s].m, &aut, n, &e1);
         double t_auto_f = time_push(stands[s].m, &aut_f, n, &e2);
+        double t_auto_off = time_push(stands[s].m, &aut_off, n, &e3);
         printf("%-22s %-44s %12.1f %12.1f %9s\n", stands[s].name, "RLS, (1.17), 200 Hz pre-filter (yardstick)", t_rls,
                e0, "1.00");
         printf("%-22s %-44s %12.1f %12.1f %9.2f\n", stands[s].name, "auto (IV, block statistics)", t_auto, e1,
                t_auto / t_rls);
         printf("%-22s %-44s %12.1f %12.1f %9.2f\n", stands[s].name, "auto with forgetting 0.999", t_auto_f, e2,
                t_auto_f / t_rls);
+        printf("%-22s %-44s %12.1f %12.1f %9.2f\n", stands[s].name, "auto, constant terms off", t_auto_off, e3,
+               t_auto_off / t_rls);
         vibid_model_destroy(stands[s].m);
     }
     time_pilot_end();

@@ -454,6 +454,10 @@ int main(int argc, char **argv)
         fprintf(stderr, "vibid-sim: %s: %llu samples (%.6g s simulated at %g Hz) in %.3f s wall: real-time factor %.1f; %ld intervals by the exact step, %ld by ARKODE (%ld RK steps, %ld RHS evaluations)\n",
                 vibid_stand_name(stand), (unsigned long long)n_samples, simt, 1.0 / h, wall, wall > 0 ? simt / wall : INFINITY,
                 es.exact_intervals, es.arkode_intervals, es.steps, es.rhs_evals);
+        if (es.retried_pieces)
+            fprintf(stderr, "vibid-sim: %ld pieces integrated again by Dormand-Prince 5(4) after the configured "
+                            "method's error test failed repeatedly (docs/sim.md, \"Integration\")\n",
+                    es.retried_pieces);
         if (pace && j_n)
             fprintf(stderr, "vibid-sim: pacing (clock_nanosleep TIMER_ABSTIME): %llu periods of %.1f us: period jitter mean %.2f us, std %.2f us, max |dev| %.1f us; max lateness %.1f us\n",
                     (unsigned long long)j_n, h * 1e6, j_sum / (double)j_n * 1e6,

@@ -355,7 +355,7 @@ int sim_config_load(const char *path, const vibid_stand *stand, const uint64_t *
         const config_setting_t *e = config_setting_get_elem(nl, (unsigned)i);
         char p[128];
         snprintf(p, sizeof p, "simulation.noise.[%d]", i);
-        static const char *const nk[] = {"channel", "std", "snr_db", "resolution", NULL};
+        static const char *const nk[] = {"channel", "std", "snr_db", "resolution", "offset", "correlation_time", NULL};
         if (!config_setting_is_group(e)) {
             vibid_cfg_fail(&c, e, p, "must be a group { ... }");
             goto out;
@@ -375,11 +375,20 @@ int sim_config_load(const char *path, const vibid_stand *stand, const uint64_t *
                            "unknown channel '%s' (channels: %s)", ch, names);
             goto out;
         }
-        sim_noise_spec ns = {idx, NAN, NAN, 0.0}; /* std NaN: not given (the stand's noise may apply) */
+        sim_noise_spec ns = {idx, NAN, NAN, 0.0, 0.0, 0.0}; /* std NaN: not given (the stand's noise may apply) */
         int hs, hn;
         if ((hs = get_num(&c, e, p, "std", &ns.std)) < 0 || (hn = get_num(&c, e, p, "snr_db", &ns.snr_db)) < 0 ||
-            get_num(&c, e, p, "resolution", &ns.resolution) < 0)
+            get_num(&c, e, p, "resolution", &ns.resolution) < 0 || get_num(&c, e, p, "offset", &ns.offset) < 0 ||
+            get_num(&c, e, p, "correlation_time", &ns.corr_time) < 0)
             goto out;
+        if (!isfinite(ns.offset)) {
+            vibid_cfg_fail(&c, e, p, "offset = %g must be finite", ns.offset);
+            goto out;
+        }
+        if (!(ns.corr_time >= 0.0) || !isfinite(ns.corr_time)) {
+            vibid_cfg_fail(&c, e, p, "correlation_time = %g s must be >= 0 and finite (0: white noise)", ns.corr_time);
+            goto out;
+        }
         if (hs && hn) {
             vibid_cfg_fail(&c, e, p, "give either std or snr_db, not both");
             goto out;

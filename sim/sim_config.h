@@ -9,7 +9,8 @@
  *     excitation = ( { target = "base"; kind = "triangle"; amplitude = 1e-3; frequency = 10.0; } );
  *                    # target: "base", a force input (name or channel) or a disturbance (name),
  *                    # which then replaces the disturbance's default white drive
- *     noise = ( { channel = "x1"; std = 1e-7; resolution = 1e-8; }, { channel = "x2"; snr_db = 60.0; } );
+ *     noise = ( { channel = "x1"; std = 1e-7; resolution = 1e-8; },
+ *               { channel = "x2"; snr_db = 60.0; correlation_time = 0.01; offset = 2e-6; } );
  *     changes = ( { parameter = "c2"; at = 60.0; factor = 0.9; ramp = 0.0; } );
  *     can = { id = 0x100; fd = false; extended = false;
  *             signals = ( { channel = "x1"; type = "int32"; scale = 1e-9; } ); };
@@ -43,6 +44,9 @@ typedef struct sim_noise_spec {
                              noise of the quantity applies, vibid_model_get_noise) */
     double snr_db;        /* signal RMS / noise std in dB; NaN if not given */
     double resolution;    /* quantisation step (0 = none) */
+    double offset;        /* channel units: a constant sensor zero error added to the output (0 = none) */
+    double corr_time;     /* s: the noise's correlation time, first-order (AR(1)) coloured noise of the
+                             same std with autocorrelation exp(-|lag| / corr_time); 0 = white */
 } sim_noise_spec;
 
 typedef struct sim_change {

@@ -88,6 +88,8 @@ typedef struct sim_engine_stats {
     long steps, rhs_evals;           /* ARKODE's Runge-Kutta steps and right-hand-side evaluations */
     long exact_intervals;            /* sample intervals taken by the exact step */
     long arkode_intervals;           /* sample intervals integrated by ARKODE */
+    long retried_pieces;             /* pieces the configured method failed on (ARK_ERR_FAILURE) and
+                                        Dormand-Prince 5(4) integrated again from their start */
 } sim_engine_stats;
 void sim_engine_stats_get(const sim_engine *e, sim_engine_stats *s);
 

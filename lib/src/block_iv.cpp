@@ -85,6 +85,40 @@ void BlockIV::add(std::size_t n_rows, const double *X, const double *W, const do
     }
 }
 
+void BlockIV::add_constants(std::size_t n_rows, const double *X, const double *W, const double *Y, double ux,
+                            double uw) {
+    // add()'s loops on the leading pl columns, plus row r's constant column b (the only
+    // nonzero of the constant columns in that row): what add() would sum on the explicit
+    // columns, the zeros left out.
+    const double f = cur_scale_;
+    const Index pl = static_cast<Index>(p_ - n_rows), Q = static_cast<Index>(q_);
+    for (std::size_t r = 0; r < n_rows; ++r) {
+        const Index b = pl + static_cast<Index>(r);
+        const double wb = -uw, xb = -ux * f;
+        for (Index j = 0; j < pl; ++j) {
+            const double xj = X[r + static_cast<std::size_t>(j) * n_rows] * f;
+            cur_.xx(j) += xj * X[r + static_cast<std::size_t>(j) * n_rows];
+            if (xj == 0.0) continue;
+            for (Index i = 0; i < pl; ++i) cur_.G(i, j) += W[r + static_cast<std::size_t>(i) * n_rows] * xj;
+            cur_.G(b, j) += wb * xj;
+        }
+        cur_.xx(b) += xb * -ux;
+        if (xb != 0.0) {
+            for (Index i = 0; i < pl; ++i) cur_.G(i, b) += W[r + static_cast<std::size_t>(i) * n_rows] * xb;
+            cur_.G(b, b) += wb * xb;
+        }
+        for (Index i = 0; i < pl; ++i) {
+            const double wi = W[r + static_cast<std::size_t>(i) * n_rows];
+            cur_.ww(i) += f * wi * wi;
+            const double fwi = f * wi;
+            for (Index k = 0; k < Q; ++k) cur_.c(i, k) += fwi * Y[r + static_cast<std::size_t>(k) * n_rows];
+        }
+        cur_.ww(b) += f * wb * wb;
+        const double fwb = f * wb;
+        for (Index k = 0; k < Q; ++k) cur_.c(b, k) += fwb * Y[r + static_cast<std::size_t>(k) * n_rows];
+    }
+}
+
 void BlockIV::end_sample() {
     ++cur_.n;
     ++samples_;
@@ -141,8 +175,11 @@ void BlockIV::merge_pairs() {
 
 std::size_t BlockIV::blocks_with_data() const { return n_closed_ + (cur_.n > 0 ? 1 : 0); }
 
-BlockIVResult BlockIV::solve(const double *theta_ref) const {
-    const Index P = static_cast<Index>(p_), Q = static_cast<Index>(q_);
+BlockIVResult BlockIV::solve(const double *theta_ref, std::size_t p_use, bool consistency) const {
+    if (p_use == 0 || p_use > p_) p_use = p_;
+    // The leading p_use regressors and their instruments: the sums of the others are kept
+    // but left out (identify.cpp: the constant-force columns come last).
+    const Index P = static_cast<Index>(p_use), Q = static_cast<Index>(q_);
     // Blocks in time order with their weights (discount to now for gamma < 1).
     struct View {
         const MatrixXd *G, *c;
@@ -168,10 +205,10 @@ BlockIVResult BlockIV::solve(const double *theta_ref) const {
         MatrixXd A = MatrixXd::Zero(P, P), C = MatrixXd::Zero(P, Q);
         VectorXd xx = VectorXd::Zero(P), ww = VectorXd::Zero(P);
         for (std::size_t b = from; b < to; ++b) {
-            A += views[b].w * *views[b].G;
-            C += views[b].w * *views[b].c;
-            xx += views[b].w * *views[b].xx;
-            ww += views[b].w * *views[b].ww;
+            A += views[b].w * views[b].G->topLeftCorner(P, P);
+            C += views[b].w * views[b].c->topRows(P);
+            xx += views[b].w * views[b].xx->head(P);
+            ww += views[b].w * views[b].ww->head(P);
         }
         // Scale rows (instruments) and columns (regressors) to unit norm, so that units
         // (N/m next to N/m^3) do not decide rank or conditioning.
@@ -189,7 +226,7 @@ BlockIVResult BlockIV::solve(const double *theta_ref) const {
         // Informed directions: scaled singular value at least 1e-7 of the largest. The
         // parameters that load on the others are marked; there the estimate keeps the
         // reference's component (a pseudo-inverse about theta_ref).
-        out.weak.assign(p_, 0);
+        out.weak.assign(p_use, 0);
         VectorXd sinv = VectorXd::Zero(P);
         out.rank = 0;
         for (Index k = 0; k < P; ++k) {
@@ -227,16 +264,16 @@ BlockIVResult BlockIV::solve(const double *theta_ref) const {
         VectorXd sv(PQ);
         double h2 = 0.0, hmax = 0.0;
         for (std::size_t b = from; b < to; ++b) {
-            const double h = views[b].w * (*views[b].G * Ainv).trace();
+            const double h = views[b].w * (views[b].G->topLeftCorner(P, P) * Ainv).trace();
             h2 += h * h;
             hmax = std::max(hmax, h);
-            const MatrixXd sb = views[b].w * (*views[b].c - *views[b].G * out.theta);
+            const MatrixXd sb = views[b].w * (views[b].c->topRows(P) - views[b].G->topLeftCorner(P, P) * out.theta);
             sv = Eigen::Map<const VectorXd>(sb.data(), PQ);
             meat.noalias() += sv * sv.transpose();
         }
         const double rk = static_cast<double>(out.rank);
         out.n_eff = h2 > 0.0 ? rk * rk / h2 : 0.0;
-        const bool usable = to - from > p_ + 1 && hmax < 0.9 && out.n_eff > rk + 1.0;
+        const bool usable = to - from > p_use + 1 && hmax < 0.9 && out.n_eff > rk + 1.0;
         if (usable) meat *= out.n_eff / (out.n_eff - rk);
         if (!usable) meat.setConstant(std::numeric_limits<double>::quiet_NaN());
         MatrixXd bread = MatrixXd::Zero(PQ, PQ);
@@ -257,7 +294,7 @@ BlockIVResult BlockIV::solve(const double *theta_ref) const {
     r.n_eff = all.n_eff;
     r.not_excited = all.weak;
     r.z_max = std::numeric_limits<double>::quiet_NaN();
-    if (K >= 2 * (p_ + 2)) {
+    if (consistency && K >= 2 * (p_use + 2)) {
         const Partial older = solve_range(0, K / 2, true), newer = solve_range(K / 2, K, true);
         if (older.ok && newer.ok) {
             double z = 0.0;

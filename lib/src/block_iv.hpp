@@ -62,6 +62,12 @@ public:
     void reset();
     // n_rows equations: X, W n_rows x p, Y n_rows x q, column-major. Allocation-free.
     void add(std::size_t n_rows, const double *X, const double *W, const double *Y);
+    // As add() with n_rows constant columns appended to X and W (the last n_rows of the p
+    // regressors): column p - n_rows + r is -ux in row r and 0 elsewhere, its instrument
+    // -uw (identify.cpp's constant forces, one per equation). X, W are n_rows x (p - n_rows).
+    // The same sums as add() on the explicit columns, without their zeros: O(n_rows p)
+    // more than add() on the leading columns instead of O(n_rows^2 p). Allocation-free.
+    void add_constants(std::size_t n_rows, const double *X, const double *W, const double *Y, double ux, double uw);
     // Ends the current sample (block bookkeeping counts samples, not equations).
     void end_sample();
 
@@ -73,8 +79,12 @@ public:
     // separate some parameters in this window), the estimate keeps theta_ref's component
     // there and solves the informed directions only; those parameters are marked in
     // not_excited. Throws vibid::Error (VIBID_E_INSUFFICIENT_DATA when nothing is
-    // informed at all).
-    BlockIVResult solve(const double *theta_ref) const;
+    // informed at all). p_use (0 = all p): solve for the leading p_use regressors only,
+    // with their own instruments, leaving the others out of the model (their sums are
+    // kept: both fits come from the same sums); theta_ref then has p_use x q entries
+    // (column stride p_use) and the result is p_use x q. consistency = false leaves out
+    // the consistency check (z_max NaN; one solve instead of three).
+    BlockIVResult solve(const double *theta_ref, std::size_t p_use = 0, bool consistency = true) const;
 
 private:
     struct Block {

@@ -14,6 +14,7 @@
 #include "stand_ekf.hpp"
 #include "discretize_internal.hpp"
 #include "model_internal.hpp"
+#include "regressor_internal.hpp"
 
 #include <Eigen/Dense>
 
@@ -51,6 +52,17 @@ struct vibid_ident {
     std::unique_ptr<vibid_regressor, RegressorFree> reg;
     std::unique_ptr<vibid_lsq, LsqFree> lsq;
     std::unique_ptr<vibid::BlockIV> biv;  // IV and AUTO: sums per block (block_iv.hpp)
+    // Constant forces (vibid_ident_config.constant_terms): nb = n constant columns after
+    // the p_reg regressors, one per equation (0: none accumulated). biv then has p_reg + nb
+    // regressors, and the plain fit is its solve on the leading p_reg; LS keeps a second
+    // QR with them (lsq_c). ring_unit: the constant column's value (regressor_unit) of the
+    // rows in `ring`. The last estimate's constants (empty: the plain fit stood) and the
+    // Wald test's p-value (NaN: none made).
+    std::size_t nb = 0;
+    std::unique_ptr<vibid_lsq, LsqFree> lsq_c;
+    std::vector<double> ring_unit, rows_xc;  // rows_xc: LS's rows with the constant columns
+    std::vector<double> const_values, const_se;
+    double const_p = std::nan("");
     // IV and AUTO on the structured form, the discretization check: the same estimator
     // on every second sample (step 2h, same pre-filter, the same lag in seconds). Its
     // difference from this estimate measures the discretization error (see estimate).
@@ -270,6 +282,30 @@ bool runs_pilot(const vibid_ident_config &cfg, double f_nominal_max) {
 // stencils' bias grows as (w h)^4).
 double cutoff_for(double fmax, double fa) { return std::min(std::max(4.0 * fmax, fa / 50.0), fa / 8.0); }
 
+// P(chi^2_k > x), the regularized upper incomplete gamma Q(k/2, x/2) for integer k, from
+// Q(1/2, y) = erfc(sqrt y), Q(1, y) = e^-y and Q(s + 1, y) = Q(s, y) + y^s e^-y / Gamma(s + 1).
+double chi2_survival(double x, std::size_t k) {
+    if (!(x > 0.0)) return 1.0;
+    const double y = 0.5 * x, top = 0.5 * static_cast<double>(k);
+    double s = k % 2 ? 0.5 : 1.0;
+    double q = k % 2 ? std::erfc(std::sqrt(y)) : std::exp(-y);
+    for (; s + 1.0 <= top + 1e-9; s += 1.0) q += std::exp(s * std::log(y) - y - std::lgamma(s + 1.0));
+    return std::min(q, 1.0);
+}
+
+// Whether the estimator for cfg on model m accumulates the constant-force columns
+// (vibid_ident_config.constant_terms): LS, IV and AUTO on the structured form, unless OFF.
+bool has_constant_columns(const vibid_model &m, const vibid_ident_config &cfg) {
+    const bool form = m.discretization != VIBID_DISC_ZOH &&
+                      (cfg.estimator == VIBID_ESTIMATOR_LS || cfg.estimator == VIBID_ESTIMATOR_IV ||
+                       cfg.estimator == VIBID_ESTIMATOR_AUTO);
+    return form && cfg.constant_terms != VIBID_CONSTANT_OFF;
+}
+
+// Level of the automatic constant-terms test: the constants are kept when the Wald test
+// of all of them = 0 rejects at this p-value.
+constexpr double kConstantTestLevel = 1e-3;
+
 // Resolves every automatic setting of cfg for the model and writes why into `why`.
 // prefilter_why: the reason for a cutoff set by the pilot (tune_prefilter), else empty.
 vibid_ident_config resolve_config(const vibid_model &m, const vibid_ident_config &cfg, double f_nominal_max,
@@ -373,6 +409,17 @@ vibid_ident_config resolve_config(const vibid_model &m, const vibid_ident_config
                          1.0 / (1.0 - cfg.forgetting), h / (1.0 - cfg.forgetting));
     else
         why += "forgetting: none (every sample counts alike)\n";
+    if (has_constant_columns(m, cfg))
+        why += cfg.constant_terms == VIBID_CONSTANT_ON
+                   ? "constant forces: one per node's equation, always estimated (configured)\n"
+                   : strprintf("constant forces: one per node's equation (sensor offsets, constant loads), fitted at "
+                               "each estimate and kept when a Wald test of all of them = 0 rejects at p < %g "
+                               "(automatic)\n",
+                               kConstantTestLevel);
+    else if (cfg.estimator == VIBID_ESTIMATOR_RLS || (zoh && iv_family) || (zoh && cfg.estimator == VIBID_ESTIMATOR_LS))
+        why += "constant forces: not estimated (not implemented for RLS and the ZOH form)\n";
+    else if (iv_family || cfg.estimator == VIBID_ESTIMATOR_LS)
+        why += "constant forces: off (configured)\n";
     const std::string held = held_signals(m);
     if (!held.empty())
         why += "held inputs: " + held +
@@ -424,6 +471,7 @@ VIBID_API void vibid_ident_config_init(vibid_ident_config *cfg, double sample_ti
     cfg->forgetting = 1.0;
     cfg->rls_alpha = 0.0;
     cfg->difference_order = 0;
+    cfg->constant_terms = VIBID_CONSTANT_AUTO;
 }
 
 }  // extern "C"
@@ -547,6 +595,15 @@ std::unique_ptr<vibid_ident> create_ident(const vibid_model *model, const vibid_
         throw_error(VIBID_E_OUT_OF_RANGE, "rls_alpha = %g: > 0, or 0 for the automatic prior", cfg->rls_alpha);
     if (cfg->iv_lag != 0 && (cfg->iv_lag < 3 || cfg->iv_lag > 4096))
         throw_error(VIBID_E_OUT_OF_RANGE, "iv_lag = %zu outside 3..4096 (0 = automatic)", cfg->iv_lag);
+    const int ct = vibid::enum_value(cfg->constant_terms);
+    if (ct != VIBID_CONSTANT_AUTO && ct != VIBID_CONSTANT_OFF && ct != VIBID_CONSTANT_ON)
+        throw_error(VIBID_E_OUT_OF_RANGE, "constant_terms %d unknown (0 auto, 1 off, 2 on)", ct);
+    if (ct == VIBID_CONSTANT_ON && (est == VIBID_ESTIMATOR_RLS || est == VIBID_ESTIMATOR_EKF ||
+                                    est == VIBID_ESTIMATOR_KF_RLS ||
+                                    (model->discretization == VIBID_DISC_ZOH && est != VIBID_ESTIMATOR_OE)))
+        throw_error(VIBID_E_UNSUPPORTED,
+                    "constant_terms on: constant forces are estimated by LS, IV and AUTO on the structured form "
+                    "only (not RLS, the state-space estimators or the ZOH form)");
     if (est == VIBID_ESTIMATOR_OE) return create_output_error(*model, *cfg);
     // A stand that leaves coordinates unmeasured (some signal of the equations can
     // not be formed from the channels) or declares an unmeasured random force gets
@@ -600,6 +657,9 @@ std::unique_ptr<vibid_ident> create_ident(const vibid_model *model, const vibid_
     id->y.assign(id->m * id->q, 0.0);
     id->rows_x.assign(id->p_reg * id->m, 0.0);
     id->rows_w.assign(id->p_reg * id->m, 0.0);
+    id->nb = has_constant_columns(*model, rcfg) ? id->n : 0;
+    const std::size_t pa = id->p_reg + id->nb;
+    if (id->nb) id->rows_xc.assign(pa * id->m, 0.0);
     switch (rcfg.estimator) {
     case VIBID_ESTIMATOR_EKF: break;  // create_state_space
     case VIBID_ESTIMATOR_KF_RLS: break;
@@ -607,6 +667,10 @@ std::unique_ptr<vibid_ident> create_ident(const vibid_model *model, const vibid_
     case VIBID_ESTIMATOR_LS:
         id->lsq.reset(vibid_lsq_create(id->p_reg, id->q));
         if (!id->lsq) throw_error(VIBID_E_NO_MEMORY, "vibid_lsq_create: %s", vibid_last_error());
+        if (id->nb) {
+            id->lsq_c.reset(vibid_lsq_create(pa, id->q));
+            if (!id->lsq_c) throw_error(VIBID_E_NO_MEMORY, "vibid_lsq_create: %s", vibid_last_error());
+        }
         break;
     case VIBID_ESTIMATOR_IV:
     case VIBID_ESTIMATOR_AUTO: {
@@ -618,8 +682,9 @@ std::unique_ptr<vibid_ident> create_ident(const vibid_model *model, const vibid_
         if (rcfg.forgetting < 1.0)
             block = std::max<std::size_t>(
                 static_cast<std::size_t>(std::ceil(6.0 / (1.0 - rcfg.forgetting) / 64.0)), 2 * (rcfg.iv_lag + width));
-        id->biv = std::make_unique<vibid::BlockIV>(id->p_reg, id->q, rcfg.forgetting, block, 64);
+        id->biv = std::make_unique<vibid::BlockIV>(pa, id->q, rcfg.forgetting, block, 64);
         id->ring.assign((rcfg.iv_lag + 1) * id->p_reg * id->m, 0.0);
+        id->ring_unit.assign(rcfg.iv_lag + 1, 0.0);
         break;
     }
     case VIBID_ESTIMATOR_RLS: {
@@ -717,6 +782,7 @@ VIBID_API vibid_status vibid_ident_reset(vibid_ident *ident) {
         }
         if (ident->reg) check_status(vibid_regressor_reset(ident->reg.get()), "regressor reset");
         if (ident->lsq) check_status(vibid_lsq_reset(ident->lsq.get()), "lsq reset");
+        if (ident->lsq_c) check_status(vibid_lsq_reset(ident->lsq_c.get()), "lsq reset");
         if (ident->biv) ident->biv->reset();
         if (ident->half) check_status(vibid_ident_reset(ident->half.get()), "discretization check reset");
         ident->half_take = true;
@@ -839,8 +905,13 @@ vibid_status estimate_without_trace(vibid_ident &id, double *theta, double *se) 
     const std::vector<double> last_theta = id.last_theta, cov = id.cov;
     const vibid_ident_quality quality = id.quality;
     const std::vector<unsigned> param_flags = id.param_flags;
+    const std::vector<double> const_values = id.const_values, const_se = id.const_se;
+    const double const_p = id.const_p;
     id.have_theta = false;
     const vibid_status s = vibid_ident_estimate(&id, theta, se, nullptr);
+    id.const_values = const_values;
+    id.const_se = const_se;
+    id.const_p = const_p;
     id.have_theta = have_theta;
     id.have_cov = have_cov;
     id.last_theta = last_theta;
@@ -979,6 +1050,16 @@ VIBID_API vibid_status vibid_ident_push(vibid_ident *ident, const double *channe
 
 namespace {
 
+// rows (m x p_reg, column-major, one row per equation) and the constant-force columns
+// (m x nb: -unit in equation e's own column, the sign of a force input, 0 elsewhere) into
+// out (m x (p_reg + nb)). Allocation-free.
+void constant_rows(const vibid_ident &id, const double *rows, double unit, double *out) {
+    const std::size_t m = id.m, pm = id.p_reg * m;
+    std::copy(rows, rows + pm, out);
+    std::fill(out + pm, out + pm + id.nb * m, 0.0);
+    for (std::size_t e = 0; e < m && e < id.nb; ++e) out[pm + e + e * m] = -unit;
+}
+
 vibid_status push_sample(vibid_ident *ident, const double *channels) {
     if (ident->ekf) {
         const vibid_status st = ident->ekf->push(channels);
@@ -1015,6 +1096,10 @@ vibid_status push_sample(vibid_ident *ident, const double *channels) {
     case VIBID_ESTIMATOR_LS:
         transpose_into(ident->x.data(), p, m, ident->rows_x.data());
         s = vibid_lsq_add_rows(ident->lsq.get(), m, ident->rows_x.data(), ident->y.data(), nullptr);
+        if (s == VIBID_OK && ident->nb) {
+            constant_rows(*ident, ident->rows_x.data(), vibid::regressor_unit(*ident->reg), ident->rows_xc.data());
+            s = vibid_lsq_add_rows(ident->lsq_c.get(), m, ident->rows_xc.data(), ident->y.data(), nullptr);
+        }
         break;
     case VIBID_ESTIMATOR_IV:
     case VIBID_ESTIMATOR_AUTO: {
@@ -1026,11 +1111,20 @@ vibid_status push_sample(vibid_ident *ident, const double *channels) {
         const std::size_t L = ident->cfg.iv_lag, slots = L + 1, block = p * m;
         double *slot = ident->ring.data() + (ident->n_built % slots) * block;
         std::copy(ident->x.begin(), ident->x.end(), slot);
+        const double unit = vibid::regressor_unit(*ident->reg);
+        ident->ring_unit[ident->n_built % slots] = unit;
         if (ident->n_built >= L) {
-            const double *old = ident->ring.data() + ((ident->n_built - L) % slots) * block;
+            const std::size_t old_slot = (ident->n_built - L) % slots;
+            const double *old = ident->ring.data() + old_slot * block;
             transpose_into(ident->x.data(), p, m, ident->rows_x.data());
             transpose_into(old, p, m, ident->rows_w.data());
-            ident->biv->add(m, ident->rows_x.data(), ident->rows_w.data(), ident->y.data());
+            if (ident->nb) {
+                // The constant's instrument is the constant column of the delayed row.
+                ident->biv->add_constants(m, ident->rows_x.data(), ident->rows_w.data(), ident->y.data(), unit,
+                                          ident->ring_unit[old_slot]);
+            } else {
+                ident->biv->add(m, ident->rows_x.data(), ident->rows_w.data(), ident->y.data());
+            }
             ident->biv->end_sample();
         }
         break;
@@ -1066,6 +1160,35 @@ VIBID_API vibid_status vibid_ident_push_block(vibid_ident *ident, size_t n_sampl
     return VIBID_OK;
 }
 
+namespace {
+
+// The constants of the fit with them (th: p_reg + nb, cov its covariance): the Wald test of
+// all of them = 0 (id.const_p), and whether the estimate keeps them (ON: always; AUTO:
+// p-value below kConstantTestLevel; no test without a positive definite covariance: the
+// plain fit stands). Sets the last estimate's constants when kept.
+bool choose_constants(vibid_ident &id, const VectorXd &th, const MatrixXd &cov) {
+    const Eigen::Index pr = static_cast<Eigen::Index>(id.p_reg), nb = static_cast<Eigen::Index>(id.nb);
+    const VectorXd b = th.segment(pr, nb);
+    const MatrixXd C = cov.block(pr, pr, nb, nb);
+    id.const_p = std::nan("");
+    if (b.allFinite() && C.allFinite()) {
+        const Eigen::LDLT<MatrixXd> ldlt(C);
+        if (ldlt.info() == Eigen::Success && (ldlt.vectorD().array() > 0.0).all()) {
+            const double w = b.dot(ldlt.solve(b));
+            if (std::isfinite(w)) id.const_p = chi2_survival(w, id.nb);
+        }
+    }
+    const bool keep = id.cfg.constant_terms == VIBID_CONSTANT_ON || id.const_p < kConstantTestLevel;
+    if (keep) {
+        id.const_values.assign(b.data(), b.data() + nb);
+        id.const_se.resize(id.nb);
+        for (Eigen::Index i = 0; i < nb; ++i) id.const_se[static_cast<std::size_t>(i)] = std::sqrt(std::max(C(i, i), 0.0));
+    }
+    return keep;
+}
+
+}  // namespace
+
 VIBID_API vibid_status vibid_ident_estimate(vibid_ident *ident, double *theta, double *stderr_out,
                                             vibid_ident_info *info) {
     VIBID_GUARD(
@@ -1088,6 +1211,13 @@ VIBID_API vibid_status vibid_ident_estimate(vibid_ident *ident, double *theta, d
         qual.z_consistency = std::nan("");
         std::vector<int> weak;
         VectorXd disc_error;  // measured discretization error per parameter (empty: no check)
+        // Constant forces (nb > 0, structured form: q = 1): the fit with them, the test,
+        // the choice (choose_constants); the last estimate's constants start empty.
+        const std::size_t pa = pr + id.nb;
+        bool with_c = false;
+        id.const_values.clear();
+        id.const_se.clear();
+        id.const_p = std::nan("");
         if (id.lsq) {
             vibid_status s = vibid_lsq_solve(id.lsq.get(), Th.data(), &li);
             if (s == VIBID_E_NOT_IDENTIFIABLE) refuse_null_space(id, li);
@@ -1097,13 +1227,50 @@ VIBID_API vibid_status vibid_ident_estimate(vibid_ident *ident, double *theta, d
             for (std::size_t j = 0; j < q; ++j)
                 for (std::size_t l = 0; l < q; ++l)
                     cov_reg.block(j * pr, l * pr, pr, pr) = Sig(j, l) * Pm;
+            if (id.nb) {
+                VectorXd tha(pa);
+                MatrixXd Pa(pa, pa), Sa(1, 1);
+                vibid_lsq_info lc{};
+                vibid_status sc = vibid_lsq_solve(id.lsq_c.get(), tha.data(), &lc);
+                if (sc == VIBID_OK) sc = vibid_lsq_covariance(id.lsq_c.get(), Pa.data(), Sa.data());
+                if (sc != VIBID_OK && id.cfg.constant_terms == VIBID_CONSTANT_ON)
+                    check_status(sc, "least squares with constant forces");
+                if (sc == VIBID_OK && choose_constants(id, tha, Sa(0, 0) * Pa)) {
+                    with_c = true;
+                    Th = tha.head(static_cast<Eigen::Index>(pr));
+                    cov_reg = Sa(0, 0) * Pa.topLeftCorner(static_cast<Eigen::Index>(pr), static_cast<Eigen::Index>(pr));
+                    li = lc;
+                }
+            }
             qual.flags |= VIBID_QUALITY_SE_INVALID;
         } else if (id.biv) {
             if (id.biv->samples() * id.m <= pr)
                 throw_error(VIBID_E_INSUFFICIENT_DATA, "%llu instrumented samples for %zu regressors: push more samples",
                             id.biv->samples(), pr);
-            // In directions the data of this window hardly inform, the last estimate stays.
-            const vibid::BlockIVResult res = id.biv->solve(id.have_theta ? id.last_theta.data() : nullptr);
+            // In directions the data of this window hardly inform, the last estimate stays
+            // (last_theta: p_reg, then the nb constants, 0 where the plain fit stood).
+            const double *ref = id.have_theta ? id.last_theta.data() : nullptr;
+            vibid::BlockIVResult res;
+            if (id.nb) {
+                // AUTO: the test needs the fit with the constants, not its consistency
+                // check (two more solves), which only the fit kept needs.
+                const bool on = id.cfg.constant_terms == VIBID_CONSTANT_ON;
+                try {
+                    res = id.biv->solve(ref, pa, on);
+                    with_c = choose_constants(id, res.theta.col(0), res.cov);
+                    if (with_c && !on) res = id.biv->solve(ref, pa);
+                } catch (const vibid::Error &) {
+                    if (on) throw;
+                }
+            }
+            if (with_c) {
+                const Eigen::Index np = static_cast<Eigen::Index>(pr);
+                res.theta = MatrixXd(res.theta.topRows(np));
+                res.cov = MatrixXd(res.cov.topLeftCorner(np, np));
+                res.not_excited.resize(pr);
+            } else {
+                res = id.biv->solve(ref, pr);
+            }
             Th = res.theta;
             cov_reg = res.cov;
             li.rank = res.rank;
@@ -1113,8 +1280,7 @@ VIBID_API vibid_status vibid_ident_estimate(vibid_ident *ident, double *theta, d
             weak = res.not_excited;
             if (id.half && id.half->biv->samples() * id.m > pr) {
                 try {
-                    const vibid::BlockIVResult rh =
-                        id.half->biv->solve(id.have_theta ? id.last_theta.data() : nullptr);
+                    const vibid::BlockIVResult rh = id.half->biv->solve(ref, with_c ? pa : pr);
                     // Richardson, see below. The difference also carries the two
                     // estimates' noise: var(half) - var(this) where this one uses all
                     // samples (Hausman), which is taken out of its square.
@@ -1133,7 +1299,8 @@ VIBID_API vibid_status vibid_ident_estimate(vibid_ident *ident, double *theta, d
             // information (n_eff below p_reg + 4: the spread of the scores would rest on fewer
             // than 4 blocks beyond the directions fitted, e.g. excitation only in the newest
             // blocks), or the halves disagree.
-            if (!cov_reg.allFinite() || !(res.z_max <= 4.0) || res.n_eff < static_cast<double>(pr) + 4.0)
+            if (!cov_reg.allFinite() || !(res.z_max <= 4.0) ||
+                res.n_eff < static_cast<double>(with_c ? pa : pr) + 4.0)
                 qual.flags |= VIBID_QUALITY_SE_INVALID;
         } else {
             MatrixXd Pm(pr, pr), Sig(q, q);
@@ -1236,6 +1403,12 @@ VIBID_API vibid_status vibid_ident_estimate(vibid_ident *ident, double *theta, d
         id.have_cov = true;
         if (id.biv) {
             id.last_theta.assign(Th.data(), Th.data() + Th.size());
+            if (id.nb) {
+                if (with_c)
+                    id.last_theta.insert(id.last_theta.end(), id.const_values.begin(), id.const_values.end());
+                else
+                    id.last_theta.resize(pa, 0.0);
+            }
             id.have_theta = true;
         }
         qual.rcond = li.rcond;
@@ -1349,6 +1522,23 @@ VIBID_API vibid_status vibid_ident_offsets(const vibid_ident *ident, size_t cap,
         if (values) values[j] = ident->offsets[j];
         if (se) se[j] = ident->offsets_se[j];
     }
+    return VIBID_OK;
+}
+
+VIBID_API vibid_status vibid_ident_constant_forces(const vibid_ident *ident, size_t cap, size_t *n_out,
+                                                   size_t *nodes, double *values, double *se, double *p_value) {
+    if (!ident || !n_out) return VIBID_FAIL(VIBID_E_NULL_ARGUMENT, "ident and n_out are required");
+    if (!ident->have_cov) return VIBID_FAIL(VIBID_E_STATE, "no estimate yet: call vibid_ident_estimate first");
+    // OE: the constants of its equation-error start
+    const vibid_ident &id = ident->ee ? *ident->ee : *ident;
+    const std::size_t n = id.const_values.size();
+    *n_out = n;
+    for (std::size_t j = 0; j < std::min(n, cap); ++j) {
+        if (nodes) nodes[j] = j;
+        if (values) values[j] = id.const_values[j];
+        if (se) se[j] = id.const_se[j];
+    }
+    if (p_value) *p_value = id.const_p;
     return VIBID_OK;
 }
 

@@ -18,6 +18,7 @@
 #include "api_guard.hpp"
 #include "kernels.hpp"
 #include "model_internal.hpp"
+#include "regressor_internal.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -64,6 +65,11 @@ struct vibid_regressor {
     std::vector<double> z;
     vibid::kern::RegStep step{};
     const vibid::kern::Table *kt = nullptr;
+    // A constant column (1 in every row) after the same pre-filter from the same restart:
+    // the regressor of a constant force (identify.cpp). Its biquad delays, and its value in
+    // the last row built.
+    double unit_z[4] = {0.0, 0.0, 0.0, 0.0};
+    double unit = 1.0;
 };
 
 namespace {
@@ -92,6 +98,8 @@ void reset_state(vibid_regressor &g) {
     g.newest = g.width - 1;  // the first push goes to slot 0
     std::fill(g.window.begin(), g.window.end(), 0.0);
     std::fill(g.z.begin(), g.z.end(), 0.0);
+    std::fill(g.unit_z, g.unit_z + 4, 0.0);
+    g.unit = 1.0;
 }
 
 // ---- the structured form, compiled: stencils as weights over the window ----
@@ -446,6 +454,20 @@ VIBID_API vibid_status vibid_regressor_push(vibid_regressor *reg, const double *
         g.step.col = g.col.data() + slot * g.n_cols;
     }
     if (!g.zoh || g.filter_on) g.kt->regressor_step(g.step);
+    if (g.filter_on) {
+        // The constant column through the two biquads (transposed direct form II, as
+        // RegStep filters every entry): the filter's step response since the restart.
+        double v = 1.0;
+        for (int q = 0; q < 2; ++q) {
+            const double *c = g.section + 5 * q;
+            double *z = g.unit_z + 2 * q;
+            const double o = c[0] * v + z[0];
+            z[0] = c[1] * v - c[3] * o + z[1];
+            z[1] = c[2] * v - c[4] * o;
+            v = o;
+        }
+        g.unit = v;
+    }
     const double *const out = g.out.data();
     for (std::size_t i = 0; i < g.nx; ++i) x[i] = out[i];
     for (std::size_t i = 0; i < g.ny; ++i) y[i] = out[g.nx + i];
@@ -454,3 +476,5 @@ VIBID_API vibid_status vibid_regressor_push(vibid_regressor *reg, const double *
 }
 
 }  // extern "C"
+
+double vibid::regressor_unit(const vibid_regressor &reg) { return reg.unit; }

@@ -346,6 +346,39 @@ def test_shipped_example_pairs_agree(tmp_path, stand_file, sim_file):
     assert res.flags == "", res.description  # "" = no flag (the table prints "-")
     z = (res.parameters["value"] - res.parameters["true_value"]) / res.parameters["se"]
     assert (z.abs() < 3.0).all(), z
+    # the units follow the stand: example 2 is in mm (issue 33: it said N/m)
+    lu = stand.length_unit
+    assert lu == ("mm" if "example2" in stand_file else "m")
+    expect = {"stiffness": f"N/{lu}", "damping": f"N s/{lu}", "cubic": f"N/{lu}^3"}
+    assert list(res.parameters["unit"]) == [expect[k] for k in res.parameters["kind"]]
+    assert set(res.offsets["unit"]) == {lu}
+
+
+def test_units_follow_the_stand(tmp_path):
+    # Every unit vibid prints is the stand's (issue 33): a stand in mm has masses in t,
+    # stiffnesses in N/mm, dampers in N s/mm, cubic springs in N/mm^3 (forces in N, time in
+    # s: docs/stand-file.md), in Stand.units, in `vibid check`'s table; in um the mass has no
+    # name of its own.
+    def stand(lu):
+        return vibid.Stand.from_dict({
+            "name": "units", "sample_rate": 1000.0, "length_unit": lu,
+            "nodes": [{"name": "m1", "mass": 1.0, "unknown": True, "measure": {"displacement": "x1"}}],
+            "elements": [{"name": "k", "kind": "spring", "between": ["m1", "ground"], "unknown": True, "value": 10.0},
+                         {"name": "d", "kind": "damper", "between": ["m1", "ground"], "unknown": True, "value": 1.0},
+                         {"name": "e", "kind": "cubic_spring", "between": ["m1", "ground"], "unknown": True,
+                          "value": 1.0}],
+            "inputs": [{"name": "f", "node": "m1", "channel": "F", "gain": 1.0}],
+        })
+    by_name = lambda s: dict(zip(s.parameters, s.units))  # noqa: E731
+    assert by_name(stand("m")) == {"m1": "kg", "k": "N/m", "d": "N s/m", "e": "N/m^3"}
+    assert by_name(stand("mm")) == {"m1": "t", "k": "N/mm", "d": "N s/mm", "e": "N/mm^3"}
+    assert by_name(stand("um")) == {"m1": "N s^2/um", "k": "N/um", "d": "N s/um", "e": "N/um^3"}
+    path = tmp_path / "mm.cfg"
+    path.write_text(stand("mm")._text)
+    proc = run("check", path)
+    assert proc.returncode == 0, proc.stderr
+    rows = {line.split()[0]: line for line in proc.stdout.splitlines() if line.split()[:1] in (["k"], ["d"], ["e"], ["m1"])}
+    assert "N/mm " in rows["k"] + " " and "N s/mm" in rows["d"] and "N/mm^3" in rows["e"] and " t " in rows["m1"], proc.stdout
 
 
 def test_report_of_a_state_space_estimate(tmp_path):
@@ -384,3 +417,16 @@ def test_simulate_passes_the_options_to_vibid_sim(tmp_path):
     assert proc.returncode == 2 and "fake: bad input" in proc.stderr
     assert argv.read_text().split("\n")[:-1] == ["-c", str(EXAMPLE1), "--csv", str(out), "--fast", "-s", "s.cfg",
                                                  "-d", "2.5", "--seed", "7"]
+
+
+def test_reader_closing_the_pipe_is_not_an_error(capture):
+    # `vibid identify ... | head -1` (issue 33): the command ended with "error: [Errno 32]
+    # Broken pipe". Now it stops quietly with SIGPIPE's status 141 and nothing on stderr. The
+    # reader goes away before the first line (identify takes about a second first), so the
+    # command's first write meets a closed pipe whatever the buffering.
+    proc = subprocess.Popen([str(VIBID), "identify", str(EXAMPLE1), str(capture)], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE)
+    proc.stdout.close()
+    err = proc.stderr.read().decode()
+    assert proc.wait(timeout=300) == 141, err
+    assert err == "", err

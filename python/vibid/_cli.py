@@ -599,6 +599,12 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     a = ap.parse_args(argv)  # exits 2 on a usage error, with the usage on stderr
     try:
         return a.func(a)
+    except BrokenPipeError:
+        # The reader went away (`vibid identify ... | head`): stop quietly, as a C tool
+        # killed by SIGPIPE does (status 128 + 13), and keep the interpreter's final flush
+        # of stdout from raising again.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141
     except (CliError, _core.VibidError, ValueError, OSError, ImportError) as e:
         # What the library or the data refuse: the message alone (it names the file, field,
         # channel or parameter), no traceback.

@@ -92,7 +92,7 @@ def _identify_one(spec: tuple | Stand, name: Any, data: Any, method: str, option
         row[f"f{i}_hz_se"] = float(fse)
         row[f"zeta{i}"] = float(z)
         row[f"zeta{i}_se"] = float(zse)
-    row["flags"] = r.flags
+    row["estimate_flags"] = r.flags
     return row
 
 
@@ -124,7 +124,7 @@ def _columns(stand: Stand) -> list[str]:
         cols += [p, p + "_se", p + "_flags"]
     for i in range(1, stand.n_dof + 1):
         cols += [f"f{i}_hz", f"f{i}_hz_se", f"zeta{i}", f"zeta{i}_se"]
-    cols.append("flags")
+    cols.append("estimate_flags")  # not "flags": DataFrame.flags is pandas' own attribute
     seen = set()
     for c in cols:
         if c in seen:
@@ -137,11 +137,11 @@ def _columns(stand: Stand) -> list[str]:
 def _table(rows: list, stand: Stand) -> pd.DataFrame:
     cols = _columns(stand)
     params = stand.parameters
-    string_cols = {"capture", "status", "error", "method", "flags", *(p + "_flags" for p in params)}
+    string_cols = {"capture", "status", "error", "method", "estimate_flags", *(p + "_flags" for p in params)}
     for r in rows:
         if r["status"] != "ok":
             # No estimate: the daemon's letter E for the estimate and every parameter.
-            r.update({"n_samples": None, "method": "", "flags": "E", **{p + "_flags": "E" for p in params}})
+            r.update({"n_samples": None, "method": "", "estimate_flags": "E", **{p + "_flags": "E" for p in params}})
     df = pd.DataFrame.from_records(rows, columns=cols)
     df["n_samples"] = df["n_samples"].astype("Int64")
     for c in cols:
@@ -237,8 +237,10 @@ def identify_many(captures: Any, stand: Stand | str | os.PathLike, method: str =
     Returns a DataFrame with columns ``capture`` (the path or the dict's key), ``status``
     ("ok" or "error"), ``error`` ("Type: message", "" when ok), ``n_samples``, ``method``
     (the estimator used), per parameter ``<p>``, ``<p>_se``, ``<p>_flags``, per mode
-    ``f<i>_hz``, ``f<i>_hz_se``, ``zeta<i>``, ``zeta<i>_se``, and ``flags`` (the estimate's
-    letters; "E" and NaN values in the rows of failed captures).
+    ``f<i>_hz``, ``f<i>_hz_se``, ``zeta<i>``, ``zeta<i>_se``, and ``estimate_flags`` (the
+    estimate's letters; "E" and NaN values in the rows of failed captures). Read columns as
+    ``table["name"]``: ``table.<name>`` is pandas' attribute where one has that name (as
+    ``DataFrame.flags``, which is why the estimate's column is not called ``flags``).
     """
     if method not in METHODS:
         raise ValueError(f"method {method!r}: one of {', '.join(METHODS)}")

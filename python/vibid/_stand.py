@@ -12,13 +12,15 @@ from . import _core
 
 # The model's parameter kinds in SI units (model.h). The library never converts: a stand
 # written in mm, N, s, t has its parameters in those units instead.
-UNITS = {
-    "mass": "kg",
-    "damping": "N s/m",
-    "stiffness": "N/m",
-    "cubic": "N/m^3",
-    "gain": "N/input unit",
-}
+def parameter_unit(kind: str, length_unit: str) -> str:
+    """The unit of a parameter of this kind on a stand whose lengths are in length_unit
+    (docs/stand-file.md: forces in N, time in s, so a mass is in N s^2 per length unit: kg
+    with m, t with mm). A gain maps the input's own unit to N."""
+    lu = length_unit
+    if kind == "mass":
+        return {"m": "kg", "mm": "t"}.get(lu, f"N s^2/{lu}")
+    return {"damping": f"N s/{lu}", "stiffness": f"N/{lu}", "cubic": f"N/{lu}^3",
+            "gain": "N/input unit"}[kind]
 
 
 def _libconfig_value(v: Any, path: str) -> str:
@@ -149,7 +151,9 @@ class Stand:
 
     @property
     def units(self) -> list[str]:
-        return [UNITS[p[1]] for p in self._core.params]
+        """The unit of each unknown, in the stand's length unit (``N/mm`` on a stand in mm)."""
+        lu = self.length_unit
+        return [parameter_unit(p[1], lu) for p in self._core.params]
 
     @property
     def nominal_values(self) -> list[float]:

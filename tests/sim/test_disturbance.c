@@ -352,6 +352,80 @@ static void test_stand_noise(void **state)
     }
 }
 
+/* Coloured sensor noise and a sensor offset (simulation.noise correlation_time, offset; issue
+ * 29: coverage is to be checked with coloured noise and offsets). The same stand as above;
+ * x1 gets std 1e-3 m with correlation time 0.5 s (AR(1), a = exp(-h / 0.5) = 0.9048) and an
+ * offset of 5e-3 m; the run with std = 0 has the same state, so the difference is offset +
+ * noise. Over N = 20,000 samples (tolerances 4 standard errors of an AR(1) sequence):
+ *  - mean 5e-3 within 4 sigma sqrt((1 + a) / ((1 - a) N)) = 1.3e-4 (the mean of correlated
+ *    noise is 4.5 times less certain than of white);
+ *  - std 1e-3 within 4 x sigma sqrt((1 + a^2) / (2 (1 - a^2) N)) = 6.3 %;
+ *  - lag-1 autocorrelation a within 4 sqrt((1 - a^2) / N) = 0.012 (white: 0).
+ * A negative correlation time is refused by name. */
+static void test_coloured_noise_and_offset(void **state)
+{
+    (void)state;
+    char err[1024];
+    const char *meas = "measure = { displacement = \"x1\"; };";
+    const char *dist = "{ name = \"w1\"; node = \"m1\"; std = 1.0; }";
+    run a, b;
+    run_open(&a, "noise_coloured.cfg",
+             stand_text(meas, dist,
+                        "simulation = { seed = 5; noise = ( { channel = \"x1\"; std = 1.0e-3; "
+                        "correlation_time = 0.5; offset = 5.0e-3; } ); };\n"),
+             err, sizeof err);
+    if (!a.e) fail_msg("%s", err);
+    run_open(&b, "noise_coloured_off.cfg",
+             stand_text(meas, dist, "simulation = { seed = 5; noise = ( { channel = \"x1\"; std = 0.0; } ); };\n"), err,
+             sizeof err);
+    if (!b.e) fail_msg("%s", err);
+    const size_t n = 20000;
+    const double sigma = 1e-3, off = 5e-3, a1 = exp(-H / 0.5);
+    double *d = malloc(n * sizeof *d);
+    assert_non_null(d);
+    double mean = 0.0;
+    for (size_t k = 0; k < n; k++) {
+        uint64_t ka, kb;
+        double ta, tb, va, ca, vb;
+        assert_int_equal(sim_engine_next(a.e, &ka, &ta, &va, &ca), 0);
+        assert_int_equal(sim_engine_next(b.e, &kb, &tb, &vb, NULL), 0);
+        assert_true(ca == vb); /* neither the noise nor the offset reaches the state */
+        d[k] = va - vb;
+        mean += d[k] / (double)n;
+    }
+    run_close(&a);
+    run_close(&b);
+    double ss = 0.0, s1 = 0.0;
+    for (size_t k = 0; k < n; k++) {
+        ss += (d[k] - mean) * (d[k] - mean);
+        if (k) s1 += (d[k] - mean) * (d[k - 1] - mean);
+    }
+    free(d);
+    double sd = sqrt(ss / (double)n), r1 = s1 / ss;
+    double tol_mean = 4.0 * sigma * sqrt((1.0 + a1) / ((1.0 - a1) * (double)n));
+    double tol_sd = 4.0 * sigma * sqrt((1.0 + a1 * a1) / (2.0 * (1.0 - a1 * a1) * (double)n));
+    double tol_r1 = 4.0 * sqrt((1.0 - a1 * a1) / (double)n);
+    print_message("  coloured noise + offset: mean %.5e (5e-3 +- %.1e), std %.5e (1e-3 +- %.1e), lag-1 %.4f (%.4f +- %.4f)\n",
+                  mean, tol_mean, sd, tol_sd, r1, a1, tol_r1);
+    assert_true(fabs(mean - off) < tol_mean);
+    assert_true(fabs(sd - sigma) < tol_sd);
+    assert_true(fabs(r1 - a1) < tol_r1);
+
+    const char *path = write_tmp("noise_bad_corr.cfg",
+                                 stand_text(meas, dist,
+                                            "simulation = { noise = ( { channel = \"x1\"; std = 1.0e-3; "
+                                            "correlation_time = -1.0; } ); };\n"));
+    vibid_stand_error serr;
+    vibid_stand *st = vibid_stand_load(path, &serr);
+    if (!st) fail_msg("%s", serr.text);
+    sim_config cfg;
+    assert_int_equal(sim_config_load(path, st, NULL, &cfg, err, sizeof err), -1);
+    print_message("  %s\n", err);
+    assert_non_null(strstr(err, "simulation.noise.[0]"));
+    assert_non_null(strstr(err, "correlation_time = -1 s must be >= 0"));
+    vibid_stand_destroy(st);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -359,6 +433,7 @@ int main(void)
         cmocka_unit_test(test_held_exact),
         cmocka_unit_test(test_true_std_required),
         cmocka_unit_test(test_stand_noise),
+        cmocka_unit_test(test_coloured_noise_and_offset),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

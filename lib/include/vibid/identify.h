@@ -21,6 +21,8 @@
  *       where some coordinate is not measured (no sensor on a mass, only an accelerometer
  *       where a spring needs the displacement) or that are excited by unmeasured random
  *       forces (vibid_model_add_disturbance). Details below.
+ * LS, IV and AUTO also fit a constant force per node's equation where the data need it
+ * (sensor offsets, constant loads: vibid_ident_config.constant_terms, below).
  * With the regressor pre-filter (prefilter_hz > 0) the noise that central differences
  * amplify is removed before it reaches any estimator; for example 1 of the paper at
  * 1 % noise that is what brings every estimator from tens of percent to below 1 %
@@ -66,7 +68,7 @@ typedef enum vibid_estimator {
  *  - estimator: instrumental variables with block statistics (the IV below). Noise on
  *    any measured channel that enters the regressor biases LS and RLS (badly with
  *    differences: +100 % and more at 1 % noise); IV is consistent with noise and exact
- *    without. Recursive in the sense that matters: the per-sample push is O(p^2 m) and
+ *    without. Recursive in the sense that matters: the per-sample push is O((p + n)^2 m) and
  *    allocation-free, an estimate is formed from the running sums when asked for; with
  *    forgetting < 1 the sums are exponentially weighted (tracking).
  *  - difference_order 4 (five-point stencils: bias (w h)^4 / 30 instead of (w h)^2 / 6).
@@ -187,6 +189,56 @@ typedef enum vibid_estimator {
  *    VIBID_E_DIVERGED for that sample and the filter restarts from its start values;
  *    the next samples are processed normally.
  */
+/* Constant forces in the equation-error regression (vibid_ident_config.constant_terms).
+ * A constant sensor offset o on a measured channel (measured = true + o: a displacement
+ * sensor's zero error, an accelerometer's or a load cell's bias) or a constant force on a
+ * mass (gravity on a tilted stand, a preload) enters the structured equations (4.1) of a
+ * linear stand as a constant in each node's equation: k o through a spring, d o through a
+ * damper whose velocity is measured, m o through a measured acceleration, gain o through a
+ * force channel (the differences that form unmeasured velocities and accelerations cancel
+ * it). Unmodelled it biases every estimator, IV most (its delayed instruments have a
+ * nonzero mean where the regressors do: a gain 10 times off on a real capture, issue 29).
+ * With constant terms, each node's equation gets one more unknown, the constant force f0_i
+ * on node i in
+ *     M y'' + D y' + C y + cubic = B u + c_b s + d_b s' + f0
+ * (measured = true + o, so a displacement offset o of a node tied to ground by a spring k
+ * shows as f0 = k o, on a chain as f0 = C o with the stiffness matrix C),
+ * a regressor that is 1 in every row of that equation, passed through the pre-filter like
+ * every column. The n constants are unknowns of the fit only: theta, its standard errors
+ * and vibid_ident_covariance keep their p entries (the covariance of theta is the marginal
+ * of the fit with the constants, their correlation with theta accounted for); the
+ * constants themselves come from vibid_ident_constant_forces. A cubic spring turns an offset
+ * into x^2 and x terms too, which a constant does not absorb (the output-error estimator's
+ * channel offsets do, VIBID_ESTIMATOR_OE).
+ *  AUTO (default): the regression is accumulated with the constants (the same sums serve
+ *      both fits); at each estimate the fit with them is formed, and a Wald test of all
+ *      constants = 0 (chi-square with n degrees of freedom, on the estimator's own
+ *      covariance) decides: p-value below 1e-3 keeps the fit with the constants, otherwise
+ *      the plain fit stands, the same as OFF (but for the pre-filter pilot, whose candidate
+ *      estimates each choose for themselves: 1 of 100 offset-free realisations differed in
+ *      ident.constant_terms). No covariance for the fit with the constants (too few blocks
+ *      early in a run, or n_eff <= p + n + 1: block_iv.hpp), no test: the plain fit stands.
+ *      With forgetting < 1 the blocks span about 6 memories, n_eff is about 10, so a stand
+ *      with p + n >= 9 gets no test (the chain of ident.constant_terms, p 6 + n 3, with
+ *      forgetting 0.9997: plain fit kept, d1 +28 % from the offsets; ON gives the fit with
+ *      the constants, flagged VIBID_QUALITY_SE_INVALID). LS's test uses its textbook
+ *      covariance, too small for coloured equation errors: it keeps the constants in about
+ *      half of offset-free captures, which costs it no accuracy. README has the measured
+ *      rates and costs. The last estimate's choice and p-value: vibid_ident_constant_forces;
+ *      the rule itself: vibid_ident_describe.
+ *  ON:  always with the constants.
+ *  OFF: never (the regression as before this setting; nothing is accumulated for them).
+ * Estimators: LS, IV and AUTO on the structured form (central differences), also with
+ * forgetting < 1. Not (yet) RLS and the ZOH form: there AUTO means OFF and ON is refused at
+ * vibid_ident_create (VIBID_E_UNSUPPORTED). EKF and KF+RLS: not used. OE: its own offsets
+ * per response channel (vibid_ident_offsets); its equation-error start follows this
+ * setting. */
+typedef enum vibid_constant_terms {
+    VIBID_CONSTANT_AUTO = 0, /* tested for at each estimate, kept where the data need them (default) */
+    VIBID_CONSTANT_OFF = 1,  /* never */
+    VIBID_CONSTANT_ON = 2    /* always */
+} vibid_constant_terms;
+
 typedef struct vibid_ident_config {
     vibid_estimator estimator; /* default VIBID_ESTIMATOR_AUTO */
     double sample_time;   /* h in s, > 0 */
@@ -202,6 +254,8 @@ typedef struct vibid_ident_config {
                              are replayed. Start values without P0 (vibid_ident_set_prior)
                              use alpha 1e-9. */
     unsigned difference_order; /* 2 (1.17) or 4 (five-point), 0 = automatic (default: 4) */
+    vibid_constant_terms constant_terms; /* constant forces per equation (above); default
+                                            VIBID_CONSTANT_AUTO */
 } vibid_ident_config;
 
 typedef struct vibid_ident_info {
@@ -236,7 +290,8 @@ typedef struct vibid_ident_quality {
 } vibid_ident_quality;
 
 /* Defaults for sample time h (s): AUTO estimator, automatic pre-filter, lag and
- * difference order, forgetting 1, automatic RLS prior (rls_alpha 0). */
+ * difference order, forgetting 1, automatic RLS prior (rls_alpha 0), constant terms
+ * tested for (VIBID_CONSTANT_AUTO). */
 VIBID_API void vibid_ident_config_init(vibid_ident_config *cfg, double sample_time);
 
 /* Creates an identification for a finalized model (copied). Runs
@@ -290,11 +345,27 @@ VIBID_API vibid_status vibid_ident_estimate(vibid_ident *ident, double *theta, d
 
 /* Constant offsets of the measured response channels in the last estimate (OE: one per
  * response channel, in the channel's units, measured = true + offset; every other
- * estimator: none). *n_out receives their number; up to cap of them are written to
+ * estimator: none; LS, IV and AUTO absorb offsets as constant forces instead:
+ * vibid_ident_constant_forces). *n_out receives their number; up to cap of them are written to
  * channels (the channel index in the sample), values and se (each may be NULL).
  * VIBID_E_STATE before an estimate. */
 VIBID_API vibid_status vibid_ident_offsets(const vibid_ident *ident, size_t cap, size_t *n_out, size_t *channels,
                                            double *values, double *se);
+
+/* Constant forces of the last estimate of the equation-error estimators (LS, IV, AUTO;
+ * vibid_ident_config.constant_terms above): f0_i, the constant force on node i in
+ * M y'' + D y' + C y + cubic = B u + c_b s + d_b s' + f0, in the force unit of the model's
+ * equations (N with SI channels), with its standard error (the estimator's covariance:
+ * batch means for IV and AUTO; LS's textbook one, which assumes white equation errors).
+ * *n_out receives their number: n (one per node, node order) when the estimate includes
+ * them, 0 when the plain fit stands (OFF, AUTO with the test not rejecting, and the other
+ * estimators); up to cap of them are written to nodes (node index), values and se (each
+ * may be NULL). p_value (may be NULL) receives the Wald test's p-value for all constants
+ * = 0 from the fit with them (NaN when no test was made: OFF, other estimators, or a
+ * covariance not yet available); under AUTO the constants are kept when it is below 1e-3.
+ * VIBID_E_STATE before an estimate. */
+VIBID_API vibid_status vibid_ident_constant_forces(const vibid_ident *ident, size_t cap, size_t *n_out,
+                                                   size_t *nodes, double *values, double *se, double *p_value);
 
 /* Covariance of the last estimate (p x p), consistent with its standard errors. Valid
  * after a successful vibid_ident_estimate. */
@@ -331,7 +402,8 @@ VIBID_API vibid_status vibid_ident_describe(const vibid_ident *ident, char *buf,
  *
  * vibid_ident_twin_create: allocates (not per sample). NULL with VIBID_E_STATE for LS
  * (its estimate is its solve: nothing to save by deferring), EKF and KF+RLS.
- * vibid_ident_twin_sync: O(64 p_reg (p_reg + q)) copies for the IV family, O(p_reg^3) for
+ * vibid_ident_twin_sync: O(64 p_a (p_a + q)) copies for the IV family (p_a = p_reg plus the
+ * n constant-force columns unless constant_terms is OFF), O(p_reg^3) for
  * RLS; allocation-free. VIBID_E_STATE when twin was not made for ident. Destroy a twin
  * with vibid_ident_destroy, before or after its identification. */
 VIBID_API vibid_ident *vibid_ident_twin_create(const vibid_ident *ident);
