@@ -38,7 +38,6 @@ from vibid._stand import to_libconfig
 
 from bench_oe import sim_path  # vibid-sim of the suite's build, or VIBID_SIM (this folder)
 
-REPO = Path(__file__).resolve().parents[2]
 SAMPLES_PER_PERIOD = 9.0
 
 
