@@ -11,7 +11,9 @@
 #include <string.h>
 #include <time.h>
 
+#include <vibid/common.h>
 #include <vibid/stand_file.h>
+#include <vibid/version.h>
 #include <vibid_drivers/candump.h>
 #include <vibid_drivers/register_map.h>
 
@@ -63,10 +65,12 @@ static const char usage[] =
     "Other:\n"
     "  -q, --quiet            no summary on stderr\n"
     "  -h, --help             this text\n"
+    "      --version          version of vibid-sim and of the libvibid it runs on\n"
     "\n"
     "The simulation itself never pauses: faults and stops affect only what is sent.\n"
     "The CSV always holds every sample (the truth to compare a receiver against).\n"
-    "Exit status: 0 success, 1 runtime failure, 2 bad command line or input file.\n";
+    "Options take their value as the next argument or after '=' (--csv=FILE).\n"
+    "Exit status: 0 success, 1 run-time failure, 2 bad command line or input file.\n";
 
 static volatile sig_atomic_t g_quit;
 static void on_term(int sig) { (void)sig; g_quit = 1; }
@@ -124,7 +128,7 @@ int main(int argc, char **argv)
     double stop_at[SIM_MAX_SCHEDULE], resume_at[SIM_MAX_SCHEDULE];
     size_t n_stop = 0, n_resume = 0;
     enum { O_CSV = 256, O_CANDUMP, O_DIFACE, O_EPOCH, O_CAN, O_FD, O_CLASSIC, O_MODBUS, O_REGMAP, O_WDBC, O_WREG,
-           O_RT, O_FAST, O_DROP, O_DUP, O_CORRUPT, O_FSEED, O_STOP, O_RESUME, O_SEED };
+           O_RT, O_FAST, O_DROP, O_DUP, O_CORRUPT, O_FSEED, O_STOP, O_RESUME, O_SEED, O_VERSION };
     static const struct option lopts[] = {
         {"config", required_argument, NULL, 'c'}, {"sim", required_argument, NULL, 's'}, {"duration", required_argument, NULL, 'd'},
         {"csv", required_argument, NULL, O_CSV}, {"candump", required_argument, NULL, O_CANDUMP},
@@ -137,7 +141,8 @@ int main(int argc, char **argv)
         {"duplicate", required_argument, NULL, O_DUP}, {"corrupt", required_argument, NULL, O_CORRUPT},
         {"fault-seed", required_argument, NULL, O_FSEED}, {"stop-at", required_argument, NULL, O_STOP},
         {"resume-at", required_argument, NULL, O_RESUME}, {"seed", required_argument, NULL, O_SEED},
-        {"quiet", no_argument, NULL, 'q'}, {"help", no_argument, NULL, 'h'}, {NULL, 0, NULL, 0}};
+        {"quiet", no_argument, NULL, 'q'}, {"help", no_argument, NULL, 'h'},
+        {"version", no_argument, NULL, O_VERSION}, {NULL, 0, NULL, 0}};
     int o;
     opterr = 0;
     while ((o = getopt_long(argc, argv, ":c:s:d:qh", lopts, NULL)) != -1) {
@@ -177,6 +182,7 @@ int main(int argc, char **argv)
         }
         case 'q': quiet = 1; break;
         case 'h': fputs(usage, stdout); return 0;
+        case O_VERSION: printf("vibid-sim %s (libvibid %s)\n", VIBID_VERSION_STRING, vibid_version_string()); return 0;
         case ':': fprintf(stderr, "vibid-sim: option %s needs a value (see --help)\n", argv[optind - 1]); return 2;
         default: fprintf(stderr, "vibid-sim: unknown option '%s' (see --help)\n", argv[optind - 1]); return 2;
         }

@@ -17,7 +17,7 @@ import pytest
 
 import vibid
 from vibid import _adequacy
-from conftest import EX1_TRUTH, EXAMPLE1, REPO, example1_capture, sim_path
+from conftest import EX1_TRUTH, EXAMPLE1, REPO, example1_capture, sim_path, vibidd_path
 from vibid import _cli
 
 # The console script pip installed next to the interpreter running the tests (the venv's).
@@ -275,19 +275,19 @@ def test_check_unseparable_stand_exits_1(tmp_path):
     assert "Traceback" not in proc.stderr
 
 
-def test_bad_capture_path_exits_1(tmp_path):
+def test_bad_capture_path_exits_2(tmp_path):
     missing = tmp_path / "nope.csv"
     proc = run("identify", EXAMPLE1, missing)
-    assert proc.returncode == 1
+    assert proc.returncode == 2
     assert str(missing) in proc.stderr and "no such file" in proc.stderr, proc.stderr
     assert "Traceback" not in proc.stderr
 
 
-def test_capture_that_does_not_fit_the_stand_exits_1(tmp_path):
+def test_capture_that_does_not_fit_the_stand_exits_2(tmp_path):
     cap = tmp_path / "wrong.csv"
     pd.DataFrame({"x1": [0.0] * 10, "x3": [0.0] * 10, "s": [0.0] * 10}).to_csv(cap, index=False)
     proc = run("identify", EXAMPLE1, cap)
-    assert proc.returncode == 1
+    assert proc.returncode == 2
     assert "x2" in proc.stderr and "Traceback" not in proc.stderr, proc.stderr
 
 
@@ -298,10 +298,39 @@ def test_usage_errors_exit_2():
     assert run().returncode == 2  # no command
 
 
-def test_simulate_without_vibid_sim_exits_1(tmp_path):
+def test_simulate_without_vibid_sim_exits_2(tmp_path):
     env = dict(os.environ, VIBID_SIM=str(tmp_path / "no-such-sim"))
     proc = run("simulate", EXAMPLE1, tmp_path / "out.csv", env=env)
-    assert proc.returncode == 1 and "VIBID_SIM" in proc.stderr, proc.stderr
+    assert proc.returncode == 2 and "VIBID_SIM" in proc.stderr, proc.stderr
+
+
+def test_unwritable_output_exits_1(tmp_path):
+    # Good inputs, an output that cannot be written: a run-time failure (1), not bad input (2).
+    data, t = example1_capture(n=4000, noise=0.005, seed=3)
+    cap = tmp_path / "cap.csv"
+    pd.DataFrame(data).to_csv(cap, index=False)
+    proc = run("identify", EXAMPLE1, cap, "--tracks", tmp_path / "no-such-dir" / "tracks.csv")
+    assert proc.returncode == 1, proc.stderr
+    assert "cannot write the output" in proc.stderr and "no-such-dir" in proc.stderr, proc.stderr
+    assert "Traceback" not in proc.stderr
+
+
+def test_version_of_every_program():
+    # One convention for the three programs: `--version` prints the program and the library.
+    proc = run("--version")
+    assert proc.returncode == 0 and re.fullmatch(r"vibid \d+\.\d+\.\d+\n", proc.stdout), proc.stdout
+    for prog in (vibidd_path(), sim_path()):
+        if not prog.exists():
+            pytest.skip(f"{prog} not built (build the C suite)")
+        out = subprocess.run([str(prog), "--version"], capture_output=True, text=True, timeout=10)
+        assert out.returncode == 0 and re.fullmatch(rf"{prog.name} \d+\.\d+\.\d+ \(libvibid \d+\.\d+\.\d+\)\n",
+                                                    out.stdout), out.stdout
+        bad = subprocess.run([str(prog), "--no-such-option"], capture_output=True, text=True, timeout=10)
+        assert bad.returncode == 2 and "unknown option '--no-such-option'" in bad.stderr, bad.stderr
+        # getopt_long's --opt=value form: the value is taken as the file (and refused, exit 2)
+        eq = subprocess.run([str(prog), "--config=/no/such/stand.cfg", *(["--csv=/dev/null"] if prog.name == "vibid-sim" else [])],
+                            capture_output=True, text=True, timeout=10)
+        assert eq.returncode == 2 and "/no/such/stand.cfg" in eq.stderr, eq.stderr
 
 
 def test_simulate_with_vibid_sim(tmp_path):

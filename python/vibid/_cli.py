@@ -46,8 +46,23 @@ FLAG_MEANING = {
 }
 
 
+# Exit status, as vibidd's and vibid-sim's: 0 success; 1 a failure while running on good input
+# (an output that cannot be written; `check`'s "cannot be identified"); 2 a bad command line,
+# input or configuration (a stand or capture that is missing, unreadable or refused, vibid-sim
+# not found, an extra not installed). The message on stderr, no traceback.
+EXIT_RUN_FAILURE = 1
+EXIT_BAD_INPUT = 2
+
+
 class CliError(Exception):
-    """A refusal to report on stderr with exit status 1 (no traceback)."""
+    """A refusal of the command line, an input or the configuration: its message on stderr,
+    no traceback, exit status 2."""
+    status = EXIT_BAD_INPUT
+
+
+class RunFailure(CliError):
+    """A failure while running on good input (an output that cannot be written): exit status 1."""
+    status = EXIT_RUN_FAILURE
 
 
 def _fmt(v: float, digits: int = 10) -> str:
@@ -485,12 +500,15 @@ def cmd_identify(a: argparse.Namespace) -> int:
     out += ["warnings:"] + [f"  {w}" for w in warns] if warns else ["warnings: none"]
     out += ["", config_line(result), "estimator:"] + [f"  {line}" for line in result.description.splitlines()]
     print("\n".join(out), flush=True)
-    if a.tracks:
-        write_tracks(result, a.tracks)
-        print(f"tracks: {len(result.tracks)} rows written to {a.tracks}")
-    if a.report:
-        write_report(result, block, a.capture, a.report)
-        print(f"report: {a.report}")
+    try:
+        if a.tracks:
+            write_tracks(result, a.tracks)
+            print(f"tracks: {len(result.tracks)} rows written to {a.tracks}")
+        if a.report:
+            write_report(result, block, a.capture, a.report)
+            print(f"report: {a.report}")
+    except OSError as e:
+        raise RunFailure(f"cannot write the output: {e}") from None
     return 0
 
 
@@ -521,7 +539,7 @@ def cmd_check(a: argparse.Namespace) -> int:
     except _core.VibidError as e:
         print(f"  automatic estimator: refused: {e}")
         print(f"{PROG} check: {stand.source}: cannot be identified: {e}", file=sys.stderr)
-        return 1
+        return EXIT_RUN_FAILURE
     first = ident.describe().splitlines()
     print(f"  automatic estimator: accepted: {first[0] if first else ''}")
     print("identifiable")
@@ -557,7 +575,11 @@ def cmd_simulate(a: argparse.Namespace) -> int:
 
 def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog=PROG, description="Identification of mechanical vibration systems "
-                                 "(masses, damping, stiffness) by least squares: docs/python.md.")
+                                 "(masses, damping, stiffness) by least squares: docs/python.md.",
+                                 epilog="Exit status: 0 success, 1 a failure while running (an output that "
+                                 "cannot be written; check: the stand cannot be identified), 2 a bad command "
+                                 "line, input or configuration.")
+    ap.add_argument("--version", action="version", version=f"{PROG} {_core.version()}")
     sub = ap.add_subparsers(dest="command", required=True, metavar="{identify,check,simulate}")
     p = sub.add_parser("identify", help="identify a stand's unknowns from a capture",
                        description="Prints the parameters and modes with standard errors and flags; "
@@ -605,11 +627,15 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         # of stdout from raising again.
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 141
-    except (CliError, _core.VibidError, ValueError, OSError, ImportError) as e:
-        # What the library or the data refuse: the message alone (it names the file, field,
-        # channel or parameter), no traceback.
+    except CliError as e:
         print(f"{PROG} {a.command}: error: {e}", file=sys.stderr)
-        return 1
+        return e.status
+    except (_core.VibidError, ValueError, OSError, ImportError) as e:
+        # What the library, the loaders or the data refuse (outputs are written inside a
+        # RunFailure guard, so these come from the inputs): the message alone (it names the
+        # file, field, channel or parameter), no traceback.
+        print(f"{PROG} {a.command}: error: {e}", file=sys.stderr)
+        return EXIT_BAD_INPUT
 
 
 if __name__ == "__main__":  # python -m vibid._cli
