@@ -491,12 +491,12 @@ static int load_source(ctx *c, config_t *cf)
         if (get_bool(c, src, "source", "paced", false, &cfg->paced) ||
             get_double(c, src, "source", "speed", 1.0, 1e-3, 1e6, &cfg->speed))
             return -1;
-        bool csv = fi == VIBID_REPLAY_CSV;
-        if (fi == VIBID_REPLAY_AUTO) {
-            size_t L = strlen(cfg->replay_file);
-            csv = L >= 4 && strcasecmp(cfg->replay_file + L - 4, ".csv") == 0;
-        }
-        if (!csv) {
+        char why[512];
+        const vibid_replay_format resolved =
+            vibid_replay_format_resolve((vibid_replay_format)fi, cfg->replay_file, why, sizeof why);
+        if (resolved == VIBID_REPLAY_AUTO)
+            return vibid_cfg_fail(&c->r, config_setting_get_member(src, "file"), "source.file", "%s", why);
+        if (resolved == VIBID_REPLAY_CANDUMP) {
             if (load_dbc(c, src))
                 return -1;
         } else if (config_setting_get_member(src, "dbc")) {

@@ -50,12 +50,6 @@ static bool is_recording(const char *path)
     return yes;
 }
 
-static bool has_csv_ext(const char *p)
-{
-    size_t L = strlen(p);
-    return L >= 4 && strcasecmp(p + L - 4, ".csv") == 0;
-}
-
 /* The replay source's configuration for capture `path` (vibidd's own recording: columns
  * by channel name, time column t). 0, or -1 with err. */
 static int replay_config(const vd_config *cfg, const char *path, int format, bool paced, double speed,
@@ -68,8 +62,10 @@ static int replay_config(const vd_config *cfg, const char *path, int format, boo
     rc.speed = speed > 0 ? speed : 1.0;
     rc.sample_period_s = 1.0 / cfg->sample_rate;
     rc.chanmap = cfg->chanmap;
-    bool csv = format == VIBID_REPLAY_CSV || (format == VIBID_REPLAY_AUTO && has_csv_ext(path));
-    if (csv) {
+    const vibid_replay_format resolved = vibid_replay_format_resolve((vibid_replay_format)format, path, err, cap);
+    if (resolved == VIBID_REPLAY_AUTO)
+        return -1;
+    if (resolved == VIBID_REPLAY_CSV) {
         rc.format = VIBID_REPLAY_CSV;
         if (is_recording(path)) {
             /* Our own recording: columns are the channel names, time in column t. */

@@ -1425,12 +1425,15 @@ private:
 // vibid_drivers.cpp: candump captures and vibid.replay (built only with the drivers).
 void vibid_register_drivers(nb::module_ &m);
 #endif
+// vibid_formats.cpp: the capture-format registry (every build).
+void vibid_register_formats(nb::module_ &m);
 
 NB_MODULE(_core, m) {
     m.doc() = "vibid._core: nanobind binding of libvibid's C API (use the vibid package instead)";
     nb::exception<VibidError>(m, "VibidError", PyExc_RuntimeError);
 
     m.def("version", [] { return std::string(vibid_version_string()); });
+    vibid_register_formats(m);
 #ifdef VIBID_HAVE_DRIVERS
     vibid_register_drivers(m);
 #endif

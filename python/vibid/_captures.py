@@ -21,11 +21,13 @@ import pandas as pd
 from . import _core
 from ._stand import Stand
 
-# Extension -> format. ".mdf" is also MDF version 3, which asammdf reads as well.
-_EXTENSIONS = {".csv": "csv", ".mf4": "mdf", ".mdf": "mdf", ".tdms": "tdms", ".log": "candump"}
-_FORMATS = {"csv": "csv", "mdf": "mdf", "mf4": "mdf", "mdf4": "mdf", "tdms": "tdms", "candump": "candump"}
-_ACCEPTED = (".csv (format='csv'), .mf4 or .mdf (ASAM MDF4, format='mdf'), .tdms (NI TDMS, format='tdms'), "
-             ".log with dbc= (candump, format='candump')")
+# The capture formats: the drivers' registry (vibid_drivers/capture_format.h), which vibidd
+# reads too: names, aliases, extensions, recognition by content. ".mdf" is also MDF version 3,
+# which asammdf reads as well.
+FORMATS = _core.capture_formats()  # [(name, aliases, extensions, title, vibidd_replays, needs_dbc)]
+_FORMATS = {alias: name for name, aliases, *_ in FORMATS for alias in [name, *aliases.split()]}
+_ACCEPTED = ", ".join(f"{' or '.join(ext.split())} ({title}, format={name!r}{', with dbc=' if dbc else ''})"
+                      for name, _, ext, title, _, dbc in FORMATS)
 # Time columns/channels looked for when the file has no time base of its own (CSV: the
 # columns identify has always accepted; TDMS: also the names NI's loggers use).
 _CSV_TIME = ("time_s", "t")
@@ -53,13 +55,15 @@ def _format_of(path: str, format: Optional[str]) -> str:
     if format is not None:
         f = _FORMATS.get(str(format).lower())
         if f is None:
-            raise ValueError(f"format {format!r} for {path}: one of 'csv', 'mdf', 'tdms', 'candump'")
+            raise ValueError(f"format {format!r} for {path}: one of {', '.join(repr(n) for n, *_ in FORMATS)}")
         return f
-    ext = os.path.splitext(path)[1].lower()
-    f = _EXTENSIONS.get(ext)
-    if f is None:
-        raise ValueError(f"{path}: unknown capture format {ext or '(no extension)'!r}; accepted: {_ACCEPTED}; "
-                         "or give format=")
+    # the file's content first (MDF4, TDMS, candump and CSV are told apart by their first
+    # bytes), its extension when the content says nothing
+    f = _core.capture_format_of_file(str(path))
+    if not f:
+        ext = os.path.splitext(path)[1].lower()
+        raise ValueError(f"{path}: unknown capture format (extension {ext or '(none)'!r}, content not "
+                         f"recognised); accepted: {_ACCEPTED}; or give format=")
     return f
 
 
@@ -317,9 +321,10 @@ def read_capture(path: str | os.PathLike, stand: Stand | str | os.PathLike, *, f
     if not isinstance(stand, Stand):
         stand = Stand.load(stand)
     path = os.fspath(path)
-    ext = os.path.splitext(path)[1].lower()
-    # With a DBC, a log of any name is candump, as for vibidd's replay (source_replay.h).
-    fmt = "candump" if format is None and dbc is not None and ext not in _EXTENSIONS else _format_of(path, format)
+    # With a DBC, a file that neither content nor name place is candump, as for vibidd's
+    # replay (source_replay.h).
+    unplaced = format is None and dbc is not None and not _core.capture_format_of_file(path)
+    fmt = "candump" if unplaced else _format_of(path, format)
     names = _mapping(stand, channels)
     attrs = {}
     if fmt == "candump":

@@ -546,6 +546,44 @@ def cmd_check(a: argparse.Namespace) -> int:
     return 0
 
 
+# vibidd recognises its own raw recordings by this first line (daemon/src/writers.h,
+# VD_RECORDING_MAGIC) and then reads the columns by the stand's channel names, time in t.
+RECORDING_MAGIC = "# vibidd raw recording"
+
+
+def cmd_convert(a: argparse.Namespace) -> int:
+    from ._captures import read_capture
+
+    stand = _load_stand(a.stand)
+    if not os.path.exists(a.capture):
+        raise CliError(f"capture {a.capture!r}: no such file")
+    if os.path.exists(a.out) and os.path.samefile(a.capture, a.out):
+        raise CliError(f"{a.out!r} is the capture itself: give another output file")
+    df = read_capture(a.capture, stand, format=a.format, group=a.group, dbc=a.dbc, channel_map=a.channel_map)
+    fmt = a.format or _core.capture_format_of_file(a.capture) or ("candump" if a.dbc else "?")
+    block = df[list(stand.channels)]
+    t = df["time_s"].to_numpy() if "time_s" in df else np.arange(len(df)) / stand.sample_rate
+    # A candump log's missing samples are NaN rows: left out, never written as numbers, so
+    # that vibidd's replay sees the gap in the time column (and counts it) as in the log.
+    keep = ~block.isna().any(axis=1).to_numpy()
+    out = pd.DataFrame({"t": t[keep], **{c: block[c].to_numpy()[keep] for c in stand.channels}})
+    try:
+        with open(a.out, "w", encoding="utf-8", newline="") as f:
+            f.write(f"{RECORDING_MAGIC} of stand '{stand.name}' at {stand.sample_rate!r} Hz; converted by "
+                    f"vibid convert from {os.path.basename(a.capture)} ({fmt}); replay: vibidd -c CONFIG "
+                    "--replay FILE\n")
+            # float_format None: each value's shortest round-trip text (repr), so the doubles
+            # read back bit for bit
+            out.to_csv(f, index=False, lineterminator="\n")
+    except OSError as e:
+        raise RunFailure(f"cannot write {a.out}: {e}") from None
+    dropped = int((~keep).sum())
+    print(f"{a.out}: {int(keep.sum())} samples of {len(stand.channels)} channels ({', '.join(stand.channels)}) "
+          f"in {stand.name}'s units, time column t"
+          + (f"; {dropped} missing samples left out (gaps in t)" if dropped else ""))
+    return 0
+
+
 def _vibid_sim() -> str:
     p = os.environ.get("VIBID_SIM")
     if p:
@@ -580,7 +618,7 @@ def _parser() -> argparse.ArgumentParser:
                                  "cannot be written; check: the stand cannot be identified), 2 a bad command "
                                  "line, input or configuration.")
     ap.add_argument("--version", action="version", version=f"{PROG} {_core.version()}")
-    sub = ap.add_subparsers(dest="command", required=True, metavar="{identify,check,simulate}")
+    sub = ap.add_subparsers(dest="command", required=True, metavar="{identify,convert,check,simulate}")
     p = sub.add_parser("identify", help="identify a stand's unknowns from a capture",
                        description="Prints the parameters and modes with standard errors and flags; "
                        "optionally writes the tracks and an HTML report.")
@@ -599,6 +637,21 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--tracks", metavar="OUT.csv", help="write the tracks here (overwritten)")
     p.add_argument("--report", metavar="OUT.html", help="write a self-contained HTML report here (needs matplotlib)")
     p.set_defaults(func=cmd_identify)
+    p = sub.add_parser("convert", help="write any capture the package reads as CSV that vibidd replays",
+                       description="Reads CAPTURE (CSV, candump with --dbc, MDF4, TDMS: the drivers' format "
+                       "registry) as identify does (the stand's channels, in its units) and writes OUT.csv: "
+                       "vibidd's raw-recording layout (a '# vibidd raw recording' line, then t and the stand's "
+                       "channels by name, every value in its shortest round-trip form), which `vibidd "
+                       "--replay OUT.csv` reads without a channel map. Missing samples are left out.")
+    p.add_argument("stand", metavar="STAND")
+    p.add_argument("capture", metavar="CAPTURE")
+    p.add_argument("out", metavar="OUT.csv")
+    p.add_argument("--format", help="the capture's format when neither its content nor its name tells "
+                   "(csv, candump, mdf, tdms)")
+    p.add_argument("--group", help="TDMS group or MDF4 data group")
+    p.add_argument("--dbc", help="DBC of a candump log")
+    p.add_argument("--channel-map", dest="channel_map", help="channel map of a candump log")
+    p.set_defaults(func=cmd_convert)
     p = sub.add_parser("check", help="channels, unknowns and identifiability of a stand",
                        description="Exit status 0 when the stand can be identified, 1 when not (the reason on "
                        "stdout and stderr).")
