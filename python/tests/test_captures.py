@@ -342,7 +342,7 @@ def test_tdms_time_base_2_percent_off_refused(tmp_path, example1_stand, ex1_clea
 
 def test_unknown_format_names_path_and_formats(tmp_path, example1_stand):
     path = tmp_path / "capture.h5"
-    path.write_bytes(b"")
+    path.write_bytes(b"\x89HDF\r\n\x1a\n")  # HDF5's signature: neither its content nor its name is a capture format
     # the accepted formats as the drivers' registry lists them (capture_format.h)
     with pytest.raises(ValueError, match=r"capture\.h5: unknown capture format \(extension '\.h5', content not "
                                          r"recognised\); accepted: \.log \(candump -l log, format='candump', with dbc=\), "
@@ -409,7 +409,7 @@ def test_units_by_quantity_and_stand_length_unit(tmp_path):
 def test_missing_extra_says_how_to_install(tmp_path, monkeypatch, example1_stand, module, extra, name):
     # As without the extra installed: a None in sys.modules makes the import fail.
     path = tmp_path / name
-    path.write_bytes(b"")
+    path.write_bytes(b"MDF     4.10    " if extra == "mdf" else b"TDSm")  # the formats' first bytes
     monkeypatch.setitem(sys.modules, module, None)
     with pytest.raises(ImportError, match=rf"reading .*{name} needs the package '{module}': "
                                           rf"pip install '\./python\[{extra}\]'"):
