@@ -39,5 +39,7 @@ t3=$(now)
 pip_s=$(secs "$t2" "$t3")
 "$work/venv/bin/python" -c 'import vibid, vibid._core as c; assert c.HAVE_DRIVERS and c.HAVE_DAEMON' ||
     { echo "bench_install: the installed package lacks the drivers or vibidd's core"; exit 1; }
-echo "pip install ./python (fresh venv and cache, drivers and vibidd's core included): $pip_s s"
+sim=$("$work/venv/bin/python" -c 'from vibid import _cli; print(_cli.PACKAGED_SIM)')
+"$sim" --version > /dev/null || { echo "bench_install: the package's vibid-sim ($sim) does not run"; exit 1; }
+echo "pip install ./python (fresh venv and cache; drivers, vibidd's core and vibid-sim included): $pip_s s"
 awk -v a="$pip_s" -v b="$lib_s" 'BEGIN { printf "ratio install / yardstick: %.2f\n", a / b }'

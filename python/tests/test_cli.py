@@ -304,6 +304,20 @@ def test_simulate_without_vibid_sim_exits_2(tmp_path):
     assert proc.returncode == 2 and "VIBID_SIM" in proc.stderr, proc.stderr
 
 
+def test_simulate_finds_the_packaged_vibid_sim(tmp_path):
+    # Neither VIBID_SIM nor a vibid-sim on PATH: the package's own (built or copied with it,
+    # python/CMakeLists.txt) runs.
+    assert os.access(_cli.PACKAGED_SIM, os.X_OK), _cli.PACKAGED_SIM
+    env = {k: v for k, v in os.environ.items() if k != "VIBID_SIM"}
+    env["PATH"] = "/usr/bin:/bin"
+    out = tmp_path / "sim.csv"
+    proc = run("simulate", EXAMPLE1, out, "--sim", REPO / "sim" / "examples" / "paper_example1_sim.cfg",
+               "--duration", "0.5", env=env)
+    assert proc.returncode == 0, proc.stderr
+    df = pd.read_csv(out)
+    assert list(df.columns) == ["t", "s", "x1", "x2"] and len(df) == 1000, df.head()
+
+
 def test_unwritable_output_exits_1(tmp_path):
     # Good inputs, an output that cannot be written: a run-time failure (1), not bad input (2).
     data, t = example1_capture(n=4000, noise=0.005, seed=3)

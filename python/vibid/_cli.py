@@ -584,16 +584,24 @@ def cmd_convert(a: argparse.Namespace) -> int:
     return 0
 
 
+# vibid-sim as the package's build installs it (python/CMakeLists.txt) where SUNDIALS is there
+PACKAGED_SIM = os.path.join(os.path.dirname(os.path.abspath(__file__)), "bin", "vibid-sim")
+
+
 def _vibid_sim() -> str:
+    """VIBID_SIM, else the package's own vibid-sim, else the one on PATH."""
     p = os.environ.get("VIBID_SIM")
     if p:
         if not (os.path.isfile(p) and os.access(p, os.X_OK)):
             raise CliError(f"VIBID_SIM={p!r} is not an executable file")
         return p
+    if os.access(PACKAGED_SIM, os.X_OK):
+        return PACKAGED_SIM
     p = shutil.which("vibid-sim")
     if not p:
-        raise CliError("vibid-sim not found: put it on PATH or set VIBID_SIM to its path "
-                       "(it is built with the C tree: <build>/sim/vibid-sim)")
+        raise CliError("vibid-sim not found: the package was built without it (it needs SUNDIALS: apt install "
+                       "libsundials-dev, then reinstall), none is on PATH and VIBID_SIM is not set (the C tree "
+                       "builds it: <build>/sim/vibid-sim)")
     return p
 
 
