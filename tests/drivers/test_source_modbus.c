@@ -11,7 +11,7 @@
  *    rebooting device) is retried, never the end of the source; a flapping session id
  *    gives every sample exactly once; a random counter is not believed, and the samples
  *    lost meanwhile are a GAP as long as the elapsed time; a slow or dripping peer cannot
- *    hold a read; a response timeout just under a second is not rounded away.
+ *    hold a read; a response timeout just under whole seconds is not rounded away.
  * No assertion depends on how fast this machine is: the servers run under the test's
  * command (--control: freeze, stop, start, ... on their stdin, each answered when done)
  * and every loop waits for an event (samples, faults, counters of the source's stats)
@@ -106,8 +106,11 @@ static vibid_source *open_fifo(const vibid_regmap *rm, int port)
  * overrun while we were stalled: "exact"), freely only after a GAP estimated from the
  * elapsed time (a restart or a resynchronisation). The source's fault "FIFO server
  * restarted" starts the next server session (at most 2), where s starts again; s going
- * back anywhere else is a duplicate (counted in `backwards`). Faults containing `want` are counted in `matched`; the
- * delays of "retry in X s" faults are kept with the times of the call that reported them. */
+ * back anywhere else is a duplicate (counted in `backwards`). An exact GAP may come
+ * before a session's first sample (an overrun before anything was delivered: the
+ * session's stream starts that much earlier). Faults containing `want` are counted in
+ * `matched`; the delays of "retry in X s" faults are kept with the times of the call
+ * that reported them. */
 #define MAX_RETRIES 64
 typedef struct read_tally {
     uint64_t samples, faults, matched, backwards, doubled_prefix, link_faults, resyncs;
@@ -115,6 +118,7 @@ typedef struct read_tally {
     long first_s, last_s;                  /* -1: none */
     int session;                           /* 0, 1 */
     long sess_first[2], sess_last[2];
+    uint64_t sess_lead[2];                 /* exact GAP samples before the session's first sample */
     uint64_t sess_samples[2], sess_exact[2];
     uint64_t next_k, pending_exact;
     bool started, pending_est, pending_restart;
@@ -149,8 +153,13 @@ static void tally_record(read_tally *t, const vibid_record *r, const char *want)
             t->doubled_prefix++; /* "Modbus host:port: Modbus host:port: ..." */
         if (strstr(r->text, "FIFO stream resynchronised"))
             t->resyncs++;
-        if (strstr(r->text, "FIFO server restarted (session"))
+        if (strstr(r->text, "FIFO server restarted (session") && t->last_s >= 0) {
+            if (t->session == 1)
+                fail_msg("a third server session: %s", r->text);
+            t->session = 1; /* the server's next session: what follows is counted there */
             t->pending_restart = true;
+            t->pending_exact = 0;
+        }
         if (strstr(r->text, "link lost") || strstr(r->text, "reconnected"))
             t->retry_fresh = true;
         const char *q = strstr(r->text, "retry in ");
@@ -190,27 +199,41 @@ static void tally_record(read_tally *t, const vibid_record *r, const char *want)
     if (r->kind != VIBID_REC_SAMPLE)
         fail_msg("record kind %d at index %llu: %s", r->kind, (unsigned long long)r->index, r->text);
     const long sv = check_values(r);
-    if (t->pending_restart && t->last_s >= 0) {
-        if (t->session == 1)
-            fail_msg("a third server session at s = %ld", sv);
-        t->session = 1; /* the server's next session, counting from its start again */
+    if (t->pending_restart) {
+        /* the first of the new session: s starts again */
     } else if (t->last_s >= 0 && sv <= t->last_s) {
         t->backwards++; /* a duplicate or a re-read */
     } else if (t->last_s >= 0 && !t->pending_est && sv != tally_next_s(t)) {
         fail_msg("s = %ld after s = %ld and %llu samples of exact GAP: a sample lost or invented", sv, t->last_s,
                  (unsigned long long)t->pending_exact);
     }
+    if (t->sess_first[t->session] < 0) {
+        t->sess_first[t->session] = sv;
+        t->sess_lead[t->session] = t->pending_exact;
+    }
     t->pending_exact = 0;
     t->pending_est = t->pending_restart = false;
     if (t->first_s < 0)
         t->first_s = sv;
-    if (t->sess_first[t->session] < 0)
-        t->sess_first[t->session] = sv;
     t->sess_last[t->session] = sv;
     t->sess_samples[t->session]++;
     t->last_s = sv;
     t->samples++;
     t->next_k++;
+}
+
+/* Where a session's stream started: its first sample's s less the exact GAP before it
+ * (an overrun before anything was delivered). */
+static long tally_start(const read_tally *t, int session)
+{
+    return t->sess_first[session] - (long)t->sess_lead[session];
+}
+
+/* How many s values the (one-session) stream covers, from its start to its last sample
+ * and the exact GAP after it. */
+static long tally_range(const read_tally *t)
+{
+    return t->last_s + (long)t->pending_exact - tally_start(t, 0) + 1;
 }
 
 /* One read call (timeout_ms), every record tallied. */
@@ -261,7 +284,7 @@ static void one_stream_end(const read_tally *t, peer *srv, vibid_source *s, vibi
     assert_int_equal(t->backwards, 0);
     assert_int_equal(t->session, 0);
     assert_int_equal(t->est_gap, 0);
-    assert_int_equal(t->samples + t->exact_gap, (uint64_t)(t->last_s - t->first_s + 1));
+    assert_int_equal(t->samples + t->exact_gap, (uint64_t)tally_range(t));
     double t0, maxgap;
     unsigned long served;
     peer_stop(srv, 0, &served, &t0, &maxgap);
@@ -327,7 +350,7 @@ static void test_fifo_restart(void **state)
      * start margin if we connected late) to its frozen counter, exactly once: delivered,
      * or an exact GAP (an overrun while one of us was stalled, checked below). */
     for (int i = 0; i < 2; i++)
-        if (t.sess_samples[i] + t.sess_exact[i] != served[i] - (unsigned long)t.sess_first[i])
+        if (t.sess_samples[i] + t.sess_exact[i] != served[i] - (unsigned long)tally_start(&t, i))
             fail_msg("session %d: %llu samples + %llu exact GAP for s %ld..%ld, server served %lu", i,
                      (unsigned long long)t.sess_samples[i], (unsigned long long)t.sess_exact[i], t.sess_first[i],
                      t.sess_last[i], served[i]);
@@ -343,7 +366,7 @@ static void test_fifo_restart(void **state)
      * the truth, + 1 for the source's rounding. */
     assert_int_equal(t.est_gaps, 1);
     const double h = 1e-3;
-    const double truth = (t0[1] - t0[0]) / h + (double)t.sess_first[1] - (double)t.sess_last[0] - 1.0;
+    const double truth = (t0[1] - t0[0]) / h + (double)tally_start(&t, 1) - (double)t.sess_last[0] - 1.0;
     const double tol = ((double)t.clk.max_call * 1e-9 + fmax(maxgap[0], maxgap[1])) / h + 3.0;
     print_message("outage: GAP %llu samples, server's timestamps say %.1f, tolerance %.1f\n",
                   (unsigned long long)t.est_gap, truth, tol);
@@ -658,7 +681,7 @@ static void test_fifo_random_counter(void **state)
      * test_fifo_restart), the estimates chain from one to the next (each rounded: +-0.5),
      * so the cover is off by at most that, + 1. */
     const double h = 1e-3;
-    const long covered = (long)(t.samples + t.exact_gap + t.est_gap), range = t.last_s - t.first_s + 1;
+    const long covered = (long)(t.samples + t.exact_gap + t.est_gap), range = tally_range(&t);
     const double tol = ((double)t.clk.max_call * 1e-9 + maxgap) / h + 3.0 + 0.5 * (double)t.resyncs;
     print_message("random counter: samples + gap samples %ld, s range %ld, tolerance %.1f\n", covered, range, tol);
     if (fabs((double)(covered - range)) > tol)
@@ -723,7 +746,7 @@ static void test_slow_peer(void **state)
     assert_true(t.clk.max_requests <= 2);
     assert_int_equal(t.backwards, 0);
     assert_int_equal(t.est_gap, 0);
-    assert_int_equal(t.samples + t.exact_gap, (uint64_t)(t.last_s - t.first_s + 1));
+    assert_int_equal(t.samples + t.exact_gap, (uint64_t)tally_range(&t));
     t = slow_run("--drip 0.45", 0.5, dripped_out);
     print_message("answers dripped 1 byte / 0.45 s: %llu faults, %llu samples, longest call %.3f s\n",
                   (unsigned long long)t.faults, (unsigned long long)t.samples, (double)t.clk.max_call * 1e-9);
