@@ -12,7 +12,8 @@
  *      late, answers dripped one byte per 0.45 s; beside the bound the source promises
  *      (source_modbus.c, mb_read_src: the call timeout + one poll's counter and records
  *      requests, each within the response timeout + the 50 ms byte timeout: 1.2 s at the
- *      default 0.5 s response timeout).
+ *      default 0.5 s response timeout). The prompt peer's line also says how many samples
+ *      the FIFO overran at 1 kHz (the test checks overrun GAPs as exact, not their absence).
  * usage: bench_modbus_peer [SECONDS]   (default 10)
  * Python: VIBID_BENCH_PYTHON, else VIBID_PYTHON, else the test venv of this build. */
 #include <math.h>
@@ -124,9 +125,10 @@ static void longest_call(const char *label, const char *mode, double secs)
     vibid_source_close(s);
     peer_finish(&srv);
     vibid_regmap_destroy(rm);
-    printf("  %-44s longest %6.3f s  mean %6.3f s  (%llu calls, %llu samples, %llu timeouts)\n", label, longest,
-           total / (double)calls, (unsigned long long)calls, (unsigned long long)st.samples,
-           (unsigned long long)st.timeouts);
+    printf("  %-44s longest %6.3f s  mean %6.3f s  (%llu calls, %llu samples, %llu lost to FIFO overruns, %llu "
+           "timeouts)\n",
+           label, longest, total / (double)calls, (unsigned long long)calls, (unsigned long long)st.samples,
+           (unsigned long long)st.overruns, (unsigned long long)st.timeouts);
 }
 
 int main(int argc, char **argv)
