@@ -16,6 +16,7 @@ import gc
 import math
 import os
 import sys
+import traceback
 from typing import Any, Mapping, Optional
 
 import numpy as np
@@ -98,12 +99,18 @@ def _reading(path: str, fmt: str):
             tb = tb.tb_next
         ours = tb is not None and os.path.samefile(tb.tb_frame.f_code.co_filename, __file__)
         if ours and isinstance(e, ValueError):
-            raise CaptureError(str(e)) from None
-        title = next((t for n, _, _, t, _, _ in FORMATS if n == fmt), fmt)
-        raise CaptureError(f"{path}: cannot be read as {title} ({os.path.getsize(path)} bytes; damaged or cut "
-                           f"short?): {type(e).__name__}: {str(e).strip() or 'no message'}") from None
+            message = str(e)
+        else:
+            title = next((t for n, _, _, t, _, _ in FORMATS if n == fmt), fmt)
+            message = (f"{path}: cannot be read as {title} ({os.path.getsize(path)} bytes; damaged or cut short?): "
+                       f"{type(e).__name__}: {str(e).strip() or 'no message'}")
+        # The failed reader's objects die now, under the quiet hook: the finished frames of
+        # the traceback hold them (a half-built asammdf MDF4 whose __del__ fails), and the
+        # traceback itself lives on in the with statement until after this hook is restored.
+        traceback.clear_frames(e.__traceback__)
+        gc.collect()
+        raise CaptureError(message) from None
     finally:
-        gc.collect()  # the failed reader's objects go now, under the quiet hook
         sys.unraisablehook = old_hook
 
 
