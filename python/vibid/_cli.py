@@ -654,13 +654,14 @@ def write_report(result: Result, block: np.ndarray, capture: str, path: str) -> 
         "<p>No flag and no warning: the estimate is plausible and its standard errors hold.</p>"
     c = flag_counts(result)
     rows = "".join(f"<tr><th>{k}</th><td>{'yes' if c[k]['estimate'] else '-'}</td><td>{c[k]['parameters']}</td>"
-                   f"<td>{c[k]['modes']}</td><td>{c[k]['tracks']} of {c['rows']}</td><td>{esc(flag_meaning(k, result.method))}"
-                   f"</td></tr>" for k in "EPUIRM" if any(c[k].values()))
+                   f"<td>{c[k]['modes']}</td><td>{c[k]['tracks']} of {c['rows']}</td>"
+                   f"<td>{esc(flag_meaning(k, result.method))}</td></tr>" for k in "EPUIRM" if any(c[k].values()))
     if rows:
         body = ('<table class="t" id="flag-counts"><tr><th>flag</th><th>estimate</th><th>parameters</th><th>modes</th>'
                 f'<th>track rows</th><th>meaning ({esc(result.method)})</th></tr>{rows}</table>') + body
     section("flags", f"Flags and warnings: {flag_summary(result)}", body)
-    section("estimator", "Estimator", f"<p>{esc(config_line(result))}</p><pre>{esc(result.description)}</pre>")
+    section("estimator", "Estimator", f"<p>{esc(config_line(result))}</p><details><summary>what the estimator "
+            f"chose and why</summary><pre>{esc(result.description)}</pre></details>")
     if len(result.tracks):
         fig = result.plot()
         clipped = [ax.get_ylabel().split(" [")[0] for ax in fig.axes
@@ -762,7 +763,9 @@ def write_report(result: Result, block: np.ndarray, capture: str, path: str) -> 
             + f'<p id="verdict" class="{"ok" if trusted else "bad"}"><b>Verdict: {esc(why)}</b></p>')
     style = ("body{font-family:sans-serif;max-width:60em;margin:1em auto;padding:0 1em}"
              "table.t{border-collapse:collapse}table.t td,table.t th{padding:2px 8px;border-bottom:1px solid #ccc;"
-             "text-align:right}img{max-width:100%}p.ok{background:#e6f4e6;padding:.4em}p.bad{background:#fbe4e4;padding:.4em}pre{background:#f4f4f4;padding:.5em;white-space:pre-wrap}")
+             "text-align:right}img{max-width:100%}p.ok{background:#e6f4e6;padding:.4em}"
+             "#flag-counts td:last-child{text-align:left}p.bad{background:#fbe4e4;padding:.4em}"
+             "pre{background:#f4f4f4;padding:.5em;white-space:pre-wrap}")
     doc = (f"<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>vibid: {esc(st.name)}</title>"
            f"<style>{style}</style></head><body>\n{head}\n" + "\n".join(sec) + "\n</body></html>\n")
     with open(path, "w", encoding="utf-8") as f:
