@@ -207,3 +207,36 @@ def test_report_renders_in_headless_chromium(rls_report, tmp_path):
     # not blank: many distinct grey levels, and far from all white
     grey = img[..., :3].mean(axis=2)
     assert grey.std() > 0.05 and (grey < 0.5).mean() > 0.002, (grey.std(), (grey < 0.5).mean())
+
+
+def test_verdict_agrees_with_the_flags():
+    # trusted exactly when neither the estimate nor a parameter or mode is flagged; flagged
+    # track rows alone are named but leave it trusted
+    from types import SimpleNamespace
+    params = pd.DataFrame({"flags": ["", ""]}, index=["k", "d"])
+    modes = pd.DataFrame({"flags": [""]}, index=[1])
+    tracks = pd.DataFrame({"flags": ["P", "U", "", ""]})
+    r = SimpleNamespace(flags="", parameters=params, modes=modes, tracks=tracks, method="auto(iv)")
+    ok, why = _cli.verdict(r)
+    assert ok and why.startswith("trusted") and "1 P, 1 U of the 4 track rows" in why
+    assert _cli.flag_summary(r) == "track rows of 4: 1 P, 1 U"
+    r.parameters = pd.DataFrame({"flags": ["", "I"]}, index=["k", "d"])
+    ok, why = _cli.verdict(r)
+    assert not ok and "flagged I" in why
+    r.parameters, r.tracks = params, pd.DataFrame({"flags": ["", ""]})
+    assert _cli.flag_summary(r) == "none" and _cli.verdict(r)[0]
+    r.method, r.flags = "ekf", "U"
+    ok, why = _cli.verdict(r)
+    assert not ok and "sandwich variance" in why and "older and newer halves" not in why
+
+
+def test_report_escapes_hostile_names(rls_report, tmp_path):
+    # The loader keeps stand, node and channel names to A-Z a-z 0-9 _ - . (a stand named
+    # '<script>' is refused); what reaches the page unchecked is the capture's path: text, never
+    # markup.
+    res, block, _ = rls_report
+    path = tmp_path / "bad.html"
+    _cli.write_report(res, block, "<script>alert(1)</script>&<b>.csv", str(path))
+    doc = path.read_text()
+    assert "<script" not in doc and "<b>.csv" not in doc
+    assert "&lt;script&gt;alert(1)&lt;/script&gt;&amp;&lt;b&gt;.csv" in doc
