@@ -240,3 +240,19 @@ def test_report_escapes_hostile_names(rls_report, tmp_path):
     doc = path.read_text()
     assert "<script" not in doc and "<b>.csv" not in doc
     assert "&lt;script&gt;alert(1)&lt;/script&gt;&amp;&lt;b&gt;.csv" in doc
+
+
+def test_frf_h1_of_a_known_system_and_coherence_of_noise():
+    # y = 2 x delayed by one sample: |H1| = 2 at every frequency, coherence 1; an independent
+    # y: coherence near 0 (expected 1/K of K averaged segments), also on a capture too short for
+    # one 4096-sample segment (one segment would give coherence 1 everywhere)
+    rng = np.random.default_rng(5)
+    for n in (3377, 40000):
+        x = rng.standard_normal(n)
+        y = 2.0 * np.concatenate([[0.0], x[:-1]])
+        f, h, coh = _cli.frf_h1(x, y, 1000.0)
+        k = slice(1, -1)
+        np.testing.assert_allclose(np.abs(h[k, 0, 0]), 2.0, rtol=0.05)
+        assert np.min(coh[k, 0]) > 0.95
+        _, _, coh0 = _cli.frf_h1(x, rng.standard_normal(n), 1000.0)
+        assert np.mean(coh0[k, 0]) < 0.25, np.mean(coh0[k, 0])

@@ -441,6 +441,13 @@ def _output_residual_figure(result: Result, block: np.ndarray, sim: np.ndarray, 
     return fig, e.shape[0], band, outside, max_lag, [ch for _, ch in cols]
 
 
+def frf_segment(n: int, nperseg: int = 4096) -> int:
+    """Welch segment length of the FRF: at most nperseg, and a power of two of at most n/4, so
+    that at least 7 segments (50 % overlap) are averaged: a coherence of one segment is 1 at
+    every frequency, whatever the noise."""
+    return int(max(16, min(nperseg, 1 << max(4, int(math.floor(math.log2(max(n, 64) / 4)))))))
+
+
 def frf_h1(x: np.ndarray, y: np.ndarray, fs: float, nperseg: int = 4096):
     """H1 = Gyx Gxx^-1 per frequency of inputs x (n x i) to outputs y (n x o) by Welch's
     method (Hann window, 50 % overlap, mean removed per segment), and the coherence of each
@@ -448,7 +455,7 @@ def frf_h1(x: np.ndarray, y: np.ndarray, fs: float, nperseg: int = 4096):
     multiple coherence for several). Returns (f, H (nf x o x i), coherence (nf x o))."""
     x = np.asarray(x, float).reshape(len(x), -1)
     y = np.asarray(y, float).reshape(len(y), -1)
-    nperseg = int(min(nperseg, len(x)))
+    nperseg = frf_segment(len(x), nperseg)
     step = max(1, nperseg // 2)
     w = np.hanning(nperseg)
     nf = nperseg // 2 + 1
@@ -730,7 +737,7 @@ def write_report(result: Result, block: np.ndarray, capture: str, path: str) -> 
         fig, f, hm, hs, coh, pairs = _frf_figure(result, block, sim, start)
         section("frf", "Frequency response and coherence",
                 f"<p>Measured H<sub>1</sub> = G<sub>yx</sub> G<sub>xx</sub><sup>-1</sup> (Welch, Hann, "
-                f"{min(4096, block.shape[0] - start)}-sample segments, 50 % overlap, samples {start} on) from the "
+                f"{frf_segment(block.shape[0] - start)}-sample segments, 50 % overlap, samples {start} on) from the "
                 f"input channels {esc(', '.join(_excitation_channels(st)))} to each response channel, with its "
                 f"coherence (multiple coherence where there are several inputs), against the identified model's "
                 f"FRF, estimated the same way from the model's noise-free simulation driven by the same measured "
