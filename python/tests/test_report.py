@@ -28,6 +28,7 @@ def test_digits_follow_the_standard_error():
     f = _cli.fmt_with_se
     assert f(1234.5678, 0.01234) == ("1234.568", "0.012")
     assert f(300.01234, 0.98) == ("300.01", "0.98")
+    assert f(300.01234, 0.0999) == ("300.01", "0.10")  # the se rounded before its place is taken
     assert f(2.5e5, 123.0) == ("250000", "120")
     # outside 1e-4..1e6: scientific with one exponent for both
     assert f(1.5000125e6, 6.1) == ("1500012.5", "6.1")

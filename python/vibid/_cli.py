@@ -252,12 +252,13 @@ def fmt_with_se(v: float, se: float) -> tuple[str, str]:
     """(value, se) as text: the se to SE_DIGITS significant digits and the value to the
     same decimal place (1234.5678 +- 0.01234 -> '1234.568', '0.012'); outside 1e-4..1e9 (or
     beyond 8 decimals) scientific, the value's mantissa to that place and the se with its
-    own exponent (3.2e-07 +- 1.1e-09 -> '3.200e-07', '1.1e-09'). Where se is not finite or not positive the
-    value gets 4 significant digits and the se its own text ('inf', 'nan', '0')."""
+    own exponent (3.2e-07 +- 1.1e-09 -> '3.200e-07', '1.1e-09'). Where se is not finite or
+    not positive the value gets 4 significant digits and the se its own text ('inf', 'nan')."""
     if v is None or not math.isfinite(v):
         return _fmt(v), _fmt(se, SE_DIGITS)
     if se is None or not math.isfinite(se) or se <= 0:
         return f"{v:.4g}", ("nan" if se is None or math.isnan(se) else f"{se:.{SE_DIGITS}g}")
+    se = float(f"{se:.{SE_DIGITS - 1}e}")  # rounded first: 0.0999 is 0.10, not 0.100
     place = math.floor(math.log10(se)) - (SE_DIGITS - 1)  # the last printed decimal: 10**place
     big = max(abs(v), se)
     if 1e-4 <= big < 1e9 and place >= -8:
