@@ -131,9 +131,9 @@ def test_report_is_self_contained(identified):
     assert "http://" not in doc and "https://" not in doc
     assert "<script" not in doc and "<link" not in doc and "href=" not in doc
     srcs = re.findall(r'src="([^"]*)"', doc)
-    # tracks, residuals, excitation spectrum, measured against model, held-out part measured
-    # against simulated, residual spectrum
-    assert len(srcs) == 6, srcs
+    # tracks, residuals, excitation spectrum, measured against model, FRF and coherence,
+    # held-out part measured against simulated, residual spectrum
+    assert len(srcs) == 7, srcs
     for s in srcs:
         assert s.startswith("data:image/png;base64,"), s[:40]
         assert base64.b64decode(s.split(",", 1)[1])[:8] == b"\x89PNG\r\n\x1a\n"
@@ -159,7 +159,7 @@ def test_report_model_response_table(identified, capture):
     nrmse = fit["nrmse"].to_dict()
     assert set(nrmse) == {"x1", "x2"}
     for v in nrmse.values():
-        assert f"<td>{v:.10g}</td>" in section, (v, section[:2000])
+        assert f"<td>{v:.4g}</td>" in section, (v, section[:2000])  # 4 significant digits
     # auto keeps the output-error estimate on this capture (test_output_error.py), whose
     # damper is 6.5e-4 low (the fit's inputs are linear between samples, the multisine is
     # not: docs/python.md); near a resonance the response changes by about that relative
@@ -440,11 +440,19 @@ def test_report_of_a_state_space_estimate(tmp_path):
     assert proc.returncode == 0, proc.stderr
     assert "method auto(ekf)" in proc.stdout
     doc = report.read_text()
+    # no regression and no innovations from the binding: the output residuals of the model's
+    # simulation, said so
     res = doc[doc.index('<section id="residuals">'):doc.index('<section id="excitation">')]
-    assert "Not available" in res and "state-space estimator auto(ekf)" in res, res
+    assert "Not available" not in res and "state-space estimator auto(ekf)" in res, res[:1500]
+    assert "does not expose its filter's innovations" in res and "measured - model" in res, res[:1500]
     held = doc[doc.index('<section id="holdout">'):]
     assert "Not available: holdout = 0" in held, held[:300]
-    assert len(re.findall(r'src="data:image/png;base64,', doc)) == 3  # tracks, spectrum, response
+    # tracks, output residuals, spectrum, response, FRF
+    assert len(re.findall(r'src="data:image/png;base64,', doc)) == 5
+    # U, where flagged, is explained as the EKF's, not as LS/IV's block check
+    flags = doc[doc.index('<section id="flags">'):doc.index('<section id="estimator">')]
+    if "U" in flags.split("</h2>")[0]:
+        assert "sandwich variance" in flags and "older and newer halves" not in flags, flags
 
 
 def test_simulate_passes_the_options_to_vibid_sim(tmp_path):
