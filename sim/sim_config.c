@@ -184,8 +184,8 @@ static int resolve_channel(const sim_reader *r, const config_setting_t *e, const
     if (*idx != (size_t)-1) return 0;
     char names[512];
     channel_list(r->stand, names, sizeof names);
-    return vibid_cfg_fail(r->c, config_setting_get_member(e, "channel"), p, "unknown channel '%s' (channels: %s)",
-                          name, names);
+    return vibid_cfg_fail(r->c, config_setting_get_member(e, "channel"), p,
+                          "unknown channel '%s' (channels: %s)", name, names);
 }
 
 /* Appends `name` and a space to a fixed buffer (the lists of names in messages). */
@@ -202,7 +202,8 @@ static int parse_seed(const sim_reader *r, const config_setting_t *g, const char
     double v;
     int got = get_num(r->c, g, gp, "seed", &v);
     if (got <= 0) return got;
-    if (v < 0) return vibid_cfg_fail(r->c, config_setting_get_member(g, "seed"), "simulation.seed", "must be >= 0");
+    if (v < 0)
+        return vibid_cfg_fail(r->c, config_setting_get_member(g, "seed"), "simulation.seed", "must be >= 0");
     r->cfg->seed = (uint64_t)v;
     return 0;
 }
@@ -262,26 +263,29 @@ static int parse_integrator(const sim_reader *r, const config_setting_t *g,
     if (vibid_cfg_enum(r->c, ig, ip, "method", methods, false, &cfg->method) < 0) return -1;
     if (!(cfg->rtol >= 1e-14 && cfg->rtol <= 1e-2))
         return vibid_cfg_fail(r->c, ig, "simulation.integrator.rtol", "%g outside [1e-14, 1e-2]", cfg->rtol);
-    if (!(cfg->atol > 0)) return vibid_cfg_fail(r->c, ig, "simulation.integrator.atol", "%g must be > 0", cfg->atol);
+    if (!(cfg->atol > 0))
+        return vibid_cfg_fail(r->c, ig, "simulation.integrator.atol", "%g must be > 0", cfg->atol);
     return 0;
 }
 
 /* What an excitation's `target` names: the base, a force input or a disturbance (index in
  * *input). Resolving names is apart from reading the excitation's signal (parse_exc):
  * it needs the stand's names and refuses the ambiguous ones. */
-static int resolve_excitation_target(const sim_reader *r, const config_setting_t *e, const char *p, int *is_base,
-                                     int *is_dist, size_t *input)
+static int resolve_excitation_target(const sim_reader *r, const config_setting_t *e, const char *p,
+                                     int *is_base, int *is_dist, size_t *input)
 {
     const char *tg = NULL;
     if (vibid_cfg_string_ref(r->c, e, p, "target", &tg) < 0) return -1;
     if (!tg)
-        return vibid_cfg_fail(r->c, e, p, "target missing: \"base\", the name of a force input or of a disturbance");
+        return vibid_cfg_fail(r->c, e, p,
+                              "target missing: \"base\", the name of a force input or of a disturbance");
     *is_base = strcmp(tg, "base") == 0;
     *is_dist = 0;
     *input = 0;
     if (*is_base) {
         if (!r->d.has_base)
-            return vibid_cfg_fail(r->c, e, p, "target \"base\": no element of the stand connects to the base");
+            return vibid_cfg_fail(r->c, e, p,
+                                  "target \"base\": no element of the stand connects to the base");
         return 0;
     }
     int found = 0;
@@ -324,8 +328,8 @@ static int resolve_excitation_target(const sim_reader *r, const config_setting_t
 /* The target entry for (is_base, is_dist, input), made when it is the first excitation of
  * that target: components of one target add up, so they are collected per target. NULL
  * after an error. */
-static sim_exc_target *target_entry(const sim_reader *r, const config_setting_t *e, const char *p, int is_base,
-                                    int is_dist, size_t input)
+static sim_exc_target *target_entry(const sim_reader *r, const config_setting_t *e, const char *p,
+                                    int is_base, int is_dist, size_t input)
 {
     sim_config *cfg = r->cfg;
     sim_exc_target *t = NULL;
@@ -397,8 +401,8 @@ static int check_exact_integrable(const sim_reader *r, const config_setting_t *k
 }
 
 /* The ranges of one noise entry, checked after all its numbers are read. */
-static int check_noise_entry(const sim_reader *r, const config_setting_t *e, const char *p, const sim_noise_spec *ns,
-                             int has_std, int has_snr)
+static int check_noise_entry(const sim_reader *r, const config_setting_t *e, const char *p,
+                             const sim_noise_spec *ns, int has_std, int has_snr)
 {
     if (!isfinite(ns->offset)) return vibid_cfg_fail(r->c, e, p, "offset = %g must be finite", ns->offset);
     if (!(ns->corr_time >= 0.0) || !isfinite(ns->corr_time))
@@ -413,24 +417,29 @@ static int check_noise_entry(const sim_reader *r, const config_setting_t *e, con
 /* simulation.noise ( { channel, std | snr_db, resolution, offset, correlation_time }, ... ). */
 static int parse_noise(const sim_reader *r, const config_setting_t *g, const char *gp)
 {
-    static const char *const nk[] = {"channel", "std", "snr_db", "resolution", "offset", "correlation_time", NULL};
+    static const char *const nk[] = {"channel", "std",    "snr_db", "resolution",
+                                     "offset",  "correlation_time", NULL};
     sim_config *cfg = r->cfg;
     int lerr;
     const config_setting_t *nl = get_list(r->c, g, gp, "noise", &lerr);
     if (lerr) return -1;
     for (int i = 0; nl && i < config_setting_length(nl); i++) {
         char p[128];
-        const config_setting_t *e = list_group_elem(r, nl, "simulation.noise", i, p, sizeof p, "must be a group { ... }");
+        const config_setting_t *e =
+            list_group_elem(r, nl, "simulation.noise", i, p, sizeof p, "must be a group { ... }");
         if (!e || vibid_cfg_check_keys(r->c, e, p, nk)) return -1;
         const char *ch = NULL;
         if (vibid_cfg_string_ref(r->c, e, p, "channel", &ch) < 0) return -1;
         if (!ch) return vibid_cfg_fail(r->c, e, p, "channel missing");
         size_t idx;
         if (resolve_channel(r, e, p, ch, &idx)) return -1;
-        sim_noise_spec ns = {idx, NAN, NAN, 0.0, 0.0, 0.0}; /* std NaN: not given (the stand's noise may apply) */
+        /* std NaN: not given (the stand's noise may apply) */
+        sim_noise_spec ns = {idx, NAN, NAN, 0.0, 0.0, 0.0};
         int hs, hn;
-        if ((hs = get_num(r->c, e, p, "std", &ns.std)) < 0 || (hn = get_num(r->c, e, p, "snr_db", &ns.snr_db)) < 0 ||
-            get_num(r->c, e, p, "resolution", &ns.resolution) < 0 || get_num(r->c, e, p, "offset", &ns.offset) < 0 ||
+        if ((hs = get_num(r->c, e, p, "std", &ns.std)) < 0 ||
+            (hn = get_num(r->c, e, p, "snr_db", &ns.snr_db)) < 0 ||
+            get_num(r->c, e, p, "resolution", &ns.resolution) < 0 ||
+            get_num(r->c, e, p, "offset", &ns.offset) < 0 ||
             get_num(r->c, e, p, "correlation_time", &ns.corr_time) < 0)
             return -1;
         if (check_noise_entry(r, e, p, &ns, hs, hn)) return -1;
@@ -444,8 +453,8 @@ static int parse_noise(const sim_reader *r, const config_setting_t *g, const cha
 
 /* The unknown parameter named by a change's `parameter` into *pi, or an error listing the
  * parameters that may change. */
-static int resolve_changed_parameter(const sim_reader *r, const config_setting_t *e, const char *p, const char *pn,
-                                     size_t *pi)
+static int resolve_changed_parameter(const sim_reader *r, const config_setting_t *e, const char *p,
+                                     const char *pn, size_t *pi)
 {
     *pi = (size_t)-1;
     char names[512] = "";
@@ -463,8 +472,8 @@ static int resolve_changed_parameter(const sim_reader *r, const config_setting_t
 }
 
 /* The time range of one change: it starts at or after 0 s and ramps over >= 0 s. */
-static int check_change_times(const sim_reader *r, const config_setting_t *e, const char *p, const sim_change *ch,
-                              int has_at)
+static int check_change_times(const sim_reader *r, const config_setting_t *e, const char *p,
+                              const sim_change *ch, int has_at)
 {
     if (!has_at || ch->at < 0) return vibid_cfg_fail(r->c, e, p, "at (s, >= 0) missing or negative");
     if (ch->ramp < 0) return vibid_cfg_fail(r->c, e, p, "ramp = %g must be >= 0 s", ch->ramp);
@@ -493,14 +502,17 @@ static int parse_changes(const sim_reader *r, const config_setting_t *g, const c
         double factor = 0.0;
         int ha, hf, hv;
         if ((ha = get_num(r->c, e, p, "at", &ch.at)) < 0 || get_num(r->c, e, p, "ramp", &ch.ramp) < 0 ||
-            (hf = get_num(r->c, e, p, "factor", &factor)) < 0 || (hv = get_num(r->c, e, p, "value", &ch.value)) < 0)
+            (hf = get_num(r->c, e, p, "factor", &factor)) < 0 ||
+            (hv = get_num(r->c, e, p, "value", &ch.value)) < 0)
             return -1;
         if (check_change_times(r, e, p, &ch, ha)) return -1;
-        if (hf == hv) return vibid_cfg_fail(r->c, e, p, "give exactly one of factor (times the true value) or value");
+        if (hf == hv)
+            return vibid_cfg_fail(r->c, e, p, "give exactly one of factor (times the true value) or value");
         if (hf) ch.value = factor * vibid_stand_true_values(r->stand)[pi];
         for (size_t k = 0; k < cfg->n_changes; k++)
             if (cfg->changes[k].param == pi && !(ch.at >= cfg->changes[k].at + cfg->changes[k].ramp))
-                return vibid_cfg_fail(r->c, e, p, "changes of '%s' must be given in time order without overlap", pn);
+                return vibid_cfg_fail(r->c, e, p,
+                                      "changes of '%s' must be given in time order without overlap", pn);
         sim_change *nc = grow_by_one(r, e, p, cfg->changes, cfg->n_changes, sizeof *nc);
         if (!nc) return -1;
         cfg->changes = nc;
@@ -518,7 +530,8 @@ static int parse_can_signal(const sim_reader *r, const config_setting_t *e, cons
     if (vibid_cfg_check_keys(r->c, e, p, sk)) return -1;
     const char *ch = NULL;
     int ty = 2;
-    if (vibid_cfg_string_ref(r->c, e, p, "channel", &ch) < 0 || vibid_cfg_enum(r->c, e, p, "type", types, false, &ty) < 0)
+    if (vibid_cfg_string_ref(r->c, e, p, "channel", &ch) < 0 ||
+        vibid_cfg_enum(r->c, e, p, "type", types, false, &ty) < 0)
         return -1;
     if (!ch) return vibid_cfg_fail(r->c, e, p, "channel missing");
     size_t idx;
@@ -542,21 +555,23 @@ static int parse_can(const sim_reader *r, const config_setting_t *g)
     int got = open_subgroup(r, g, "can", cp, kk, &cg);
     if (got <= 0) return got;
     bool fd = false, ext = false;
-    if (vibid_cfg_bool(r->c, cg, cp, "fd", &fd) < 0 || vibid_cfg_bool(r->c, cg, cp, "extended", &ext) < 0) return -1;
+    if (vibid_cfg_bool(r->c, cg, cp, "fd", &fd) < 0 || vibid_cfg_bool(r->c, cg, cp, "extended", &ext) < 0)
+        return -1;
     cfg->can_fd = fd;
     cfg->can_extended = ext;
     double v;
     if ((got = get_num(r->c, cg, cp, "id", &v)) < 0) return -1;
     if (got) cfg->can_id = (uint32_t)v;
     if (got && (v < 0 || v > (cfg->can_extended ? 0x1FFFFFFF : 0x7FF)))
-        return vibid_cfg_fail(r->c, config_setting_get_member(cg, "id"), "simulation.can.id", "%g outside 0..0x%X", v,
-                              cfg->can_extended ? 0x1FFFFFFF : 0x7FF);
+        return vibid_cfg_fail(r->c, config_setting_get_member(cg, "id"), "simulation.can.id",
+                              "%g outside 0..0x%X", v, cfg->can_extended ? 0x1FFFFFFF : 0x7FF);
     int lerr;
     const config_setting_t *sl = get_list(r->c, cg, cp, "signals", &lerr);
     if (lerr) return -1;
     for (int i = 0; sl && i < config_setting_length(sl); i++) {
         char p[128];
-        const config_setting_t *e = list_group_elem(r, sl, "simulation.can.signals", i, p, sizeof p, "must be a group");
+        const config_setting_t *e =
+            list_group_elem(r, sl, "simulation.can.signals", i, p, sizeof p, "must be a group");
         if (!e || parse_can_signal(r, e, p)) return -1;
     }
     return 0;
