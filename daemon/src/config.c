@@ -609,8 +609,12 @@ static int load_estimator(ctx *c, config_t *cf)
     config_setting_t *g = config_lookup(cf, "estimator");
     if (check_known(c, g, "estimator", est_known))
         return -1;
-    /* The order is vibid_estimator's: ls 0, iv 1, rls 2, auto 3 (the default), ekf 4, kf_rls 5. */
-    static const char *const methods[] = {"ls", "iv", "rls", "auto", "ekf", "kf_rls", NULL};
+    /* The library's names (identify.h), indexed by vibid_estimator, up to the output-error
+     * estimator (the last), which vibidd does not run: its push keeps every sample. */
+    const char *methods[VIBID_ESTIMATOR_OE + 1];
+    for (int k = 0; k < (int)VIBID_ESTIMATOR_OE; k++)
+        methods[k] = vibid_estimator_name((vibid_estimator)k);
+    methods[VIBID_ESTIMATOR_OE] = NULL;
     int mi;
     if (get_enum(c, g, "estimator", "method", (int)VIBID_ESTIMATOR_AUTO, methods, &mi))
         return -1;
@@ -1176,8 +1180,8 @@ const char *vd_source_kind_name(vd_source_kind k) { return (unsigned)k < 3 ? src
 
 const char *vd_estimator_name(vibid_estimator e)
 {
-    static const char *const n[] = {"ls", "iv", "rls", "auto", "ekf", "kf_rls"};
-    return (unsigned)e < 6 ? n[e] : "?";
+    const char *n = vibid_estimator_name(e);
+    return n ? n : "?";
 }
 
 static const char *yes(bool b) { return b ? "true" : "false"; }

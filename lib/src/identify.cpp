@@ -462,6 +462,33 @@ vibid_status collect_prior_rows(vibid_ident &id) {
 
 extern "C" {
 
+namespace {
+// The one table of estimator names (identify.h), indexed by vibid_estimator.
+constexpr const char *kEstimatorNames[] = {"ls", "iv", "rls", "auto", "ekf", "kf_rls", "oe"};
+constexpr int kEstimatorCount = static_cast<int>(sizeof kEstimatorNames / sizeof kEstimatorNames[0]);
+static_assert(kEstimatorCount == VIBID_ESTIMATOR_OE + 1, "a name for every vibid_estimator");
+}  // namespace
+
+VIBID_API const char *vibid_estimator_name(vibid_estimator kind) {
+    const int k = vibid::enum_value(kind);
+    return k >= 0 && k < kEstimatorCount ? kEstimatorNames[k] : nullptr;
+}
+
+VIBID_API vibid_status vibid_estimator_from_name(const char *name, vibid_estimator *kind) {
+    if (!name || !kind) return VIBID_FAIL(VIBID_E_NULL_ARGUMENT, "name and kind are required");
+    for (int k = 0; k < kEstimatorCount; ++k)
+        if (std::strcmp(name, kEstimatorNames[k]) == 0) {
+            *kind = static_cast<vibid_estimator>(k);
+            return VIBID_OK;
+        }
+    char names[128] = "";
+    for (int k = 0; k < kEstimatorCount; ++k) {
+        const std::size_t len = std::strlen(names);
+        std::snprintf(names + len, sizeof names - len, "%s%s", k ? ", " : "", kEstimatorNames[k]);
+    }
+    return VIBID_FAIL(VIBID_E_OUT_OF_RANGE, "estimator \"%.64s\" unknown: one of %s", name, names);
+}
+
 VIBID_API void vibid_ident_config_init(vibid_ident_config *cfg, double sample_time) {
     if (!cfg) return;
     cfg->estimator = VIBID_ESTIMATOR_AUTO;
@@ -588,9 +615,7 @@ std::unique_ptr<vibid_ident> create_ident(const vibid_model *model, const vibid_
     vibid::require_finalized(model);
     if (!cfg) throw_error(VIBID_E_NULL_ARGUMENT, "cfg is NULL");
     const int est = vibid::enum_value(cfg->estimator);
-    if (est != VIBID_ESTIMATOR_LS && est != VIBID_ESTIMATOR_IV && est != VIBID_ESTIMATOR_RLS &&
-        est != VIBID_ESTIMATOR_AUTO && est != VIBID_ESTIMATOR_EKF && est != VIBID_ESTIMATOR_KF_RLS &&
-        est != VIBID_ESTIMATOR_OE)
+    if (!vibid_estimator_name(cfg->estimator))
         throw_error(VIBID_E_OUT_OF_RANGE, "estimator %d unknown", est);
     if (!(cfg->sample_time > 0.0) || !std::isfinite(cfg->sample_time))
         throw_error(VIBID_E_OUT_OF_RANGE, "sample_time = %g s must be > 0 and finite", cfg->sample_time);

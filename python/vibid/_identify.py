@@ -16,15 +16,10 @@ from ._stand import Stand
 
 VibidError = _core.VibidError
 
-METHODS = {
-    "auto": _core.ESTIMATOR_AUTO,
-    "ls": _core.ESTIMATOR_LS,
-    "rls": _core.ESTIMATOR_RLS,
-    "iv": _core.ESTIMATOR_IV,
-    "ekf": _core.ESTIMATOR_EKF,
-    "kf_rls": _core.ESTIMATOR_KF_RLS,
-    "oe": _core.ESTIMATOR_OE,
-}
+# method name -> the library's estimator code: the library's own name table (identify.h,
+# vibid_estimator_name), "auto" (the default) first.
+_NAMES = _core.estimator_names()
+METHODS = {name: _NAMES.index(name) for name in ["auto"] + [n for n in _NAMES if n != "auto"]}
 # The held-out part of a capture (its last fraction): auto's choice and every result's
 # adequacy figures are computed on it (docs/python.md, "The automatic choice").
 HOLDOUT = 0.2

@@ -62,6 +62,19 @@ typedef enum vibid_estimator {
                                   from the AUTO estimate; batch: every sample is kept (below) */
 } vibid_estimator;
 
+/* The estimators' names, one table owned by the library and read by every front end
+ * (vibidd's estimator.method, the Python binding's method=): "ls", "iv", "rls", "auto",
+ * "ekf", "kf_rls", "oe", in the enum's order.
+ * vibid_estimator_name: the name of kind, a static string (valid for the program's life,
+ *   never to be freed); NULL for a value that is no estimator, so that
+ *   for (k = 0; vibid_estimator_name(k); k++) walks them all.
+ * vibid_estimator_from_name: *kind = the estimator called name (exact, lower case);
+ *   VIBID_E_NULL_ARGUMENT for NULL arguments, VIBID_E_OUT_OF_RANGE for an unknown name
+ *   (the message lists the names; *kind unchanged).
+ * Both allocate nothing and are safe from any thread. */
+VIBID_API const char *vibid_estimator_name(vibid_estimator kind);
+VIBID_API vibid_status vibid_estimator_from_name(const char *name, vibid_estimator *kind);
+
 /* The automatic estimator (VIBID_ESTIMATOR_AUTO, the default of vibid_ident_config_init)
  * and the automatic settings (the "0 / negative = automatic" values below). What it
  * chooses and why, in words: vibid_ident_describe; the settings: vibid_ident_get_config.
