@@ -1143,14 +1143,33 @@ static bool same_file(const path_id *a, const path_id *b)
     return a->exists ? a->dev == b->dev && a->ino == b->ino : strcmp(a->canon, b->canon) == 0;
 }
 
+/* The path of output part name when outputs selects it (NULL: all), else "". */
+static const char *selected_path(const char *const *outputs, const char *name, const char *path)
+{
+    if (!outputs)
+        return path;
+    for (const char *const *o = outputs; *o; o++)
+        if (!strcmp(*o, name) || !strcmp(*o, "files"))
+            return path;
+    return "";
+}
+
 int vd_config_check_paths(const vd_config *cfg, const char *replay, char *msg, size_t n)
+{
+    return vd_config_check_paths_for(cfg, replay, NULL, msg, n);
+}
+
+int vd_config_check_paths_for(const vd_config *cfg, const char *replay, const char *const *outputs, char *msg,
+                              size_t n)
 {
     struct named {
         const char *what, *path;
         bool output;
     } f[] = {
-        {"outputs.tracks.path", cfg->tracks_path, true},   {"outputs.influx.path", cfg->influx_path, true},
-        {"outputs.record.path", cfg->record_path, true},   {"outputs.status.path", cfg->status_path, true},
+        {"outputs.tracks.path", selected_path(outputs, "tracks", cfg->tracks_path), true},
+        {"outputs.influx.path", selected_path(outputs, "influx", cfg->influx_path), true},
+        {"outputs.record.path", selected_path(outputs, "record", cfg->record_path), true},
+        {"outputs.status.path", selected_path(outputs, "status", cfg->status_path), true},
         {"the configuration file", cfg->path, false},       {"stand", cfg->stand_file, false},
         {"source.dbc", cfg->dbc_file, false},               {"source.channel_map", cfg->chanmap_file, false},
         {"source.register_map", cfg->regmap_file, false},

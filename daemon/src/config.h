@@ -189,6 +189,10 @@ void vd_config_free(vd_config *cfg);
 int vd_check_readable_file(const char *setting, const char *path, char *err, size_t cap);
 int vd_read_secret_file(const char *setting, const char *path, char *out, size_t cap, char *err, size_t ecap);
 int vd_config_check_paths(const vd_config *cfg, const char *replay, char *msg, size_t n);
+/* The same for the output paths of the outputs named in outputs (NULL-terminated names of
+ * outputs or their parts, output.h: "tracks", "influx", "record", "status"; NULL: all). */
+int vd_config_check_paths_for(const vd_config *cfg, const char *replay, const char *const *outputs, char *msg,
+                              size_t n);
 /* Prints the effective configuration (valid libconfig syntax, defaults filled in). */
 void vd_config_print(const vd_config *cfg, FILE *out);
 const char *vd_source_kind_name(vd_source_kind k);

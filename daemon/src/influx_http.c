@@ -224,18 +224,24 @@ static void push_line(vd_influx_http *h, char *buf, int n) {
     if (in - atomic_load(&h->lines_out) >= h->cfg->influx_http_batch_lines) wake(h);
 }
 
-static void op_row(vd_influx_http *h, const vd_row *row) {
+static void op_row(void *p, const vd_row *row) {
+    vd_influx_http *h = p;
     push_line(h, h->fmt, vd_format_influx_row(h->fmt, sizeof h->fmt - 1, h->cfg, h->stand, row));
 }
 
-static void op_alarm(vd_influx_http *h, const char *param, int raised, const vd_row *row, double value,
-                     double baseline, double z) {
+static void op_alarm(void *p, const vd_output_alarm *a) {
+    vd_influx_http *h = p;
+    const char *param = a->param;
+    const int raised = a->raised;
+    const vd_row *row = a->row;
+    const double value = a->value, baseline = a->baseline, z = a->z;
     push_line(h, h->fmt,
               vd_format_influx_alarm(h->fmt, sizeof h->fmt - 1, h->cfg, h->stand, param, raised, row, value,
                                      baseline, z));
 }
 
-static void op_counters(vd_influx_http *h, vd_snapshot *s) {
+static void op_counters(void *p, vd_snapshot *s) {
+    vd_influx_http *h = p;
     s->influx_http_on = true;
     s->influx_http_ok = atomic_load(&h->ok) != 0;
     s->influx_http_written = atomic_load(&h->written);
@@ -518,7 +524,9 @@ static int read_secret(const vd_config *cfg, char *out, size_t cap, char *err, s
     return 0;
 }
 
-int vd_influx_http_check(const vd_config *cfg, char *err, size_t cap) {
+int vd_influx_http_check(const vd_config *cfg, char *note, size_t note_cap, char *err, size_t cap) {
+    (void)note;
+    (void)note_cap;
     if (!cfg->influx_http_url[0]) return 0;
     char s[512];
     int rc = read_secret(cfg, s, sizeof s, err, cap);
@@ -526,9 +534,11 @@ int vd_influx_http_check(const vd_config *cfg, char *err, size_t cap) {
     return rc ? -1 : vd_check_readable_file("outputs.influx.http.ca_file", cfg->influx_http_ca_file, err, cap);
 }
 
-static void op_close(vd_influx_http *h);
+static void op_close(void *p);
 
-static vd_influx_http *op_open(const vd_config *cfg, const char *stand, char *err, size_t cap) {
+static void *op_open(const vd_output_ctx *ctx, char *err, size_t cap) {
+    const vd_config *cfg = ctx->cfg;
+    const char *stand = ctx->stand;
     vd_influx_http *h = calloc(1, sizeof *h);
     if (!h) {
         snprintf(err, cap, "out of memory");
@@ -617,7 +627,8 @@ fail:
     return NULL;
 }
 
-static int op_start(vd_influx_http *h, char *err, size_t cap) {
+static int op_start(void *p, char *err, size_t cap) {
+    vd_influx_http *h = p;
     int rc = pthread_create(&h->thread, NULL, writer_main, h);
     if (rc) {
         snprintf(err, cap, "cannot start the InfluxDB writer thread: %s", strerror(rc));
@@ -627,7 +638,8 @@ static int op_start(vd_influx_http *h, char *err, size_t cap) {
     return 0;
 }
 
-static void op_drain(vd_influx_http *h) {
+static void op_drain(void *p) {
+    vd_influx_http *h = p;
     if (!h || !h->started) return;
     atomic_store(&h->deadline_ns, mono_ns() + (int64_t)(h->cfg->influx_http_drain_timeout_s * 1e9));
     atomic_store(&h->stop, 1);
@@ -637,7 +649,8 @@ static void op_drain(vd_influx_http *h) {
     h->started = false;
 }
 
-static void op_close(vd_influx_http *h) {
+static void op_close(void *p) {
+    vd_influx_http *h = p;
     if (!h) return;
     op_drain(h);
     if (h->curl) curl_easy_cleanup(h->curl);
@@ -650,4 +663,17 @@ static void op_close(vd_influx_http *h) {
     free(h);
 }
 
-const vd_influx_http_ops vd_influx_http_curl = {op_open, op_start, op_row, op_alarm, op_counters, op_drain, op_close};
+static bool op_enabled(const vd_config *cfg) { return cfg->influx_http_url[0] != '\0'; }
+
+const vd_output_ops vd_influx_http_curl = {
+    .name = "influx.http",
+    .enabled = op_enabled,
+    .check = vd_influx_http_check,
+    .open = op_open,
+    .start = op_start,
+    .row = op_row,
+    .alarm = op_alarm,
+    .counters = op_counters,
+    .drain = op_drain,
+    .close = op_close,
+};

@@ -5,6 +5,7 @@
 
 #include "estimator.h"
 #include "log.h"
+#include "output.h"
 
 #include <arpa/inet.h>
 #include <errno.h>
@@ -880,3 +881,65 @@ void vd_metrics_close(vd_metrics *m)
     m->text = m->render = NULL;
     m->slots = NULL;
 }
+
+/* -------------------------------------------- the output "prometheus" (output.h) ---- */
+
+static bool prometheus_enabled(const vd_config *cfg) { return cfg->prom_listen[0] != '\0'; }
+
+/* The socket is bound here, before READY=1: an address that cannot be bound is a
+ * configuration error (exit 2), not a run-time surprise. */
+static void *prometheus_open(const vd_output_ctx *ctx, char *err, size_t cap)
+{
+    vd_metrics *m = calloc(1, sizeof *m);
+    if (!m) {
+        snprintf(err, cap, "outputs.prometheus: out of memory");
+        return NULL;
+    }
+    if (vd_metrics_open(m, ctx->cfg, err, cap)) {
+        vd_metrics_close(m);
+        free(m);
+        return NULL;
+    }
+    return m;
+}
+
+static int prometheus_start(void *o, char *err, size_t cap) { return vd_metrics_start(o, err, cap); }
+
+/* never waits while estimating: a busy server gets the next one */
+static bool prometheus_status(void *o, const vd_snapshot *s, const char *text, size_t len, bool final)
+{
+    (void)text;
+    (void)len;
+    return vd_metrics_publish(o, s, final);
+}
+
+/* at least every second, sooner with a shorter status interval */
+static double prometheus_status_period(const vd_config *cfg) { return fmin(cfg->status_interval_s, 1.0); }
+
+static void prometheus_counters(void *o, vd_snapshot *s)
+{
+    vd_metrics *m = o;
+    vd_metrics_counters(m, s);
+    s->metrics_listen = m->where;
+}
+
+/* after the threads: the final state was published */
+static void prometheus_close(void *o)
+{
+    if (!o)
+        return;
+    vd_metrics_close(o);
+    free(o);
+}
+
+const vd_output_ops vd_output_prometheus = {
+    .name = "prometheus",
+    .enabled = prometheus_enabled,
+    .check = vd_metrics_check,
+    .open = prometheus_open,
+    .start = prometheus_start,
+    .status = prometheus_status,
+    .status_period = prometheus_status_period,
+    .counters = prometheus_counters,
+    .close = prometheus_close,
+};

@@ -359,7 +359,8 @@ static int format_alarm(vd_mqtt *m, char *buf, size_t cap, uint64_t seq, uint64_
     return n < 0 ? -1 : splice_seq(buf, cap, n, seq, dropped);
 }
 
-static void op_track(vd_mqtt *m, const vd_row *row) {
+static void op_track(void *p, const vd_row *row) {
+    vd_mqtt *m = p;
     uint64_t seq = ++m->seq[VD_MQTT_TRACKS];
     slot_hdr *s = claim(m, VD_MQTT_TRACKS);
     if (!s) return;
@@ -367,8 +368,12 @@ static void op_track(vd_mqtt *m, const vd_row *row) {
     commit(m, s, VD_MQTT_TRACKS, 0, n);
 }
 
-static void op_alarm(vd_mqtt *m, const char *param, int raised, const vd_row *row, double value,
-                     double baseline, double z) {
+static void op_alarm(void *p, const vd_output_alarm *a) {
+    vd_mqtt *m = p;
+    const char *param = a->param;
+    const int raised = a->raised;
+    const vd_row *row = a->row;
+    const double value = a->value, baseline = a->baseline, z = a->z;
     uint64_t seq = ++m->seq[VD_MQTT_ALARMS];
     uint16_t k = 0;
     const vibid_model *mod = vibid_stand_model(m->cfg->stand);
@@ -384,7 +389,9 @@ static void op_alarm(vd_mqtt *m, const char *param, int raised, const vd_row *ro
     commit(m, s, VD_MQTT_ALARMS, k, n);
 }
 
-static bool op_status(vd_mqtt *m, const char *text, size_t len, bool wait) {
+static bool op_status(void *p, const vd_snapshot *snap, const char *text, size_t len, bool wait) {
+    (void)snap; /* the status file's text is what is published */
+    vd_mqtt *m = p;
     if (len >= VD_MQTT_STATUS_MAX) len = VD_MQTT_STATUS_MAX - 1;
     if (wait ? pthread_mutex_lock(&m->st_mu) != 0 : pthread_mutex_trylock(&m->st_mu) != 0) return false;
     memcpy(m->st_text, text, len);
@@ -396,7 +403,8 @@ static bool op_status(vd_mqtt *m, const char *text, size_t len, bool wait) {
     return true;
 }
 
-static void op_counters(vd_mqtt *m, vd_snapshot *s) {
+static void op_counters(void *p, vd_snapshot *s) {
+    vd_mqtt *m = p;
     s->mqtt_on = true;
     s->mqtt_connected = atomic_load(&m->connected) != 0;
     s->mqtt_published = atomic_load(&m->published);
@@ -747,7 +755,9 @@ static void *pub_main(void *arg) {
 
 /* ------------------------------------------------------------ life cycle ---- */
 
-int vd_mqtt_check(const vd_config *cfg, char *err, size_t cap) {
+int vd_mqtt_check(const vd_config *cfg, char *note, size_t note_cap, char *err, size_t cap) {
+    (void)note;
+    (void)note_cap;
     if (!cfg->mqtt_url[0]) return 0;
     char pw[512];
     if (cfg->mqtt_password_file[0] &&
@@ -761,9 +771,10 @@ int vd_mqtt_check(const vd_config *cfg, char *err, size_t cap) {
                : 0;
 }
 
-static void op_close(vd_mqtt *m);
+static void op_close(void *p);
 
-static vd_mqtt *op_open(const vd_config *cfg, char *err, size_t cap) {
+static void *op_open(const vd_output_ctx *ctx, char *err, size_t cap) {
+    const vd_config *cfg = ctx->cfg;
     vd_mqtt *m = calloc(1, sizeof *m);
     if (!m) {
         snprintf(err, cap, "out of memory");
@@ -904,7 +915,8 @@ fail:
     return NULL;
 }
 
-static int op_start(vd_mqtt *m, char *err, size_t cap) {
+static int op_start(void *p, char *err, size_t cap) {
+    vd_mqtt *m = p;
     int rc = pthread_create(&m->thread, NULL, pub_main, m);
     if (rc) {
         snprintf(err, cap, "cannot start the MQTT thread: %s", strerror(rc));
@@ -914,7 +926,8 @@ static int op_start(vd_mqtt *m, char *err, size_t cap) {
     return 0;
 }
 
-static void op_drain(vd_mqtt *m) {
+static void op_drain(void *p) {
+    vd_mqtt *m = p;
     if (!m || !m->started) return;
     atomic_store(&m->stop, 1);
     atomic_store(&m->sleeping, 1);
@@ -923,7 +936,8 @@ static void op_drain(vd_mqtt *m) {
     m->started = false;
 }
 
-static void op_close(vd_mqtt *m) {
+static void op_close(void *p) {
+    vd_mqtt *m = p;
     if (!m) return;
     op_drain(m);
     if (m->mosq) mosquitto_destroy(m->mosq);
@@ -939,5 +953,19 @@ static void op_close(vd_mqtt *m) {
     free(m);
 }
 
-const vd_mqtt_ops vd_mqtt_libmosquitto = {op_open,   op_start,    op_track, op_alarm,
-                                          op_status, op_counters, op_drain, op_close};
+static bool op_enabled(const vd_config *cfg) { return cfg->mqtt_url[0] != '\0'; }
+
+const vd_output_ops vd_mqtt_libmosquitto = {
+    .name = "mqtt",
+    .flags = VD_OUTPUT_STATUS_TEXT,
+    .enabled = op_enabled,
+    .check = vd_mqtt_check,
+    .open = op_open,
+    .start = op_start,
+    .row = op_track,
+    .alarm = op_alarm,
+    .status = op_status,
+    .counters = op_counters,
+    .drain = op_drain,
+    .close = op_close,
+};

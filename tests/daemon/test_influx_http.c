@@ -186,7 +186,8 @@ static void test_buffer_full(void **state) {
     vd_config_error err;
     assert_int_equal(load("buf", "outputs = { influx = { http = { buffer_size = 1; }; }; };", &c, &err), 0);
     char e[256];
-    vd_influx_http *h = vd_influx_http_curl.open(&c, "paper_example1", e, sizeof e);
+    const vd_output_ctx ctx = {.cfg = &c, .stand = "paper_example1"};
+    vd_influx_http *h = vd_influx_http_curl.open(&ctx, e, sizeof e);
     if (!h) fail_msg("open: %s", e);
     vd_row r = sample_row();
     char line[2048];

@@ -241,7 +241,8 @@ static uint64_t dropped(vd_mqtt *m, vd_snapshot *s) {
 static void test_queue_drops(void **state) {
     (void)state;
     char err[512];
-    vd_mqtt *m = vd_mqtt_libmosquitto.open(&cfg, err, sizeof err);
+    const vd_output_ctx ctx = {.cfg = &cfg};
+    vd_mqtt *m = vd_mqtt_libmosquitto.open(&ctx, err, sizeof err);
     if (!m) fail_msg("open: %s", err);
     vd_row r = sample_row();
     vd_snapshot s;
@@ -249,9 +250,9 @@ static void test_queue_drops(void **state) {
     clock_gettime(CLOCK_MONOTONIC, &t0);
     for (int i = 0; i < 12; i++) {
         r.index = (uint64_t)i * 10;
-        vd_mqtt_libmosquitto.track(m, &r);
+        vd_mqtt_libmosquitto.row(m, &r);
     }
-    vd_mqtt_libmosquitto.alarm(m, "c2", 1, &r, 1.0, 2.0, 3.0);
+    vd_mqtt_libmosquitto.alarm(m, &(vd_output_alarm){"c2", 1, &r, 1.0, 2.0, 3.0});
     clock_gettime(CLOCK_MONOTONIC, &t1);
     double dt = (double)(t1.tv_sec - t0.tv_sec) + 1e-9 * (double)(t1.tv_nsec - t0.tv_nsec);
     assert_int_equal(dropped(m, &s), 8); /* 7 rows and the alarm */
@@ -260,7 +261,7 @@ static void test_queue_drops(void **state) {
     assert_int_equal(s.mqtt_queue_fill, 5);
     assert_int_equal(s.mqtt_queue_capacity, 5);
     assert_true(dt < 0.5);
-    assert_true(vd_mqtt_libmosquitto.status(m, "state=running\n", 14, false));
+    assert_true(vd_mqtt_libmosquitto.status(m, NULL, "state=running\n", 14, false));
     vd_mqtt_libmosquitto.close(m); /* never started: nothing to drain */
 }
 
