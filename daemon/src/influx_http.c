@@ -77,17 +77,17 @@ int vd_influx_http_write_url(char *buf, size_t cap, const vd_config *cfg) {
     size_t off = 0;
     if (cap == 0) return -1;
     buf[0] = '\0';
-    if (cfg->influx_http_api == 2) {
-        if (put_text(buf, cap, &off, cfg->influx_http_url) || put_text(buf, cap, &off, "/api/v2/write?org=") ||
-            put_query_value(buf, cap, &off, cfg->influx_http_org) || put_text(buf, cap, &off, "&bucket=") ||
-            put_query_value(buf, cap, &off, cfg->influx_http_bucket))
+    if (cfg->influx_http.api == 2) {
+        if (put_text(buf, cap, &off, cfg->influx_http.url) || put_text(buf, cap, &off, "/api/v2/write?org=") ||
+            put_query_value(buf, cap, &off, cfg->influx_http.org) || put_text(buf, cap, &off, "&bucket=") ||
+            put_query_value(buf, cap, &off, cfg->influx_http.bucket))
             return -1;
     } else {
-        if (put_text(buf, cap, &off, cfg->influx_http_url) || put_text(buf, cap, &off, "/write?db=") ||
-            put_query_value(buf, cap, &off, cfg->influx_http_database))
+        if (put_text(buf, cap, &off, cfg->influx_http.url) || put_text(buf, cap, &off, "/write?db=") ||
+            put_query_value(buf, cap, &off, cfg->influx_http.database))
             return -1;
-        if (cfg->influx_http_rp[0] &&
-            (put_text(buf, cap, &off, "&rp=") || put_query_value(buf, cap, &off, cfg->influx_http_rp)))
+        if (cfg->influx_http.rp[0] &&
+            (put_text(buf, cap, &off, "&rp=") || put_query_value(buf, cap, &off, cfg->influx_http.rp)))
             return -1;
     }
     if (put_text(buf, cap, &off, "&precision=ns")) return -1;
@@ -221,7 +221,7 @@ static void push_line(vd_influx_http *h, char *buf, int n) {
     uint64_t in = atomic_fetch_add(&h->lines_in, 1) + 1;
     /* a full batch wakes the writer at once; a smaller one waits for batch_interval (the
      * writer's own timer), so a busy stand makes no system call per line */
-    if (in - atomic_load(&h->lines_out) >= h->cfg->influx_http_batch_lines) wake(h);
+    if (in - atomic_load(&h->lines_out) >= h->cfg->influx_http.batch_lines) wake(h);
 }
 
 static void op_row(void *p, const vd_row *row) {
@@ -424,7 +424,7 @@ static void *writer_main(void *arg) {
         if (oldest_t == 0) oldest_t = now;
         /* a batch goes when it is full, when its oldest line waited batch_interval, or at the end;
          * never before the back-off of a failure is over (also while draining) */
-        double due = (waiting >= h->batch_limit || stopping) ? now : oldest_t + cfg->influx_http_batch_interval_s;
+        double due = (waiting >= h->batch_limit || stopping) ? now : oldest_t + cfg->influx_http.batch_interval_s;
         if (next_try > due) due = next_try;
         if (due > now) {
             double until_deadline = stopping ? 1e-9 * (double)(atomic_load(&h->deadline_ns) - mono_ns()) : 1.0;
@@ -505,7 +505,7 @@ static void *writer_main(void *arg) {
                    no_retry ? "the server did not take them, and its next try was due after the deadline"
                    : h->failing ? "the server did not take them"
                                 : "time ran out",
-                   cfg->influx_http_drain_timeout_s);
+                   cfg->influx_http.drain_timeout_s);
     else
         vd_info("influx http: every line written (%llu in %llu requests)", (unsigned long long)atomic_load(&h->written),
                 (unsigned long long)atomic_load(&h->requests));
@@ -516,10 +516,10 @@ static void *writer_main(void *arg) {
 
 static int read_secret(const vd_config *cfg, char *out, size_t cap, char *err, size_t ecap) {
     out[0] = '\0';
-    if (cfg->influx_http_api == 2)
-        return vd_read_secret_file("outputs.influx.http.token_file", cfg->influx_http_token_file, out, cap, err, ecap);
-    if (cfg->influx_http_password_file[0])
-        return vd_read_secret_file("outputs.influx.http.password_file", cfg->influx_http_password_file, out, cap, err,
+    if (cfg->influx_http.api == 2)
+        return vd_read_secret_file("outputs.influx.http.token_file", cfg->influx_http.token_file, out, cap, err, ecap);
+    if (cfg->influx_http.password_file[0])
+        return vd_read_secret_file("outputs.influx.http.password_file", cfg->influx_http.password_file, out, cap, err,
                                    ecap);
     return 0;
 }
@@ -527,11 +527,11 @@ static int read_secret(const vd_config *cfg, char *out, size_t cap, char *err, s
 int vd_influx_http_check(const vd_config *cfg, char *note, size_t note_cap, char *err, size_t cap) {
     (void)note;
     (void)note_cap;
-    if (!cfg->influx_http_url[0]) return 0;
+    if (!cfg->influx_http.url[0]) return 0;
     char s[512];
     int rc = read_secret(cfg, s, sizeof s, err, cap);
     memset(s, 0, sizeof s);
-    return rc ? -1 : vd_check_readable_file("outputs.influx.http.ca_file", cfg->influx_http_ca_file, err, cap);
+    return rc ? -1 : vd_check_readable_file("outputs.influx.http.ca_file", cfg->influx_http.ca_file, err, cap);
 }
 
 static void op_close(void *p);
@@ -546,18 +546,18 @@ static void *op_open(const vd_output_ctx *ctx, char *err, size_t cap) {
     }
     h->cfg = cfg;
     h->efd = -1;
-    h->batch_limit = cfg->influx_http_batch_lines;
+    h->batch_limit = cfg->influx_http.batch_lines;
     snprintf(h->stand, sizeof h->stand, "%s", stand);
     if (vd_influx_http_write_url(h->url, sizeof h->url, cfg) < 0) {
         snprintf(err, cap, "outputs.influx.http: the write URL is longer than %zu bytes", sizeof h->url - 1);
         goto fail;
     }
-    h->cap = (size_t)cfg->influx_http_buffer_mib << 20;
+    h->cap = (size_t)cfg->influx_http.buffer_mib << 20;
     h->ring = malloc(h->cap);
     h->body_cap = h->cap < BATCH_BYTES_MAX ? h->cap : BATCH_BYTES_MAX;
     h->body = malloc(h->body_cap);
     if (!h->ring || !h->body) {
-        snprintf(err, cap, "outputs.influx.http.buffer_size %u MiB: out of memory", cfg->influx_http_buffer_mib);
+        snprintf(err, cap, "outputs.influx.http.buffer_size %u MiB: out of memory", cfg->influx_http.buffer_mib);
         goto fail;
     }
     h->efd = eventfd(0, EFD_CLOEXEC | EFD_NONBLOCK);
@@ -579,7 +579,7 @@ static void *op_open(const vd_output_ctx *ctx, char *err, size_t cap) {
     h->headers = curl_slist_append(NULL, "Content-Type: text/plain; charset=utf-8");
     /* no "Expect: 100-continue" round trip before a large body */
     if (h->headers) h->headers = curl_slist_append(h->headers, "Expect:");
-    if (h->headers && cfg->influx_http_api == 2) {
+    if (h->headers && cfg->influx_http.api == 2) {
         snprintf(h->auth_header, sizeof h->auth_header, "Authorization: Token %s", h->secret);
         h->headers = curl_slist_append(h->headers, h->auth_header);
         memset(h->auth_header, 0, sizeof h->auth_header); /* curl keeps its own copy */
@@ -596,8 +596,8 @@ static void *op_open(const vd_output_ctx *ctx, char *err, size_t cap) {
     if (!rc) rc = curl_easy_setopt(c, CURLOPT_USERAGENT, "vibidd");
     /* threads: no SIGALRM for name resolution time-outs */
     if (!rc) rc = curl_easy_setopt(c, CURLOPT_NOSIGNAL, 1L);
-    if (!rc) rc = curl_easy_setopt(c, CURLOPT_TIMEOUT_MS, (long)(cfg->influx_http_timeout_s * 1000.0));
-    if (!rc) rc = curl_easy_setopt(c, CURLOPT_CONNECTTIMEOUT_MS, (long)(fmin(cfg->influx_http_timeout_s, 5.0) * 1000.0));
+    if (!rc) rc = curl_easy_setopt(c, CURLOPT_TIMEOUT_MS, (long)(cfg->influx_http.timeout_s * 1000.0));
+    if (!rc) rc = curl_easy_setopt(c, CURLOPT_CONNECTTIMEOUT_MS, (long)(fmin(cfg->influx_http.timeout_s, 5.0) * 1000.0));
     if (!rc) rc = curl_easy_setopt(c, CURLOPT_TCP_KEEPALIVE, 1L);
     if (!rc) rc = curl_easy_setopt(c, CURLOPT_ERRORBUFFER, h->curl_error);
     if (!rc) rc = curl_easy_setopt(c, CURLOPT_WRITEFUNCTION, on_answer);
@@ -607,20 +607,20 @@ static void *op_open(const vd_output_ctx *ctx, char *err, size_t cap) {
     if (!rc) rc = curl_easy_setopt(c, CURLOPT_XFERINFOFUNCTION, on_progress);
     if (!rc) rc = curl_easy_setopt(c, CURLOPT_XFERINFODATA, h);
     if (!rc) rc = curl_easy_setopt(c, CURLOPT_NOPROGRESS, 0L);
-    if (!rc && cfg->influx_http_api == 1 && cfg->influx_http_username[0]) {
+    if (!rc && cfg->influx_http.api == 1 && cfg->influx_http.username[0]) {
         rc = curl_easy_setopt(c, CURLOPT_HTTPAUTH, (long)CURLAUTH_BASIC);
-        if (!rc) rc = curl_easy_setopt(c, CURLOPT_USERNAME, cfg->influx_http_username);
+        if (!rc) rc = curl_easy_setopt(c, CURLOPT_USERNAME, cfg->influx_http.username);
         if (!rc) rc = curl_easy_setopt(c, CURLOPT_PASSWORD, h->secret);
     }
-    if (!rc && cfg->influx_http_ca_file[0]) rc = curl_easy_setopt(c, CURLOPT_CAINFO, cfg->influx_http_ca_file);
+    if (!rc && cfg->influx_http.ca_file[0]) rc = curl_easy_setopt(c, CURLOPT_CAINFO, cfg->influx_http.ca_file);
     if (rc) {
         snprintf(err, cap, "outputs.influx.http: setting up libcurl: %s", curl_easy_strerror(rc));
         goto fail;
     }
     vd_info("influx http: %s (API v%d%s), batches of up to %u lines every %g s, buffer %u MiB",
-            h->url, cfg->influx_http_api,
-            cfg->influx_http_api == 2 ? ", token" : cfg->influx_http_username[0] ? ", basic authentication" : "",
-            cfg->influx_http_batch_lines, cfg->influx_http_batch_interval_s, cfg->influx_http_buffer_mib);
+            h->url, cfg->influx_http.api,
+            cfg->influx_http.api == 2 ? ", token" : cfg->influx_http.username[0] ? ", basic authentication" : "",
+            cfg->influx_http.batch_lines, cfg->influx_http.batch_interval_s, cfg->influx_http.buffer_mib);
     return h;
 fail:
     op_close(h);
@@ -641,7 +641,7 @@ static int op_start(void *p, char *err, size_t cap) {
 static void op_drain(void *p) {
     vd_influx_http *h = p;
     if (!h || !h->started) return;
-    atomic_store(&h->deadline_ns, mono_ns() + (int64_t)(h->cfg->influx_http_drain_timeout_s * 1e9));
+    atomic_store(&h->deadline_ns, mono_ns() + (int64_t)(h->cfg->influx_http.drain_timeout_s * 1e9));
     atomic_store(&h->stop, 1);
     atomic_store(&h->sleeping, 1);
     wake(h);
@@ -663,7 +663,7 @@ static void op_close(void *p) {
     free(h);
 }
 
-static bool op_enabled(const vd_config *cfg) { return cfg->influx_http_url[0] != '\0'; }
+static bool op_enabled(const vd_config *cfg) { return cfg->influx_http.url[0] != '\0'; }
 
 const vd_output_ops vd_influx_http_curl = {
     .name = "influx.http",

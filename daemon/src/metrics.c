@@ -459,10 +459,10 @@ int vd_metrics_check(const vd_config *cfg, char *note, size_t note_cap, char *er
 {
     if (note_cap)
         note[0] = '\0';
-    if (!cfg->prom_listen[0])
+    if (!cfg->prometheus.listen[0])
         return 0;
     struct sockaddr_storage a;
-    int fd = bind_listen(cfg->prom_listen, err, cap, &a);
+    int fd = bind_listen(cfg->prometheus.listen, err, cap, &a);
     if (fd >= 0) {
         close(fd);
         return 0;
@@ -471,7 +471,7 @@ int vd_metrics_check(const vd_config *cfg, char *note, size_t note_cap, char *er
         snprintf(note, note_cap,
                  "outputs.prometheus.listen %s is in use now (a running vibidd?): start-up fails unless it is "
                  "free then",
-                 cfg->prom_listen);
+                 cfg->prometheus.listen);
         return 1;
     }
     return -1;
@@ -516,7 +516,7 @@ int vd_metrics_open(vd_metrics *m, const vd_config *cfg, char *err, size_t cap)
         return -1;
     }
     struct sockaddr_storage a;
-    m->listen_fd = bind_listen(cfg->prom_listen, err, cap, &a);
+    m->listen_fd = bind_listen(cfg->prometheus.listen, err, cap, &a);
     if (m->listen_fd < 0)
         return -1;
     format_addr(&a, m->where, sizeof m->where);
@@ -884,7 +884,7 @@ void vd_metrics_close(vd_metrics *m)
 
 /* -------------------------------------------- the output "prometheus" (output.h) ---- */
 
-static bool prometheus_enabled(const vd_config *cfg) { return cfg->prom_listen[0] != '\0'; }
+static bool prometheus_enabled(const vd_config *cfg) { return cfg->prometheus.listen[0] != '\0'; }
 
 /* The socket is bound here, before READY=1: an address that cannot be bound is a
  * configuration error (exit 2), not a run-time surprise. */

@@ -34,8 +34,8 @@ bool vd_output_wanted(const vd_output_ctx *ctx, const vd_output_ops *ops)
 
 /* What the registry holds for an output the core does not link until main() hands the
  * real one over (vd_daemon_use_output): configured, it is ignored with a warning. */
-static bool mqtt_enabled(const vd_config *cfg) { return cfg->mqtt_url[0] != '\0'; }
-static bool influx_http_enabled(const vd_config *cfg) { return cfg->influx_http_url[0] != '\0'; }
+static bool mqtt_enabled(const vd_config *cfg) { return cfg->mqtt.url[0] != '\0'; }
+static bool influx_http_enabled(const vd_config *cfg) { return cfg->influx_http.url[0] != '\0'; }
 
 static void *mqtt_absent(const vd_output_ctx *ctx, char *err, size_t cap)
 {
