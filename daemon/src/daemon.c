@@ -604,30 +604,12 @@ static void format_status(vd_daemon *d, const vd_snapshot *sn)
         for (size_t i = 0; i < sn->n_modes; i++)
             S("f%zu_hz=%.6g\nzeta%zu=%.6g\n", i + 1, sn->freq[i], i + 1, sn->zeta[i]);
     }
-    if (sn->metrics_on) {
-        unsigned long long refused = 0;
-        for (unsigned r = 0; r < VD_REFUSED_N; r++)
-            refused += sn->refused[r];
-        S("metrics_listen=%s\nmetrics_scrapes=%llu\nmetrics_refused=%llu\n", sn->metrics_listen,
-          (unsigned long long)sn->scrapes, refused);
-    }
-    if (sn->mqtt_on)
-        S("mqtt_connected=%d\nmqtt_published=%llu\nmqtt_refused=%llu\nmqtt_dropped=%llu\nmqtt_queue_fill=%zu\n"
-          "mqtt_queue_capacity=%zu\nmqtt_inflight=%llu\nmqtt_reconnects=%llu\nmqtt_connect_failures=%llu\n"
-          "mqtt_unsent=%llu\n",
-          sn->mqtt_connected ? 1 : 0, (unsigned long long)sn->mqtt_published, (unsigned long long)sn->mqtt_refused,
-          (unsigned long long)sn->mqtt_dropped, sn->mqtt_queue_fill, sn->mqtt_queue_capacity,
-          (unsigned long long)sn->mqtt_inflight, (unsigned long long)sn->mqtt_reconnects,
-          (unsigned long long)sn->mqtt_connect_failures, (unsigned long long)sn->mqtt_unsent);
-    if (sn->influx_http_on)
-        S("influx_http_ok=%d\ninflux_http_written=%llu\ninflux_http_requests=%llu\ninflux_http_failures=%llu\n"
-          "influx_http_rejected=%llu\ninflux_http_dropped=%llu\ninflux_http_waiting=%llu\n"
-          "influx_http_buffer_fill=%zu\ninflux_http_buffer_capacity=%zu\n",
-          sn->influx_http_ok ? 1 : 0, (unsigned long long)sn->influx_http_written,
-          (unsigned long long)sn->influx_http_requests, (unsigned long long)sn->influx_http_failures,
-          (unsigned long long)sn->influx_http_rejected, (unsigned long long)sn->influx_http_dropped,
-          (unsigned long long)sn->influx_http_waiting, sn->influx_http_buffer_fill, sn->influx_http_buffer_capacity);
 #undef S
+    for (size_t o = 0; o < d->n_out; o++) /* each open output's own lines, in registry order (output.h) */
+        if (d->out[o].ops->status_lines) {
+            const size_t at = off < cap ? off : cap;
+            off += d->out[o].ops->status_lines(sn, buf + at, cap - at);
+        }
     if (off > cap)
         off = cap;
     d->status_len = off;

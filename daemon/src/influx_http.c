@@ -663,6 +663,19 @@ static void op_close(void *p) {
     free(h);
 }
 
+static size_t op_status_lines(const vd_snapshot *sn, char *buf, size_t cap) {
+    int n = snprintf(
+        buf, cap,
+        "influx_http_ok=%d\ninflux_http_written=%llu\ninflux_http_requests=%llu\ninflux_http_failures=%llu\n"
+        "influx_http_rejected=%llu\ninflux_http_dropped=%llu\ninflux_http_waiting=%llu\n"
+        "influx_http_buffer_fill=%zu\ninflux_http_buffer_capacity=%zu\n",
+        sn->influx_http_ok ? 1 : 0, (unsigned long long)sn->influx_http_written,
+        (unsigned long long)sn->influx_http_requests, (unsigned long long)sn->influx_http_failures,
+        (unsigned long long)sn->influx_http_rejected, (unsigned long long)sn->influx_http_dropped,
+        (unsigned long long)sn->influx_http_waiting, sn->influx_http_buffer_fill, sn->influx_http_buffer_capacity);
+    return n > 0 ? (size_t)n : 0;
+}
+
 static bool op_enabled(const vd_config *cfg) { return cfg->influx_http.url[0] != '\0'; }
 
 const vd_output_ops vd_influx_http_curl = {
@@ -673,6 +686,7 @@ const vd_output_ops vd_influx_http_curl = {
     .start = op_start,
     .row = op_row,
     .alarm = op_alarm,
+    .status_lines = op_status_lines,
     .counters = op_counters,
     .drain = op_drain,
     .close = op_close,

@@ -913,6 +913,16 @@ static bool prometheus_status(void *o, const vd_snapshot *s, const char *text, s
     return vd_metrics_publish(o, s, final);
 }
 
+static size_t prometheus_status_lines(const vd_snapshot *sn, char *buf, size_t cap)
+{
+    unsigned long long refused = 0;
+    for (unsigned r = 0; r < VD_REFUSED_N; r++)
+        refused += sn->refused[r];
+    int n = snprintf(buf, cap, "metrics_listen=%s\nmetrics_scrapes=%llu\nmetrics_refused=%llu\n", sn->metrics_listen,
+                     (unsigned long long)sn->scrapes, refused);
+    return n > 0 ? (size_t)n : 0;
+}
+
 /* at least every second, sooner with a shorter status interval */
 static double prometheus_status_period(const vd_config *cfg) { return fmin(cfg->status_interval_s, 1.0); }
 
@@ -939,6 +949,7 @@ const vd_output_ops vd_output_prometheus = {
     .open = prometheus_open,
     .start = prometheus_start,
     .status = prometheus_status,
+    .status_lines = prometheus_status_lines,
     .status_period = prometheus_status_period,
     .counters = prometheus_counters,
     .close = prometheus_close,

@@ -953,6 +953,19 @@ static void op_close(void *p) {
     free(m);
 }
 
+static size_t op_status_lines(const vd_snapshot *sn, char *buf, size_t cap) {
+    int n = snprintf(
+        buf, cap,
+        "mqtt_connected=%d\nmqtt_published=%llu\nmqtt_refused=%llu\nmqtt_dropped=%llu\nmqtt_queue_fill=%zu\n"
+        "mqtt_queue_capacity=%zu\nmqtt_inflight=%llu\nmqtt_reconnects=%llu\nmqtt_connect_failures=%llu\n"
+        "mqtt_unsent=%llu\n",
+        sn->mqtt_connected ? 1 : 0, (unsigned long long)sn->mqtt_published, (unsigned long long)sn->mqtt_refused,
+        (unsigned long long)sn->mqtt_dropped, sn->mqtt_queue_fill, sn->mqtt_queue_capacity,
+        (unsigned long long)sn->mqtt_inflight, (unsigned long long)sn->mqtt_reconnects,
+        (unsigned long long)sn->mqtt_connect_failures, (unsigned long long)sn->mqtt_unsent);
+    return n > 0 ? (size_t)n : 0;
+}
+
 static bool op_enabled(const vd_config *cfg) { return cfg->mqtt.url[0] != '\0'; }
 
 const vd_output_ops vd_mqtt_libmosquitto = {
@@ -965,6 +978,7 @@ const vd_output_ops vd_mqtt_libmosquitto = {
     .row = op_track,
     .alarm = op_alarm,
     .status = op_status,
+    .status_lines = op_status_lines,
     .counters = op_counters,
     .drain = op_drain,
     .close = op_close,

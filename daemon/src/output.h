@@ -13,10 +13,12 @@
  * (vd_config, read once by config.c); it never reads a file of its own settings.
  *
  * Call order (each call optional, NULL in the table when an output has nothing to do):
+ *   vibidd --check:          check (every output of the registry, configured or not), nothing else
  *   main thread, start-up:   enabled -> open (all outputs, registry order) -> start
  *   estimation thread:       sample, row, alarm (in the samples' order), flush (bounded
- *                            interval and at the end), reopen (after SIGHUP), status and
- *                            counters (at its housekeeping: one snapshot for all)
+ *                            interval and at the end), reopen (after SIGHUP), counters,
+ *                            status_lines and status (at its housekeeping: one snapshot
+ *                            for all)
  *   main thread, the end:    after the estimation thread is joined: drain (reverse
  *                            registry order), counters, status (VD_OUTPUT_STATUS_AFTER_DRAIN
  *                            outputs: the counters after the drain), failed; close (reverse
@@ -90,6 +92,9 @@ typedef struct vd_output_ops {
      * (the output may wait for its lock). false when the output was busy: offered again at
      * the next housekeeping. */
     bool (*status)(void *o, const vd_snapshot *s, const char *text, size_t len, bool final);
+    /* The output's own key=value lines of the status file, from s (its counters), into buf
+     * (snprintf's contract: the length of the whole text, written as far as cap allows). */
+    size_t (*status_lines)(const vd_snapshot *s, char *buf, size_t cap);
     /* Seconds between status calls when not the status interval (0: the status interval). */
     double (*status_period)(const vd_config *cfg);
     void (*flush)(void *o, bool sync);
