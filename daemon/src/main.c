@@ -6,9 +6,7 @@
  */
 #include "config.h"
 #include "daemon.h"
-#include "writers.h"
 #include "log.h"
-#include "metrics.h"
 #include "influx_http.h"
 #include "mqtt.h"
 
@@ -59,7 +57,7 @@ int main(int argc, char **argv)
     const char *cfg_path = NULL, *tracks = NULL, *influx = NULL, *record = NULL, *status = NULL, *level = NULL;
     const char *rate_check = NULL;
     bool check = false;
-    vd_options opt = {NULL, false, 1.0, VD_RATE_MODE_ERROR};
+    vd_options opt = {NULL, false, 1.0, VD_RATE_MODE_ERROR, NULL}; /* every configured output */
     enum { O_CHECK = 256, O_REPLAY, O_PACE, O_SPEED, O_TRACKS, O_INFLUX, O_RECORD, O_STATUS, O_LOG_LEVEL,
            O_RATE_CHECK, O_VERSION };
     static const struct option lopts[] = {
@@ -149,6 +147,8 @@ int main(int argc, char **argv)
         }
         vd_log_set_level((vd_log_level)l);
     }
+    vd_daemon_use_output(&vd_mqtt_libmosquitto); /* outputs.mqtt (mqtt.h) */
+    vd_daemon_use_output(&vd_influx_http_curl);  /* outputs.influx.http (influx_http.h) */
     if (check) {
         /* The estimator is created too: identifiability is part of a valid configuration. */
         vd_est est;
@@ -167,46 +167,38 @@ int main(int argc, char **argv)
             vd_config_free(&cfg);
             return 2;
         }
-        /* the outputs' start-up checks (directories, files, the UDP host) */
-        if (vd_writers_check(&cfg, e2, sizeof e2)) {
-            vd_error("%s", e2);
-            vd_est_free(&est);
-            vd_config_free(&cfg);
-            return 2;
+        /* the outputs' start-up checks (output.h: directories, files, the UDP host, the
+         * password, token and TLS files; no connection is made; the metrics address is bound
+         * and released, as start-up binds it: in use, by the running vibidd this --check is
+         * meant to replace?, is a note) */
+        static char out_notes[VD_MAX_OUTPUTS * 400];
+        size_t notes_len = 0;
+        for (size_t i = 0; i < vd_n_outputs; i++) {
+            char note[400] = "";
+            int orc = vd_outputs[i]->check ? vd_outputs[i]->check(&cfg, note, sizeof note, e2, sizeof e2) : 0;
+            if (orc < 0) {
+                vd_error("%s", e2);
+                vd_est_free(&est);
+                vd_config_free(&cfg);
+                return 2;
+            }
+            if (orc > 0 && notes_len < sizeof out_notes) {
+                vd_warning("%s", note);
+                int n = snprintf(out_notes + notes_len, sizeof out_notes - notes_len, "# %s\n", note);
+                if (n > 0)
+                    notes_len += (size_t)n;
+            }
         }
-        /* outputs.mqtt and outputs.influx.http: the password, token and TLS files can be read
-         * (no connection is made) */
-        if (vd_mqtt_check(&cfg, e2, sizeof e2) || vd_influx_http_check(&cfg, e2, sizeof e2)) {
-            vd_error("%s", e2);
-            vd_est_free(&est);
-            vd_config_free(&cfg);
-            return 2;
-        }
-        /* the metrics endpoint: the address is bound and released, as start-up binds it;
-         * in use (by the running vibidd this --check is meant to replace?) is a warning */
-        char prom_note[400];
-        int prc = vd_metrics_check(&cfg, prom_note, sizeof prom_note, e2, sizeof e2);
-        if (prc < 0) {
-            vd_error("%s", e2);
-            vd_est_free(&est);
-            vd_config_free(&cfg);
-            return 2;
-        }
-        if (prc > 0)
-            vd_warning("%s", prom_note);
         vd_config_print(&cfg, stdout);
         vd_est_print_choices(&est, stdout, "# ");
         if (rate_note[0])
             printf("# %s\n", rate_note);
-        if (prc > 0)
-            printf("# %s\n", prom_note);
+        fputs(out_notes, stdout);
         vd_est_free(&est);
         vd_config_free(&cfg);
         return 0;
     }
     static vd_daemon d;
-    vd_daemon_use_mqtt(&vd_mqtt_libmosquitto); /* outputs.mqtt (mqtt.h) */
-    vd_daemon_use_influx_http(&vd_influx_http_curl); /* outputs.influx.http (influx_http.h) */
     char e3[2048];
     int rc;
     if (vd_daemon_init(&d, &cfg, &opt, e3, sizeof e3)) {
