@@ -615,8 +615,9 @@ std::unique_ptr<vibid_ident> create_ident(const vibid_model *model, const vibid_
     vibid::require_finalized(model);
     if (!cfg) throw_error(VIBID_E_NULL_ARGUMENT, "cfg is NULL");
     const int est = vibid::enum_value(cfg->estimator);
-    if (!vibid_estimator_name(cfg->estimator))
-        throw_error(VIBID_E_OUT_OF_RANGE, "estimator %d unknown", est);
+    // the range checked on the int read without an enum load (an out-of-range value passed
+    // as vibid_estimator would be undefined behaviour, which lib.test_enum_args catches)
+    if (est < 0 || est >= kEstimatorCount) throw_error(VIBID_E_OUT_OF_RANGE, "estimator %d unknown", est);
     if (!(cfg->sample_time > 0.0) || !std::isfinite(cfg->sample_time))
         throw_error(VIBID_E_OUT_OF_RANGE, "sample_time = %g s must be > 0 and finite", cfg->sample_time);
     if (cfg->difference_order != 0 && cfg->difference_order != 2 && cfg->difference_order != 4)
