@@ -878,7 +878,7 @@ def cmd_convert(a: argparse.Namespace) -> int:
     if os.path.exists(a.out) and os.path.samefile(a.capture, a.out):
         raise CliError(f"{a.out!r} is the capture itself: give another output file")
     df = read_capture(a.capture, stand, format=a.format, group=a.group, dbc=a.dbc, channel_map=a.channel_map)
-    fmt = a.format or _core.capture_format_of_file(a.capture) or ("candump" if a.dbc else "?")
+    fmt = df.attrs["source"]["format"]  # as read_capture resolved it
     block = df[list(stand.channels)]
     t = df["time_s"].to_numpy() if "time_s" in df else np.arange(len(df)) / stand.sample_rate
     # A candump log's missing samples are NaN rows: left out, never written as numbers, so

@@ -14,6 +14,8 @@
 #include <vibid_drivers/capture_format.h>
 #include <vibid_drivers/source_replay.h>
 
+#include "support/drv_test_util.h"
+
 static vibid_capture_format sniff(const char *text, size_t len)
 {
     return vibid_capture_format_sniff((const unsigned char *)text, len);
@@ -85,48 +87,30 @@ static void test_sniff(void **state)
     assert_int_equal(SNIFF("MDF"), VIBID_CAPTURE_UNKNOWN); /* too short to be the identification block */
 }
 
-static const char *tmpdir(void)
-{
-    const char *d = getenv("VIBID_DRV_TMP");
-    return d && *d ? d : "/tmp";
-}
-
-static void write_file(const char *path, const char *data, size_t len)
-{
-    FILE *f = fopen(path, "wb");
-    assert_non_null(f);
-    assert_int_equal(fwrite(data, 1, len, f), len);
-    assert_int_equal(fclose(f), 0);
-}
-
 static void test_files_and_replay_resolution(void **state)
 {
     (void)state;
     char p[512], err[512];
     /* content wins over the name: a CSV named .log, a candump log named .txt */
-    snprintf(p, sizeof p, "%s/capfmt_csv.log", tmpdir());
-    write_file(p, "t,x\n0,1\n", 8);
+    assert_non_null(drv_write_tmp("capfmt_csv.log", "t,x\n0,1\n", 8, p, sizeof p));
     assert_int_equal(vibid_capture_format_of_file(p), VIBID_CAPTURE_CSV);
     assert_int_equal(vibid_replay_format_resolve(VIBID_REPLAY_AUTO, p, err, sizeof err), VIBID_REPLAY_CSV);
     remove(p);
-    snprintf(p, sizeof p, "%s/capfmt_candump.txt", tmpdir());
-    write_file(p, "(1.000000) can0 1#00\n", 21);
+    assert_non_null(drv_write_tmp("capfmt_candump.txt", "(1.000000) can0 1#00\n", 21, p, sizeof p));
     assert_int_equal(vibid_capture_format_of_file(p), VIBID_CAPTURE_CANDUMP);
     assert_int_equal(vibid_replay_format_resolve(VIBID_REPLAY_AUTO, p, err, sizeof err), VIBID_REPLAY_CANDUMP);
     /* an explicit format is taken as given */
     assert_int_equal(vibid_replay_format_resolve(VIBID_REPLAY_CSV, p, err, sizeof err), VIBID_REPLAY_CSV);
     remove(p);
     /* an empty file and a missing one: the extension decides; nothing at all: candump */
-    snprintf(p, sizeof p, "%s/capfmt_empty.csv", tmpdir());
-    write_file(p, "", 0);
+    assert_non_null(drv_write_tmp("capfmt_empty.csv", "", 0, p, sizeof p));
     assert_int_equal(vibid_capture_format_of_file(p), VIBID_CAPTURE_CSV);
     remove(p);
     assert_int_equal(vibid_capture_format_of_file("/no/such/dir/cap.tdms"), VIBID_CAPTURE_TDMS);
     assert_int_equal(vibid_replay_format_resolve(VIBID_REPLAY_AUTO, "/no/such/file", err, sizeof err),
                      VIBID_REPLAY_CANDUMP);
     /* MDF4 under any name: refused, naming the file, the format, what vibidd replays and the way out */
-    snprintf(p, sizeof p, "%s/capfmt_mdf.dat", tmpdir());
-    write_file(p, "MDF     4.10    ", 16);
+    assert_non_null(drv_write_tmp("capfmt_mdf.dat", "MDF     4.10    ", 16, p, sizeof p));
     err[0] = '\0';
     assert_int_equal(vibid_replay_format_resolve(VIBID_REPLAY_AUTO, p, err, sizeof err), VIBID_REPLAY_AUTO);
     printf("  refused: %s\n", err);
@@ -135,8 +119,7 @@ static void test_files_and_replay_resolution(void **state)
     assert_non_null(strstr(err, "candump (.log), csv (.csv)"));
     assert_non_null(strstr(err, "vibid convert"));
     remove(p);
-    snprintf(p, sizeof p, "%s/capfmt.tdms", tmpdir());
-    write_file(p, "TDSm", 4);
+    assert_non_null(drv_write_tmp("capfmt.tdms", "TDSm", 4, p, sizeof p));
     assert_int_equal(vibid_replay_format_resolve(VIBID_REPLAY_AUTO, p, err, sizeof err), VIBID_REPLAY_AUTO);
     assert_non_null(strstr(err, "NI TDMS"));
     remove(p);

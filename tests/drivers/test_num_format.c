@@ -20,22 +20,10 @@
 
 #include "num_parse.h"
 
-/* splitmix64: reproducible across runs and platforms */
-static uint64_t rng_state = 0x2545F4914F6CDD1Du;
-static uint64_t rnd(void)
-{
-    uint64_t z = (rng_state += 0x9E3779B97F4A7C15u);
-    z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9u;
-    z = (z ^ (z >> 27)) * 0x94D049BB133111EBu;
-    return z ^ (z >> 31);
-}
+#include "support/drv_test_util.h"
 
-static uint64_t bits_of(double d)
-{
-    uint64_t b;
-    memcpy(&b, &d, sizeof b);
-    return b;
-}
+static uint64_t rng_state = 0x2545F4914F6CDD1Du;
+static uint64_t rnd(void) { return drv_splitmix64(&rng_state); }
 
 /* The length of "%.{p}g" for the least precision p that gives v back (p <= 17 always does) */
 static size_t shortest_printf_length(double v)
@@ -43,7 +31,7 @@ static size_t shortest_printf_length(double v)
     char buf[64];
     for (int p = 1; p <= 17; p++) {
         snprintf(buf, sizeof buf, "%.*g", p, v);
-        if (bits_of(strtod(buf, NULL)) == bits_of(v)) return strlen(buf);
+        if (drv_bits_of(strtod(buf, NULL)) == drv_bits_of(v)) return strlen(buf);
     }
     return 0; /* never reached */
 }
@@ -62,14 +50,14 @@ static void check(double v)
     }
     char *end;
     const double back = strtod(buf, &end);
-    if (*end != '\0' || bits_of(back) != bits_of(v)) {
-        fprintf(stderr, "%.17g (0x%016llx): '%s' reads back as %.17g\n", v, (unsigned long long)bits_of(v), buf, back);
+    if (*end != '\0' || drv_bits_of(back) != drv_bits_of(v)) {
+        fprintf(stderr, "%.17g (0x%016llx): '%s' reads back as %.17g\n", v, (unsigned long long)drv_bits_of(v), buf, back);
         fail();
     }
     double fast;
     if (vibid_parse_decimal(buf, buf + len, &fast)) {
         n_fast_parsed++;
-        if (bits_of(fast) != bits_of(v)) {
+        if (drv_bits_of(fast) != drv_bits_of(v)) {
             fprintf(stderr, "%.17g: '%s' reads back through num_parse as %.17g\n", v, buf, fast);
             fail();
         }
