@@ -12,7 +12,13 @@
  * noise), base moved by a triangle wave; every displacement measured. Highest mode
  * about 100 Hz (omega h = 0.063 at 10 kHz).
  *
- * Real-time factor = simulated time / wall time (one core, this process alone). */
+ * Real-time factor = simulated time / wall time (one core, this process alone).
+ *
+ * Then the command line's CSV output (issue 31 item 8): the chain's exact step writing every
+ * sample through vibid-sim's own writer (sim_csv: shortest round-trip text, one buffered
+ * write per row) to DIR, against the same run writing with fprintf("%.17g") per value (the
+ * writer before, same 1 MiB stdio buffer) and against the simulation alone. Aim: 100 times
+ * real time or more with the file written. */
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -22,6 +28,11 @@
 
 #include "sim_config.h"
 #include "sim_engine.h"
+#include "sim_output.h"
+
+/* What each sample is written as: nothing (the integration alone), vibid-sim's CSV writer,
+ * or the former fprintf("%.17g") per value. */
+typedef enum { WRITE_NONE, WRITE_SIM_CSV, WRITE_PRINTF17 } write_mode;
 
 static double now_s(void)
 {
@@ -31,7 +42,8 @@ static double now_s(void)
 }
 
 /* Returns the real-time factor (simulated time / wall time). */
-static double run(const char *label, const char *path, const char *sim_path, sim_integrator kind, double sim_seconds)
+static double run_writing(const char *label, const char *path, const char *sim_path, sim_integrator kind,
+                          double sim_seconds, write_mode mode, const char *out_path)
 {
     vibid_stand_error serr;
     vibid_stand *st = vibid_stand_load(path, &serr);
@@ -53,7 +65,22 @@ static double run(const char *label, const char *path, const char *sim_path, sim
     }
     double h = sim_engine_period(e), vals[64];
     size_t n = (size_t)(sim_seconds / h + 0.5);
+    vibid_model_dims d;
+    vibid_model_get_dims(vibid_stand_model(st), &d);
+    sim_csv csv;
+    FILE *plain = NULL;
     double t0 = now_s();
+    if (mode == WRITE_SIM_CSV && sim_csv_open(&csv, out_path, st, err, sizeof err)) {
+        fprintf(stderr, "bench_sim: %s\n", err);
+        exit(1);
+    }
+    if (mode == WRITE_PRINTF17) {
+        if (!(plain = fopen(out_path, "w"))) {
+            perror(out_path);
+            exit(1);
+        }
+        setvbuf(plain, NULL, _IOFBF, 1 << 20);
+    }
     for (size_t k = 0; k < n; k++) {
         uint64_t kk;
         double t;
@@ -61,6 +88,23 @@ static double run(const char *label, const char *path, const char *sim_path, sim
             fprintf(stderr, "bench_sim: %s\n", sim_engine_error(e));
             exit(1);
         }
+        if (mode == WRITE_SIM_CSV && sim_csv_write(&csv, t, vals)) {
+            fprintf(stderr, "bench_sim: %s: write failed\n", out_path);
+            exit(1);
+        }
+        if (mode == WRITE_PRINTF17) {
+            fprintf(plain, "%.17g", t);
+            for (size_t i = 0; i < d.n_channels; i++) fprintf(plain, ",%.17g", vals[i]);
+            fputc('\n', plain);
+        }
+    }
+    if (mode == WRITE_SIM_CSV && sim_csv_close(&csv, err, sizeof err)) {
+        fprintf(stderr, "bench_sim: %s\n", err);
+        exit(1);
+    }
+    if (plain && (ferror(plain) | fclose(plain))) {
+        fprintf(stderr, "bench_sim: %s: write failed\n", out_path);
+        exit(1);
     }
     double wall = now_s() - t0;
     sim_engine_stats s;
@@ -73,6 +117,11 @@ static double run(const char *label, const char *path, const char *sim_path, sim
     sim_config_free(&cfg);
     vibid_stand_destroy(st);
     return sim_seconds / wall;
+}
+
+static double run(const char *label, const char *path, const char *sim_path, sim_integrator kind, double sim_seconds)
+{
+    return run_writing(label, path, sim_path, kind, sim_seconds, WRITE_NONE, NULL);
 }
 
 /* Copies the simulation file src to dst with text inserted right after its opening
@@ -148,5 +197,19 @@ int main(int argc, char **argv)
     printf("exact step / ARKODE (fehlberg8): 10-DOF chain %.0fx (target: 200x real time or more, now %.0fx), "
            "paper example 1 %.0fx\n",
            ex / ar, ex, ex1 / ar1);
+
+    char csv_path[512];
+    snprintf(csv_path, sizeof csv_path, "%s/bench_sim_chain10.csv", dir);
+    printf("\nvibid-sim's CSV output (10-DOF chain at 10 kHz, exact step, 12 columns, %g s simulated, file in %s):\n",
+           secs, dir);
+    double alone = run("simulation alone", path, path, SIM_INTEGRATOR_AUTO, secs);
+    double with_csv = run_writing("simulation + vibid-sim's CSV writer (shortest round trip)", path, path,
+                                  SIM_INTEGRATOR_AUTO, secs, WRITE_SIM_CSV, csv_path);
+    double with_printf = run_writing("simulation + fprintf(\"%.17g\") per value (the writer before)", path, path,
+                                     SIM_INTEGRATOR_AUTO, secs, WRITE_PRINTF17, csv_path);
+    remove(csv_path);
+    printf("CSV written at %.0fx real time (aim: 100x or more), %.1fx the fprintf writer's %.0fx; the simulation "
+           "alone %.0fx\n",
+           with_csv, with_csv / with_printf, with_printf, alone);
     return 0;
 }

@@ -30,6 +30,7 @@ if [[ "${1:-}" == "--test" ]]; then
   # a real InfluxDB server (1.6) for vibidd's InfluxDB HTTP tests (daemon.e2e_influx.*);
   # curl reads what they wrote back through its query API
   packages+=(influxdb curl)
+  packages+=(chromium)  # headless screenshots of vibid identify --report (python/tests/test_report.py)
 fi
 
 missing=()

@@ -123,8 +123,490 @@ static int parse_exc(const ctx *c, const config_setting_t *e, const char *path, 
     return 0;
 }
 
-int sim_config_load(const char *path, const vibid_stand *stand, const uint64_t *seed, sim_config *cfg, char *err,
-                    size_t errlen)
+/* What every parser of the simulation group needs: the reader (file, errors), the stand
+ * whose names the settings refer to, its model and dimensions, and the configuration being
+ * filled. One argument instead of five for each group's parser. */
+typedef struct sim_reader {
+    const ctx *c;
+    const vibid_stand *stand;
+    const vibid_model *model;
+    vibid_model_dims d;
+    sim_config *cfg;
+} sim_reader;
+
+/* arr (n elements of size bytes) grown by one element, or NULL with "out of memory" at `e`
+ * (arr then unchanged). Kept apart because the excitation targets, their components, the
+ * noise and the changes all append one parsed entry at a time. */
+static void *grow_by_one(const sim_reader *r, const config_setting_t *e, const char *p, void *arr, size_t n,
+                         size_t size)
+{
+    void *na = realloc(arr, (n + 1) * size);
+    if (!na) vibid_cfg_fail(r->c, e, p, "out of memory");
+    return na;
+}
+
+/* The i-th element of a list setting, which must be a group; its path ("simulation.noise.[2]")
+ * into p. Every list of the simulation group is a list of groups: one check, one message
+ * (not_group: "must be a group" or "must be a group { ... }", as each list has always said).
+ * NULL after an error. */
+static const config_setting_t *list_group_elem(const sim_reader *r, const config_setting_t *list,
+                                               const char *lpath, int i, char *p, size_t cap,
+                                               const char *not_group)
+{
+    const config_setting_t *e = config_setting_get_elem(list, (unsigned)i);
+    snprintf(p, cap, "%s.[%d]", lpath, i);
+    if (!config_setting_is_group(e)) {
+        vibid_cfg_fail(r->c, e, p, "%s", not_group);
+        return NULL;
+    }
+    return e;
+}
+
+/* The optional sub-group `name` of g (integrator, can, modbus): absent 0, a group with
+ * known keys only 1 (*out set), otherwise -1. Apart so that the three share one check. */
+static int open_subgroup(const sim_reader *r, const config_setting_t *g, const char *name, const char *path,
+                         const char *const *known, const config_setting_t **out)
+{
+    const config_setting_t *s = config_setting_get_member(g, name);
+    *out = s;
+    if (!s) return 0;
+    if (!config_setting_is_group(s)) return vibid_cfg_fail(r->c, s, path, "must be a group");
+    return vibid_cfg_check_keys(r->c, s, path, known) ? -1 : 1;
+}
+
+/* The model channel named `name` (an acquisition or model channel name) into *idx, or
+ * "unknown channel" listing the stand's channels. Shared by the noise and CAN signal
+ * entries, which both name a channel. */
+static int resolve_channel(const sim_reader *r, const config_setting_t *e, const char *p, const char *name,
+                           size_t *idx)
+{
+    *idx = find_channel(r->stand, name);
+    if (*idx != (size_t)-1) return 0;
+    char names[512];
+    channel_list(r->stand, names, sizeof names);
+    return vibid_cfg_fail(r->c, config_setting_get_member(e, "channel"), p,
+                          "unknown channel '%s' (channels: %s)", name, names);
+}
+
+/* Appends `name` and a space to a fixed buffer (the lists of names in messages). */
+static void append_name(char *buf, size_t cap, const char *name)
+{
+    strncat(buf, name, cap - strlen(buf) - 1);
+    strncat(buf, " ", cap - strlen(buf) - 1);
+}
+
+/* simulation.seed: the file's seed (>= 0). The command line's seed replaces it afterwards
+ * (sim_config_load), before any stream is derived from it. */
+static int parse_seed(const sim_reader *r, const config_setting_t *g, const char *gp)
+{
+    double v;
+    int got = get_num(r->c, g, gp, "seed", &v);
+    if (got <= 0) return got;
+    if (v < 0)
+        return vibid_cfg_fail(r->c, config_setting_get_member(g, "seed"), "simulation.seed", "must be >= 0");
+    r->cfg->seed = (uint64_t)v;
+    return 0;
+}
+
+/* simulation.duration (> 0 s) and simulation.hold, which overrides every input's hold but
+ * may not hold a base whose velocity or acceleration is measured. */
+static int parse_duration_and_hold(const sim_reader *r, const config_setting_t *g, const char *gp)
+{
+    sim_config *cfg = r->cfg;
+    double v;
+    int got = get_num(r->c, g, gp, "duration", &v);
+    if (got < 0) return -1;
+    if (got) {
+        if (!(v > 0))
+            return vibid_cfg_fail(r->c, config_setting_get_member(g, "duration"), "simulation.duration",
+                                  "%g must be > 0 s", v);
+        cfg->duration = v;
+    }
+    static const char *const holds[] = {"zoh", "smooth", NULL}; /* index = cfg->smooth */
+    if ((got = vibid_cfg_enum(r->c, g, gp, "hold", holds, false, &cfg->smooth)) <= 0) return got;
+    resolve_holds(cfg, r->model, r->d.n_inputs);
+    unsigned bm = base_rate_measured(r->model, &r->d);
+    if (!cfg->smooth && bm)
+        return vibid_cfg_fail(
+            r->c, config_setting_get_member(g, "hold"), "simulation.hold",
+            "\"zoh\" holds the base, whose %s is measured: a held displacement's derivative is a train "
+            "of "
+            "impulses that no sensor reports (measure only the base displacement, or use \"smooth\")",
+            bm & VIBID_MEASURE_VELOCITY ? "velocity" : "acceleration");
+    return 0;
+}
+
+/* simulation.integrator { kind, rtol, atol, method }. *kind_setting: where kind was given
+ * (NULL otherwise), for the later check of "exact" against the excitations. */
+static int parse_integrator(const sim_reader *r, const config_setting_t *g,
+                            const config_setting_t **kind_setting)
+{
+    static const char *const ik[] = {"kind", "rtol", "atol", "method", NULL};
+    const char *ip = "simulation.integrator";
+    sim_config *cfg = r->cfg;
+    const config_setting_t *ig;
+    int got = open_subgroup(r, g, "integrator", ip, ik, &ig);
+    if (got <= 0) return got;
+    static const char *const kinds[] = {"auto", "exact", "arkode", NULL}; /* index = sim_integrator */
+    int kind = SIM_INTEGRATOR_AUTO;
+    if ((got = vibid_cfg_enum(r->c, ig, ip, "kind", kinds, false, &kind)) < 0) return -1;
+    cfg->integrator = (sim_integrator)kind;
+    if (got) *kind_setting = config_setting_get_member(ig, "kind");
+    if (cfg->integrator == SIM_INTEGRATOR_EXACT && r->d.nonlinear)
+        return vibid_cfg_fail(r->c, *kind_setting, "simulation.integrator.kind",
+                              "\"exact\" needs a linear stand, and this one has a cubic spring: its motion has no "
+                              "closed form between samples (use \"auto\" or \"arkode\", which integrate it with "
+                              "ARKODE)");
+    if (get_num(r->c, ig, ip, "rtol", &cfg->rtol) < 0) return -1;
+    if (get_num(r->c, ig, ip, "atol", &cfg->atol) < 0) return -1;
+    static const char *const methods[] = {"fehlberg8", "dormand_prince5", NULL}; /* index = cfg->method */
+    if (vibid_cfg_enum(r->c, ig, ip, "method", methods, false, &cfg->method) < 0) return -1;
+    if (!(cfg->rtol >= 1e-14 && cfg->rtol <= 1e-2))
+        return vibid_cfg_fail(r->c, ig, "simulation.integrator.rtol", "%g outside [1e-14, 1e-2]", cfg->rtol);
+    if (!(cfg->atol > 0))
+        return vibid_cfg_fail(r->c, ig, "simulation.integrator.atol", "%g must be > 0", cfg->atol);
+    return 0;
+}
+
+/* What an excitation's `target` names: the base, a force input or a disturbance (index in
+ * *input). Resolving names is apart from reading the excitation's signal (parse_exc):
+ * it needs the stand's names and refuses the ambiguous ones. */
+static int resolve_excitation_target(const sim_reader *r, const config_setting_t *e, const char *p,
+                                     int *is_base, int *is_dist, size_t *input)
+{
+    const char *tg = NULL;
+    if (vibid_cfg_string_ref(r->c, e, p, "target", &tg) < 0) return -1;
+    if (!tg)
+        return vibid_cfg_fail(r->c, e, p,
+                              "target missing: \"base\", the name of a force input or of a disturbance");
+    *is_base = strcmp(tg, "base") == 0;
+    *is_dist = 0;
+    *input = 0;
+    if (*is_base) {
+        if (!r->d.has_base)
+            return vibid_cfg_fail(r->c, e, p,
+                                  "target \"base\": no element of the stand connects to the base");
+        return 0;
+    }
+    int found = 0;
+    char names[512] = "", dnames[512] = "";
+    for (size_t k = 0; k < r->d.n_channels && !found; k++) {
+        vibid_channel_info ci;
+        vibid_model_channel_info(r->model, k, &ci);
+        if (ci.kind != VIBID_CHANNEL_INPUT) continue;
+        const char *an = vibid_stand_channel_name(r->stand, k);
+        if (strcmp(ci.name, tg) == 0 || (an && strcmp(an, tg) == 0)) {
+            found = 1;
+            *input = ci.index;
+        }
+        append_name(names, sizeof names, ci.name);
+    }
+    /* A disturbance's name is unique among the model's names, but an input's channel
+     * name may equal it: refuse the ambiguity rather than pick one. */
+    for (size_t k = 0; k < r->d.n_disturbances; k++) {
+        vibid_disturbance_info wi;
+        vibid_model_disturbance_info(r->model, k, &wi);
+        if (strcmp(wi.name, tg) == 0) {
+            if (found)
+                return vibid_cfg_fail(r->c, config_setting_get_member(e, "target"), p,
+                                      "target '%s' names both a force input's channel and a disturbance", tg);
+            found = *is_dist = 1;
+            *input = k;
+        }
+        if (dnames[0]) strncat(dnames, ", ", sizeof dnames - strlen(dnames) - 1);
+        strncat(dnames, wi.name, sizeof dnames - strlen(dnames) - 1);
+    }
+    if (!found)
+        return vibid_cfg_fail(r->c, config_setting_get_member(e, "target"), p,
+                              "target '%s' is neither \"base\" nor a force input nor a disturbance of the "
+                              "stand (inputs: %s; "
+                              "disturbances: %s)",
+                              tg, names[0] ? names : "none", dnames[0] ? dnames : "none");
+    return 0;
+}
+
+/* The target entry for (is_base, is_dist, input), made when it is the first excitation of
+ * that target: components of one target add up, so they are collected per target. NULL
+ * after an error. */
+static sim_exc_target *target_entry(const sim_reader *r, const config_setting_t *e, const char *p,
+                                    int is_base, int is_dist, size_t input)
+{
+    sim_config *cfg = r->cfg;
+    sim_exc_target *t = NULL;
+    for (size_t k = 0; k < cfg->n_targets; k++)
+        if (cfg->targets[k].is_base == is_base && cfg->targets[k].is_disturbance == is_dist &&
+            (is_base || cfg->targets[k].input == input))
+            t = &cfg->targets[k];
+    if (t) return t;
+    sim_exc_target *nt = grow_by_one(r, e, p, cfg->targets, cfg->n_targets, sizeof *nt);
+    if (!nt) return NULL;
+    cfg->targets = nt;
+    t = &cfg->targets[cfg->n_targets++];
+    memset(t, 0, sizeof *t);
+    t->is_base = is_base;
+    t->is_disturbance = is_dist;
+    t->input = input;
+    return t;
+}
+
+/* simulation.excitation ( { target, kind, ... }, ... ): each entry adds one component to
+ * its target's signal. Its seed is derived from cfg->seed, which is final by now. */
+static int parse_excitations(const sim_reader *r, const config_setting_t *g, const char *gp)
+{
+    int lerr;
+    const config_setting_t *ex = get_list(r->c, g, gp, "excitation", &lerr);
+    if (lerr) return -1;
+    for (int i = 0; ex && i < config_setting_length(ex); i++) {
+        char p[128];
+        const config_setting_t *e =
+            list_group_elem(r, ex, "simulation.excitation", i, p, sizeof p, "must be a group { ... }");
+        if (!e) return -1;
+        int is_base = 0, is_dist = 0;
+        size_t input = 0;
+        if (resolve_excitation_target(r, e, p, &is_base, &is_dist, &input)) return -1;
+        sim_exc_target *t = target_entry(r, e, p, is_base, is_dist, input);
+        if (!t) return -1;
+        sim_exc_spec *ns = grow_by_one(r, e, p, t->specs, t->n, sizeof *ns);
+        if (!ns) return -1;
+        t->specs = ns;
+        if (parse_exc(r->c, e, p, r->cfg->seed, (size_t)i, &t->specs[t->n])) return -1;
+        t->n++;
+    }
+    return 0;
+}
+
+/* "exact" refuses a smooth input with a component that is not piecewise linear between
+ * samples: the exact step could not take a single interval of it, and a run asked to be
+ * exact must not silently run on ARKODE throughout (sim_engine.h). A check across the
+ * integrator and the excitations, hence apart from parsing either. */
+static int check_exact_integrable(const sim_reader *r, const config_setting_t *kind_setting)
+{
+    const sim_config *cfg = r->cfg;
+    for (size_t i = 0; cfg->integrator == SIM_INTEGRATOR_EXACT && i < cfg->n_targets; i++) {
+        const sim_exc_target *t = &cfg->targets[i];
+        int smooth = t->is_base ? cfg->base_smooth
+                     : t->is_disturbance ? 0
+                     : t->input < SIM_MAX_CHANNELS ? cfg->input_smooth[t->input] : 1;
+        for (size_t j = 0; smooth && j < t->n; j++) {
+            sim_exc_kind k = t->specs[j].kind;
+            if (k == SIM_EXC_CONSTANT || k == SIM_EXC_PRBS || k == SIM_EXC_NOISE) continue;
+            return vibid_cfg_fail(r->c, kind_setting, "simulation.integrator.kind",
+                                  "\"exact\" is exact for inputs held over each sample or linear between samples, "
+                                  "and the %s is smooth with a %s component, which is neither (hold it: hold = "
+                                  "\"zoh\", or use \"auto\", which integrates such intervals with ARKODE)",
+                                  t->is_base ? "base" : "force input", sim_exc_kind_name(k));
+        }
+    }
+    return 0;
+}
+
+/* The ranges of one noise entry, checked after all its numbers are read. */
+static int check_noise_entry(const sim_reader *r, const config_setting_t *e, const char *p,
+                             const sim_noise_spec *ns, int has_std, int has_snr)
+{
+    if (!isfinite(ns->offset)) return vibid_cfg_fail(r->c, e, p, "offset = %g must be finite", ns->offset);
+    if (!(ns->corr_time >= 0.0) || !isfinite(ns->corr_time))
+        return vibid_cfg_fail(r->c, e, p, "correlation_time = %g s must be >= 0 and finite (0: white noise)",
+                              ns->corr_time);
+    if (has_std && has_snr) return vibid_cfg_fail(r->c, e, p, "give either std or snr_db, not both");
+    if (has_std && ns->std < 0) return vibid_cfg_fail(r->c, e, p, "std = %g must be >= 0", ns->std);
+    if (ns->resolution < 0) return vibid_cfg_fail(r->c, e, p, "resolution = %g must be >= 0", ns->resolution);
+    return 0;
+}
+
+/* simulation.noise ( { channel, std | snr_db, resolution, offset, correlation_time }, ... ). */
+static int parse_noise(const sim_reader *r, const config_setting_t *g, const char *gp)
+{
+    static const char *const nk[] = {"channel", "std",    "snr_db", "resolution",
+                                     "offset",  "correlation_time", NULL};
+    sim_config *cfg = r->cfg;
+    int lerr;
+    const config_setting_t *nl = get_list(r->c, g, gp, "noise", &lerr);
+    if (lerr) return -1;
+    for (int i = 0; nl && i < config_setting_length(nl); i++) {
+        char p[128];
+        const config_setting_t *e =
+            list_group_elem(r, nl, "simulation.noise", i, p, sizeof p, "must be a group { ... }");
+        if (!e || vibid_cfg_check_keys(r->c, e, p, nk)) return -1;
+        const char *ch = NULL;
+        if (vibid_cfg_string_ref(r->c, e, p, "channel", &ch) < 0) return -1;
+        if (!ch) return vibid_cfg_fail(r->c, e, p, "channel missing");
+        size_t idx;
+        if (resolve_channel(r, e, p, ch, &idx)) return -1;
+        /* std NaN: not given (the stand's noise may apply) */
+        sim_noise_spec ns = {idx, NAN, NAN, 0.0, 0.0, 0.0};
+        int hs, hn;
+        if ((hs = get_num(r->c, e, p, "std", &ns.std)) < 0 ||
+            (hn = get_num(r->c, e, p, "snr_db", &ns.snr_db)) < 0 ||
+            get_num(r->c, e, p, "resolution", &ns.resolution) < 0 ||
+            get_num(r->c, e, p, "offset", &ns.offset) < 0 ||
+            get_num(r->c, e, p, "correlation_time", &ns.corr_time) < 0)
+            return -1;
+        if (check_noise_entry(r, e, p, &ns, hs, hn)) return -1;
+        sim_noise_spec *nn = grow_by_one(r, e, p, cfg->noise, cfg->n_noise, sizeof *nn);
+        if (!nn) return -1;
+        cfg->noise = nn;
+        cfg->noise[cfg->n_noise++] = ns;
+    }
+    return 0;
+}
+
+/* The unknown parameter named by a change's `parameter` into *pi, or an error listing the
+ * parameters that may change. */
+static int resolve_changed_parameter(const sim_reader *r, const config_setting_t *e, const char *p,
+                                     const char *pn, size_t *pi)
+{
+    *pi = (size_t)-1;
+    char names[512] = "";
+    for (size_t k = 0; k < r->d.n_params; k++) {
+        vibid_param_info inf;
+        vibid_model_param_info(r->model, k, &inf);
+        if (strcmp(inf.name, pn) == 0) *pi = k;
+        append_name(names, sizeof names, inf.name);
+    }
+    if (*pi != (size_t)-1) return 0;
+    return vibid_cfg_fail(r->c, config_setting_get_member(e, "parameter"), p,
+                          "'%s' is not an unknown parameter of the stand (changeable: %s); only parameters "
+                          "marked unknown = true can change",
+                          pn, names[0] ? names : "none");
+}
+
+/* The time range of one change: it starts at or after 0 s and ramps over >= 0 s. */
+static int check_change_times(const sim_reader *r, const config_setting_t *e, const char *p,
+                              const sim_change *ch, int has_at)
+{
+    if (!has_at || ch->at < 0) return vibid_cfg_fail(r->c, e, p, "at (s, >= 0) missing or negative");
+    if (ch->ramp < 0) return vibid_cfg_fail(r->c, e, p, "ramp = %g must be >= 0 s", ch->ramp);
+    return 0;
+}
+
+/* simulation.changes ( { parameter, at, ramp, factor | value }, ... ). */
+static int parse_changes(const sim_reader *r, const config_setting_t *g, const char *gp)
+{
+    static const char *const ck[] = {"parameter", "at", "ramp", "factor", "value", NULL};
+    sim_config *cfg = r->cfg;
+    int lerr;
+    const config_setting_t *cl = get_list(r->c, g, gp, "changes", &lerr);
+    if (lerr) return -1;
+    for (int i = 0; cl && i < config_setting_length(cl); i++) {
+        char p[128];
+        const config_setting_t *e =
+            list_group_elem(r, cl, "simulation.changes", i, p, sizeof p, "must be a group { ... }");
+        if (!e || vibid_cfg_check_keys(r->c, e, p, ck)) return -1;
+        const char *pn = NULL;
+        if (vibid_cfg_string_ref(r->c, e, p, "parameter", &pn) < 0) return -1;
+        if (!pn) return vibid_cfg_fail(r->c, e, p, "parameter missing");
+        size_t pi;
+        if (resolve_changed_parameter(r, e, p, pn, &pi)) return -1;
+        sim_change ch = {pi, 0.0, 0.0, 0.0};
+        double factor = 0.0;
+        int ha, hf, hv;
+        if ((ha = get_num(r->c, e, p, "at", &ch.at)) < 0 || get_num(r->c, e, p, "ramp", &ch.ramp) < 0 ||
+            (hf = get_num(r->c, e, p, "factor", &factor)) < 0 ||
+            (hv = get_num(r->c, e, p, "value", &ch.value)) < 0)
+            return -1;
+        if (check_change_times(r, e, p, &ch, ha)) return -1;
+        if (hf == hv)
+            return vibid_cfg_fail(r->c, e, p, "give exactly one of factor (times the true value) or value");
+        if (hf) ch.value = factor * vibid_stand_true_values(r->stand)[pi];
+        for (size_t k = 0; k < cfg->n_changes; k++)
+            if (cfg->changes[k].param == pi && !(ch.at >= cfg->changes[k].at + cfg->changes[k].ramp))
+                return vibid_cfg_fail(r->c, e, p,
+                                      "changes of '%s' must be given in time order without overlap", pn);
+        sim_change *nc = grow_by_one(r, e, p, cfg->changes, cfg->n_changes, sizeof *nc);
+        if (!nc) return -1;
+        cfg->changes = nc;
+        cfg->changes[cfg->n_changes++] = ch;
+    }
+    return 0;
+}
+
+/* One entry of simulation.can.signals: the channel's wire type and scale. */
+static int parse_can_signal(const sim_reader *r, const config_setting_t *e, const char *p)
+{
+    static const char *const sk[] = {"channel", "type", "scale", NULL};
+    static const char *const types[] = {"int16", "int32", "float32", NULL};
+    static const sim_can_type type_values[] = {SIM_CAN_INT16, SIM_CAN_INT32, SIM_CAN_FLOAT32};
+    if (vibid_cfg_check_keys(r->c, e, p, sk)) return -1;
+    const char *ch = NULL;
+    int ty = 2;
+    if (vibid_cfg_string_ref(r->c, e, p, "channel", &ch) < 0 ||
+        vibid_cfg_enum(r->c, e, p, "type", types, false, &ty) < 0)
+        return -1;
+    if (!ch) return vibid_cfg_fail(r->c, e, p, "channel missing");
+    size_t idx;
+    if (resolve_channel(r, e, p, ch, &idx)) return -1;
+    sim_can_signal sg = {type_values[ty], 1.0};
+    if (get_num(r->c, e, p, "scale", &sg.scale) < 0) return -1;
+    if (!(sg.scale > 0)) return vibid_cfg_fail(r->c, e, p, "scale = %g must be > 0", sg.scale);
+    if (sg.type == SIM_CAN_FLOAT32 && sg.scale != 1.0)
+        return vibid_cfg_fail(r->c, e, p, "float32 signals are not scaled (scale must be 1)");
+    r->cfg->can_sig[idx] = sg;
+    return 0;
+}
+
+/* simulation.can { id, fd, extended, signals }: the frame the CAN server sends. */
+static int parse_can(const sim_reader *r, const config_setting_t *g)
+{
+    static const char *const kk[] = {"id", "fd", "extended", "signals", NULL};
+    const char *cp = "simulation.can";
+    sim_config *cfg = r->cfg;
+    const config_setting_t *cg;
+    int got = open_subgroup(r, g, "can", cp, kk, &cg);
+    if (got <= 0) return got;
+    bool fd = false, ext = false;
+    if (vibid_cfg_bool(r->c, cg, cp, "fd", &fd) < 0 || vibid_cfg_bool(r->c, cg, cp, "extended", &ext) < 0)
+        return -1;
+    cfg->can_fd = fd;
+    cfg->can_extended = ext;
+    double v;
+    if ((got = get_num(r->c, cg, cp, "id", &v)) < 0) return -1;
+    if (got) cfg->can_id = (uint32_t)v;
+    if (got && (v < 0 || v > (cfg->can_extended ? 0x1FFFFFFF : 0x7FF)))
+        return vibid_cfg_fail(r->c, config_setting_get_member(cg, "id"), "simulation.can.id",
+                              "%g outside 0..0x%X", v, cfg->can_extended ? 0x1FFFFFFF : 0x7FF);
+    int lerr;
+    const config_setting_t *sl = get_list(r->c, cg, cp, "signals", &lerr);
+    if (lerr) return -1;
+    for (int i = 0; sl && i < config_setting_length(sl); i++) {
+        char p[128];
+        const config_setting_t *e =
+            list_group_elem(r, sl, "simulation.can.signals", i, p, sizeof p, "must be a group");
+        if (!e || parse_can_signal(r, e, p)) return -1;
+    }
+    return 0;
+}
+
+/* A whole number setting of group `s` in [lo, hi] into *out (absent: *out untouched);
+ * the Modbus FIFO's base and capacity. The message names the group's line, as it always has. */
+static int parse_modbus_range(const sim_reader *r, const config_setting_t *s, const char *name, double lo,
+                              double hi, unsigned *out)
+{
+    char field[64];
+    double v;
+    int got = get_num(r->c, s, "simulation.modbus", name, &v);
+    if (got <= 0) return got;
+    if (v < lo || v > hi) {
+        snprintf(field, sizeof field, "simulation.modbus.%s", name);
+        return vibid_cfg_fail(r->c, s, field, "%g outside %g..%g", v, lo, hi);
+    }
+    *out = (unsigned)v;
+    return 0;
+}
+
+/* simulation.modbus { fifo_base, capacity }: where the Modbus server's sample FIFO lives. */
+static int parse_modbus(const sim_reader *r, const config_setting_t *g)
+{
+    static const char *const mk[] = {"fifo_base", "capacity", NULL};
+    const config_setting_t *mg;
+    int got = open_subgroup(r, g, "modbus", "simulation.modbus", mk, &mg);
+    if (got <= 0) return got;
+    if (parse_modbus_range(r, mg, "fifo_base", 0, 65535, &r->cfg->fifo_base) < 0) return -1;
+    return parse_modbus_range(r, mg, "capacity", 2, 32767, &r->cfg->fifo_capacity) < 0 ? -1 : 0;
+}
+
+/* The defaults of every setting the simulation group may leave out. */
+static void set_defaults(sim_config *cfg, const char *path)
 {
     memset(cfg, 0, sizeof *cfg);
     snprintf(cfg->file, sizeof cfg->file, "%s", path);
@@ -136,442 +618,50 @@ int sim_config_load(const char *path, const vibid_stand *stand, const uint64_t *
     cfg->fifo_base = 1000;
     cfg->fifo_capacity = 1000;
     for (size_t i = 0; i < SIM_MAX_CHANNELS; i++) cfg->can_sig[i] = (sim_can_signal){SIM_CAN_FLOAT32, 1.0};
+}
 
-    vibid_cfg_error cerr = {0};
-    ctx c = {path, &cerr};
-    const vibid_model *model = vibid_stand_model(stand);
-    vibid_model_dims d;
-    vibid_model_get_dims(model, &d);
-    if (d.n_channels > SIM_MAX_CHANNELS) {
-        vibid_cfg_fail(&c, NULL, "stand", "%zu channels; vibid-sim handles at most %d", d.n_channels,
-                       SIM_MAX_CHANNELS);
-        if (err && errlen) snprintf(err, errlen, "%s", cerr.text);
-        return -1;
-    }
-    /* Each input behaves as the stand declares it unless simulation.hold overrides all. */
-    cfg->smooth = -1;
-    resolve_holds(cfg, model, d.n_inputs);
-
-    config_t lc;
-    int rc = -1;
-    if (vibid_cfg_read_file(&lc, path, &cerr)) goto out;
-    if (seed) cfg->seed = *seed;
-    const config_setting_t *g = config_lookup(&lc, "simulation");
-    if (!g) { rc = 0; goto out; }
-    const char *gp = "simulation";
-    if (!config_setting_is_group(g)) {
-        vibid_cfg_fail(&c, g, gp, "must be a group { ... }");
-        goto out;
-    }
+/* The `simulation` group of the file read into lc (absent: the defaults), each of its
+ * settings by the parser of its concern, in the order in which they depend on each other:
+ * the seed before the excitations' streams, the hold and the integrator before the check
+ * of "exact" against the excitations. `seed` (the command line's) replaces the file's. */
+static int parse_simulation_group(const sim_reader *r, const config_t *lc, const uint64_t *seed)
+{
     static const char *const known[] = {"seed", "duration", "hold", "integrator", "excitation", "noise",
                                         "changes", "can", "modbus", NULL};
-    if (vibid_cfg_check_keys(&c, g, gp, known)) goto out;
-
-    double v;
-    int r;
-    if ((r = get_num(&c, g, gp, "seed", &v)) < 0) goto out;
-    if (r) {
-        if (v < 0) {
-            vibid_cfg_fail(&c, config_setting_get_member(g, "seed"), "simulation.seed", "must be >= 0");
-            goto out;
-        }
-        cfg->seed = (uint64_t)v;
-    }
-    if (seed) cfg->seed = *seed;
-    if ((r = get_num(&c, g, gp, "duration", &v)) < 0) goto out;
-    if (r) {
-        if (!(v > 0)) {
-            vibid_cfg_fail(&c, config_setting_get_member(g, "duration"), "simulation.duration",
-                           "%g must be > 0 s", v);
-            goto out;
-        }
-        cfg->duration = v;
-    }
-    static const char *const holds[] = {"zoh", "smooth", NULL}; /* index = cfg->smooth */
-    if ((r = vibid_cfg_enum(&c, g, gp, "hold", holds, false, &cfg->smooth)) < 0) goto out;
-    if (r) {
-        resolve_holds(cfg, model, d.n_inputs);
-        unsigned bm = base_rate_measured(model, &d);
-        if (!cfg->smooth && bm) {
-            vibid_cfg_fail(
-                &c, config_setting_get_member(g, "hold"), "simulation.hold",
-                "\"zoh\" holds the base, whose %s is measured: a held displacement's derivative is a train "
-                "of "
-                "impulses that no sensor reports (measure only the base displacement, or use \"smooth\")",
-                bm & VIBID_MEASURE_VELOCITY ? "velocity" : "acceleration");
-            goto out;
-        }
-    }
-
-    const config_setting_t *ig = config_setting_get_member(g, "integrator");
+    const char *gp = "simulation";
+    const config_setting_t *g = config_lookup(lc, gp);
+    if (g && !config_setting_is_group(g)) return vibid_cfg_fail(r->c, g, gp, "must be a group { ... }");
+    if (g && (vibid_cfg_check_keys(r->c, g, gp, known) || parse_seed(r, g, gp))) return -1;
+    if (seed) r->cfg->seed = *seed;
+    if (!g) return 0;
     const config_setting_t *kind_setting = NULL; /* where integrator.kind = "exact" was asked for */
-    if (ig) {
-        static const char *const ik[] = {"kind", "rtol", "atol", "method", NULL};
-        if (!config_setting_is_group(ig)) {
-            vibid_cfg_fail(&c, ig, "simulation.integrator", "must be a group");
-            goto out;
-        }
-        if (vibid_cfg_check_keys(&c, ig, "simulation.integrator", ik)) goto out;
-        static const char *const kinds[] = {"auto", "exact", "arkode", NULL}; /* index = sim_integrator */
-        int kind = SIM_INTEGRATOR_AUTO;
-        if ((r = vibid_cfg_enum(&c, ig, "simulation.integrator", "kind", kinds, false, &kind)) < 0) goto out;
-        cfg->integrator = (sim_integrator)kind;
-        if (r) kind_setting = config_setting_get_member(ig, "kind");
-        if (cfg->integrator == SIM_INTEGRATOR_EXACT && d.nonlinear) {
-            vibid_cfg_fail(&c, kind_setting, "simulation.integrator.kind",
-                           "\"exact\" needs a linear stand, and this one has a cubic spring: its motion has no "
-                           "closed form between samples (use \"auto\" or \"arkode\", which integrate it with ARKODE)");
-            goto out;
-        }
-        if (get_num(&c, ig, "simulation.integrator", "rtol", &cfg->rtol) < 0) goto out;
-        if (get_num(&c, ig, "simulation.integrator", "atol", &cfg->atol) < 0) goto out;
-        static const char *const methods[] = {"fehlberg8", "dormand_prince5", NULL}; /* index = cfg->method */
-        if (vibid_cfg_enum(&c, ig, "simulation.integrator", "method", methods, false, &cfg->method) < 0)
-            goto out;
-        if (!(cfg->rtol >= 1e-14 && cfg->rtol <= 1e-2)) {
-            vibid_cfg_fail(&c, ig, "simulation.integrator.rtol", "%g outside [1e-14, 1e-2]", cfg->rtol);
-            goto out;
-        }
-        if (!(cfg->atol > 0)) {
-            vibid_cfg_fail(&c, ig, "simulation.integrator.atol", "%g must be > 0", cfg->atol);
-            goto out;
-        }
-    }
+    if (parse_duration_and_hold(r, g, gp) || parse_integrator(r, g, &kind_setting) < 0 ||
+        parse_excitations(r, g, gp) || check_exact_integrable(r, kind_setting) || parse_noise(r, g, gp) ||
+        parse_changes(r, g, gp) || parse_can(r, g) < 0 || parse_modbus(r, g) < 0)
+        return -1;
+    return 0;
+}
 
-    int lerr;
-    const config_setting_t *ex = get_list(&c, g, gp, "excitation", &lerr);
-    if (lerr) goto out;
-    for (int i = 0; ex && i < config_setting_length(ex); i++) {
-        const config_setting_t *e = config_setting_get_elem(ex, (unsigned)i);
-        char p[128];
-        snprintf(p, sizeof p, "simulation.excitation.[%d]", i);
-        if (!config_setting_is_group(e)) {
-            vibid_cfg_fail(&c, e, p, "must be a group { ... }");
-            goto out;
-        }
-        const char *tg = NULL;
-        if (vibid_cfg_string_ref(&c, e, p, "target", &tg) < 0) goto out;
-        if (!tg) {
-            vibid_cfg_fail(&c, e, p,
-                           "target missing: \"base\", the name of a force input or of a disturbance");
-            goto out;
-        }
-        int is_base = strcmp(tg, "base") == 0, is_dist = 0;
-        size_t input = 0;
-        if (is_base && !d.has_base) {
-            vibid_cfg_fail(&c, e, p, "target \"base\": no element of the stand connects to the base");
-            goto out;
-        }
-        if (!is_base) {
-            int found = 0;
-            char names[512] = "", dnames[512] = "";
-            for (size_t k = 0; k < d.n_channels && !found; k++) {
-                vibid_channel_info ci;
-                vibid_model_channel_info(model, k, &ci);
-                if (ci.kind != VIBID_CHANNEL_INPUT) continue;
-                const char *an = vibid_stand_channel_name(stand, k);
-                if (strcmp(ci.name, tg) == 0 || (an && strcmp(an, tg) == 0)) { found = 1; input = ci.index; }
-                strncat(names, ci.name, sizeof names - strlen(names) - 1);
-                strncat(names, " ", sizeof names - strlen(names) - 1);
-            }
-            /* A disturbance's name is unique among the model's names, but an input's channel
-             * name may equal it: refuse the ambiguity rather than pick one. */
-            for (size_t k = 0; k < d.n_disturbances; k++) {
-                vibid_disturbance_info wi;
-                vibid_model_disturbance_info(model, k, &wi);
-                if (strcmp(wi.name, tg) == 0) {
-                    if (found) {
-                        vibid_cfg_fail(&c, config_setting_get_member(e, "target"), p,
-                                       "target '%s' names both a force input's channel and a disturbance",
-                                       tg);
-                        goto out;
-                    }
-                    found = is_dist = 1;
-                    input = k;
-                }
-                if (dnames[0]) strncat(dnames, ", ", sizeof dnames - strlen(dnames) - 1);
-                strncat(dnames, wi.name, sizeof dnames - strlen(dnames) - 1);
-            }
-            if (!found) {
-                vibid_cfg_fail(&c, config_setting_get_member(e, "target"), p,
-                               "target '%s' is neither \"base\" nor a force input nor a disturbance of the "
-                               "stand (inputs: %s; "
-                               "disturbances: %s)",
-                               tg, names[0] ? names : "none", dnames[0] ? dnames : "none");
-                goto out;
-            }
-        }
-        sim_exc_target *t = NULL;
-        for (size_t k = 0; k < cfg->n_targets; k++)
-            if (cfg->targets[k].is_base == is_base && cfg->targets[k].is_disturbance == is_dist &&
-                (is_base || cfg->targets[k].input == input))
-                t = &cfg->targets[k];
-        if (!t) {
-            sim_exc_target *nt = realloc(cfg->targets, (cfg->n_targets + 1) * sizeof *nt);
-            if (!nt) {
-                vibid_cfg_fail(&c, e, p, "out of memory");
-                goto out;
-            }
-            cfg->targets = nt;
-            t = &cfg->targets[cfg->n_targets++];
-            memset(t, 0, sizeof *t);
-            t->is_base = is_base;
-            t->is_disturbance = is_dist;
-            t->input = input;
-        }
-        sim_exc_spec *ns = realloc(t->specs, (t->n + 1) * sizeof *ns);
-        if (!ns) {
-            vibid_cfg_fail(&c, e, p, "out of memory");
-            goto out;
-        }
-        t->specs = ns;
-        if (parse_exc(&c, e, p, cfg->seed, (size_t)i, &t->specs[t->n])) goto out;
-        t->n++;
+int sim_config_load(const char *path, const vibid_stand *stand, const uint64_t *seed, sim_config *cfg, char *err,
+                    size_t errlen)
+{
+    set_defaults(cfg, path);
+    vibid_cfg_error cerr = {0};
+    ctx c = {path, &cerr};
+    sim_reader r = {&c, stand, vibid_stand_model(stand), {0}, cfg};
+    vibid_model_get_dims(r.model, &r.d);
+    int rc = -1;
+    if (r.d.n_channels > SIM_MAX_CHANNELS) {
+        vibid_cfg_fail(&c, NULL, "stand", "%zu channels; vibid-sim handles at most %d", r.d.n_channels,
+                       SIM_MAX_CHANNELS);
+    } else {
+        /* Each input behaves as the stand declares it unless simulation.hold overrides all. */
+        cfg->smooth = -1;
+        resolve_holds(cfg, r.model, r.d.n_inputs);
+        config_t lc;
+        if (vibid_cfg_read_file(&lc, path, &cerr) == 0) rc = parse_simulation_group(&r, &lc, seed);
+        config_destroy(&lc);
     }
-
-    /* "exact" refuses a smooth input with a component that is not piecewise linear between
-     * samples: the exact step could not take a single interval of it, and a run asked to be
-     * exact must not silently run on ARKODE throughout (sim_engine.h). */
-    for (size_t i = 0; cfg->integrator == SIM_INTEGRATOR_EXACT && i < cfg->n_targets; i++) {
-        const sim_exc_target *t = &cfg->targets[i];
-        int smooth = t->is_base ? cfg->base_smooth
-                     : t->is_disturbance ? 0
-                     : t->input < SIM_MAX_CHANNELS ? cfg->input_smooth[t->input] : 1;
-        for (size_t j = 0; smooth && j < t->n; j++) {
-            sim_exc_kind k = t->specs[j].kind;
-            if (k == SIM_EXC_CONSTANT || k == SIM_EXC_PRBS || k == SIM_EXC_NOISE) continue;
-            vibid_cfg_fail(&c, kind_setting, "simulation.integrator.kind",
-                           "\"exact\" is exact for inputs held over each sample or linear between samples, and "
-                           "the %s is smooth with a %s component, which is neither (hold it: hold = \"zoh\", or "
-                           "use \"auto\", which integrates such intervals with ARKODE)",
-                           t->is_base ? "base" : "force input", sim_exc_kind_name(k));
-            goto out;
-        }
-    }
-
-    const config_setting_t *nl = get_list(&c, g, gp, "noise", &lerr);
-    if (lerr) goto out;
-    for (int i = 0; nl && i < config_setting_length(nl); i++) {
-        const config_setting_t *e = config_setting_get_elem(nl, (unsigned)i);
-        char p[128];
-        snprintf(p, sizeof p, "simulation.noise.[%d]", i);
-        static const char *const nk[] = {"channel", "std", "snr_db", "resolution", "offset", "correlation_time", NULL};
-        if (!config_setting_is_group(e)) {
-            vibid_cfg_fail(&c, e, p, "must be a group { ... }");
-            goto out;
-        }
-        if (vibid_cfg_check_keys(&c, e, p, nk)) goto out;
-        const char *ch = NULL;
-        if (vibid_cfg_string_ref(&c, e, p, "channel", &ch) < 0) goto out;
-        if (!ch) {
-            vibid_cfg_fail(&c, e, p, "channel missing");
-            goto out;
-        }
-        size_t idx = find_channel(stand, ch);
-        if (idx == (size_t)-1) {
-            char names[512];
-            channel_list(stand, names, sizeof names);
-            vibid_cfg_fail(&c, config_setting_get_member(e, "channel"), p,
-                           "unknown channel '%s' (channels: %s)", ch, names);
-            goto out;
-        }
-        sim_noise_spec ns = {idx, NAN, NAN, 0.0, 0.0, 0.0}; /* std NaN: not given (the stand's noise may apply) */
-        int hs, hn;
-        if ((hs = get_num(&c, e, p, "std", &ns.std)) < 0 || (hn = get_num(&c, e, p, "snr_db", &ns.snr_db)) < 0 ||
-            get_num(&c, e, p, "resolution", &ns.resolution) < 0 || get_num(&c, e, p, "offset", &ns.offset) < 0 ||
-            get_num(&c, e, p, "correlation_time", &ns.corr_time) < 0)
-            goto out;
-        if (!isfinite(ns.offset)) {
-            vibid_cfg_fail(&c, e, p, "offset = %g must be finite", ns.offset);
-            goto out;
-        }
-        if (!(ns.corr_time >= 0.0) || !isfinite(ns.corr_time)) {
-            vibid_cfg_fail(&c, e, p, "correlation_time = %g s must be >= 0 and finite (0: white noise)", ns.corr_time);
-            goto out;
-        }
-        if (hs && hn) {
-            vibid_cfg_fail(&c, e, p, "give either std or snr_db, not both");
-            goto out;
-        }
-        if (hs && ns.std < 0) {
-            vibid_cfg_fail(&c, e, p, "std = %g must be >= 0", ns.std);
-            goto out;
-        }
-        if (ns.resolution < 0) {
-            vibid_cfg_fail(&c, e, p, "resolution = %g must be >= 0", ns.resolution);
-            goto out;
-        }
-        sim_noise_spec *nn = realloc(cfg->noise, (cfg->n_noise + 1) * sizeof *nn);
-        if (!nn) {
-            vibid_cfg_fail(&c, e, p, "out of memory");
-            goto out;
-        }
-        cfg->noise = nn;
-        cfg->noise[cfg->n_noise++] = ns;
-    }
-
-    const config_setting_t *cl = get_list(&c, g, gp, "changes", &lerr);
-    if (lerr) goto out;
-    for (int i = 0; cl && i < config_setting_length(cl); i++) {
-        const config_setting_t *e = config_setting_get_elem(cl, (unsigned)i);
-        char p[128];
-        snprintf(p, sizeof p, "simulation.changes.[%d]", i);
-        static const char *const ck[] = {"parameter", "at", "ramp", "factor", "value", NULL};
-        if (!config_setting_is_group(e)) {
-            vibid_cfg_fail(&c, e, p, "must be a group { ... }");
-            goto out;
-        }
-        if (vibid_cfg_check_keys(&c, e, p, ck)) goto out;
-        const char *pn = NULL;
-        if (vibid_cfg_string_ref(&c, e, p, "parameter", &pn) < 0) goto out;
-        if (!pn) {
-            vibid_cfg_fail(&c, e, p, "parameter missing");
-            goto out;
-        }
-        size_t pi = (size_t)-1;
-        char names[512] = "";
-        for (size_t k = 0; k < d.n_params; k++) {
-            vibid_param_info inf;
-            vibid_model_param_info(model, k, &inf);
-            if (strcmp(inf.name, pn) == 0) pi = k;
-            strncat(names, inf.name, sizeof names - strlen(names) - 1);
-            strncat(names, " ", sizeof names - strlen(names) - 1);
-        }
-        if (pi == (size_t)-1) {
-            vibid_cfg_fail(&c, config_setting_get_member(e, "parameter"), p,
-                           "'%s' is not an unknown parameter of the stand (changeable: %s); only parameters "
-                           "marked unknown = true can change",
-                           pn, names[0] ? names : "none");
-            goto out;
-        }
-        sim_change ch = {pi, 0.0, 0.0, 0.0};
-        double factor = 0.0;
-        int ha, hf, hv;
-        if ((ha = get_num(&c, e, p, "at", &ch.at)) < 0 || get_num(&c, e, p, "ramp", &ch.ramp) < 0 ||
-            (hf = get_num(&c, e, p, "factor", &factor)) < 0 || (hv = get_num(&c, e, p, "value", &ch.value)) < 0)
-            goto out;
-        if (!ha || ch.at < 0) {
-            vibid_cfg_fail(&c, e, p, "at (s, >= 0) missing or negative");
-            goto out;
-        }
-        if (ch.ramp < 0) {
-            vibid_cfg_fail(&c, e, p, "ramp = %g must be >= 0 s", ch.ramp);
-            goto out;
-        }
-        if (hf == hv) {
-            vibid_cfg_fail(&c, e, p, "give exactly one of factor (times the true value) or value");
-            goto out;
-        }
-        if (hf) ch.value = factor * vibid_stand_true_values(stand)[pi];
-        for (size_t k = 0; k < cfg->n_changes; k++)
-            if (cfg->changes[k].param == pi && !(ch.at >= cfg->changes[k].at + cfg->changes[k].ramp)) {
-                vibid_cfg_fail(&c, e, p, "changes of '%s' must be given in time order without overlap", pn);
-                goto out;
-            }
-        sim_change *nc = realloc(cfg->changes, (cfg->n_changes + 1) * sizeof *nc);
-        if (!nc) {
-            vibid_cfg_fail(&c, e, p, "out of memory");
-            goto out;
-        }
-        cfg->changes = nc;
-        cfg->changes[cfg->n_changes++] = ch;
-    }
-
-    const config_setting_t *cg = config_setting_get_member(g, "can");
-    if (cg) {
-        const char *cp = "simulation.can";
-        static const char *const kk[] = {"id", "fd", "extended", "signals", NULL};
-        if (!config_setting_is_group(cg)) {
-            vibid_cfg_fail(&c, cg, cp, "must be a group");
-            goto out;
-        }
-        if (vibid_cfg_check_keys(&c, cg, cp, kk)) goto out;
-        bool fd = false, ext = false;
-        if (vibid_cfg_bool(&c, cg, cp, "fd", &fd) < 0 || vibid_cfg_bool(&c, cg, cp, "extended", &ext) < 0)
-            goto out;
-        cfg->can_fd = fd;
-        cfg->can_extended = ext;
-        if ((r = get_num(&c, cg, cp, "id", &v)) < 0) goto out;
-        if (r) cfg->can_id = (uint32_t)v;
-        if (r && (v < 0 || v > (cfg->can_extended ? 0x1FFFFFFF : 0x7FF))) {
-            vibid_cfg_fail(&c, config_setting_get_member(cg, "id"), "simulation.can.id", "%g outside 0..0x%X",
-                           v, cfg->can_extended ? 0x1FFFFFFF : 0x7FF);
-            goto out;
-        }
-        const config_setting_t *sl = get_list(&c, cg, cp, "signals", &lerr);
-        if (lerr) goto out;
-        for (int i = 0; sl && i < config_setting_length(sl); i++) {
-            const config_setting_t *e = config_setting_get_elem(sl, (unsigned)i);
-            char p[128];
-            snprintf(p, sizeof p, "simulation.can.signals.[%d]", i);
-            static const char *const sk[] = {"channel", "type", "scale", NULL};
-            if (!config_setting_is_group(e)) {
-                vibid_cfg_fail(&c, e, p, "must be a group");
-                goto out;
-            }
-            if (vibid_cfg_check_keys(&c, e, p, sk)) goto out;
-            const char *ch = NULL;
-            static const char *const types[] = {"int16", "int32", "float32", NULL};
-            static const sim_can_type type_values[] = {SIM_CAN_INT16, SIM_CAN_INT32, SIM_CAN_FLOAT32};
-            int ty = 2;
-            if (vibid_cfg_string_ref(&c, e, p, "channel", &ch) < 0 ||
-                vibid_cfg_enum(&c, e, p, "type", types, false, &ty) < 0)
-                goto out;
-            if (!ch) {
-                vibid_cfg_fail(&c, e, p, "channel missing");
-                goto out;
-            }
-            size_t idx = find_channel(stand, ch);
-            if (idx == (size_t)-1) {
-                char names[512];
-                channel_list(stand, names, sizeof names);
-                vibid_cfg_fail(&c, config_setting_get_member(e, "channel"), p,
-                               "unknown channel '%s' (channels: %s)", ch, names);
-                goto out;
-            }
-            sim_can_signal sg = {type_values[ty], 1.0};
-            if (get_num(&c, e, p, "scale", &sg.scale) < 0) goto out;
-            if (!(sg.scale > 0)) {
-                vibid_cfg_fail(&c, e, p, "scale = %g must be > 0", sg.scale);
-                goto out;
-            }
-            if (sg.type == SIM_CAN_FLOAT32 && sg.scale != 1.0) {
-                vibid_cfg_fail(&c, e, p, "float32 signals are not scaled (scale must be 1)");
-                goto out;
-            }
-            cfg->can_sig[idx] = sg;
-        }
-    }
-
-    const config_setting_t *mg = config_setting_get_member(g, "modbus");
-    if (mg) {
-        const char *mp = "simulation.modbus";
-        static const char *const mk[] = {"fifo_base", "capacity", NULL};
-        if (!config_setting_is_group(mg)) {
-            vibid_cfg_fail(&c, mg, mp, "must be a group");
-            goto out;
-        }
-        if (vibid_cfg_check_keys(&c, mg, mp, mk)) goto out;
-        if ((r = get_num(&c, mg, mp, "fifo_base", &v)) < 0) goto out;
-        if (r) {
-            if (v < 0 || v > 65535) {
-                vibid_cfg_fail(&c, mg, "simulation.modbus.fifo_base", "%g outside 0..65535", v);
-                goto out;
-            }
-            cfg->fifo_base = (unsigned)v;
-        }
-        if ((r = get_num(&c, mg, mp, "capacity", &v)) < 0) goto out;
-        if (r) {
-            if (v < 2 || v > 32767) {
-                vibid_cfg_fail(&c, mg, "simulation.modbus.capacity", "%g outside 2..32767", v);
-                goto out;
-            }
-            cfg->fifo_capacity = (unsigned)v;
-        }
-    }
-    rc = 0;
-out:
-    config_destroy(&lc);
     if (rc) {
         sim_config_free(cfg);
         if (err && errlen) snprintf(err, errlen, "%s", cerr.text);

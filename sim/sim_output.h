@@ -11,7 +11,8 @@
 
 /* CSV: header "t,<inputs>,<measured>" by the stand's channel names; inputs are the
  * force inputs and the base's channels, measured the nodes' channels, each group in
- * the stand's channel order. Values printed with 17 significant digits (lossless). */
+ * the stand's channel order. Values in their shortest round-trip form (num_format.h:
+ * lossless, at most 17 significant digits). */
 typedef struct sim_csv {
     FILE *f;
     size_t n;

@@ -493,12 +493,12 @@ static int load_source(ctx *c, config_t *cf)
         if (get_bool(c, src, "source", "paced", false, &cfg->paced) ||
             get_double(c, src, "source", "speed", 1.0, 1e-3, 1e6, &cfg->speed))
             return -1;
-        bool csv = fi == VIBID_REPLAY_CSV;
-        if (fi == VIBID_REPLAY_AUTO) {
-            size_t L = strlen(cfg->replay_file);
-            csv = L >= 4 && strcasecmp(cfg->replay_file + L - 4, ".csv") == 0;
-        }
-        if (!csv) {
+        char why[512];
+        const vibid_replay_format resolved =
+            vibid_replay_format_resolve((vibid_replay_format)fi, cfg->replay_file, why, sizeof why);
+        if (resolved == VIBID_REPLAY_AUTO)
+            return vibid_cfg_fail(&c->r, config_setting_get_member(src, "file"), "source.file", "%s", why);
+        if (resolved == VIBID_REPLAY_CANDUMP) {
             if (load_dbc(c, src))
                 return -1;
         } else if (config_setting_get_member(src, "dbc")) {
@@ -669,8 +669,12 @@ static int load_estimator(ctx *c, config_t *cf)
     config_setting_t *g = config_lookup(cf, "estimator");
     if (check_known(c, g, "estimator", est_known))
         return -1;
-    /* The order is vibid_estimator's: ls 0, iv 1, rls 2, auto 3 (the default), ekf 4, kf_rls 5. */
-    static const char *const methods[] = {"ls", "iv", "rls", "auto", "ekf", "kf_rls", NULL};
+    /* The library's names (identify.h), indexed by vibid_estimator, up to the output-error
+     * estimator (the last), which vibidd does not run: its push keeps every sample. */
+    const char *methods[VIBID_ESTIMATOR_OE + 1];
+    for (int k = 0; k < (int)VIBID_ESTIMATOR_OE; k++)
+        methods[k] = vibid_estimator_name((vibid_estimator)k);
+    methods[VIBID_ESTIMATOR_OE] = NULL;
     int mi;
     if (get_enum(c, g, "estimator", "method", (int)VIBID_ESTIMATOR_AUTO, methods, &mi))
         return -1;
@@ -719,14 +723,14 @@ static int load_estimator(ctx *c, config_t *cf)
  * IPv4 literal or a bracketed IPv6 literal; nothing after the port. 0, or -1 with why. */
 static int parse_mqtt_url(vd_config *cfg, char *why, size_t cap)
 {
-    const char *u = cfg->mqtt_url, *h;
+    const char *u = cfg->mqtt.url, *h;
     if (!strncmp(u, "mqtt://", 7)) {
-        cfg->mqtt_tls = false;
-        cfg->mqtt_port = 1883;
+        cfg->mqtt.tls = false;
+        cfg->mqtt.port = 1883;
         h = u + 7;
     } else if (!strncmp(u, "mqtts://", 8)) {
-        cfg->mqtt_tls = true;
-        cfg->mqtt_port = 8883;
+        cfg->mqtt.tls = true;
+        cfg->mqtt.port = 8883;
         h = u + 8;
     } else {
         snprintf(why, cap, "'%s': expected mqtt://HOST[:PORT] or mqtts://HOST[:PORT] (TLS)", u);
@@ -739,13 +743,13 @@ static int parse_mqtt_url(vd_config *cfg, char *why, size_t cap)
             snprintf(why, cap, "'%s': unterminated [IPv6] address", u);
             return -1;
         }
-        snprintf(cfg->mqtt_host, sizeof cfg->mqtt_host, "%.*s", (int)(end - h - 1), h + 1);
+        snprintf(cfg->mqtt.host, sizeof cfg->mqtt.host, "%.*s", (int)(end - h - 1), h + 1);
         end++;
     } else {
         end = h + strcspn(h, ":/?#@");
-        snprintf(cfg->mqtt_host, sizeof cfg->mqtt_host, "%.*s", (int)(end - h), h);
+        snprintf(cfg->mqtt.host, sizeof cfg->mqtt.host, "%.*s", (int)(end - h), h);
     }
-    if (!cfg->mqtt_host[0]) {
+    if (!cfg->mqtt.host[0]) {
         snprintf(why, cap, "'%s': no host", u);
         return -1;
     }
@@ -757,7 +761,7 @@ static int parse_mqtt_url(vd_config *cfg, char *why, size_t cap)
             snprintf(why, cap, "'%s': port '%s' outside 1..65535 (nothing may follow the port)", u, port);
             return -1;
         }
-        cfg->mqtt_port = (int)p;
+        cfg->mqtt.port = (int)p;
     } else if (*end) {
         snprintf(why, cap, "'%s': unexpected '%s' after the host (no user, path or query: username and "
                            "password_file are settings of their own)", u, end);
@@ -788,31 +792,31 @@ static int load_mqtt(ctx *c, const config_setting_t *q)
     long long v;
     int fi = 0, pi = 0;
     if (check_known(c, q, S, qk) ||
-        get_string(c, q, S, "url", q ? "mqtt://127.0.0.1:1883" : "", cfg->mqtt_url, sizeof cfg->mqtt_url) ||
-        get_name(c, q, S, "site", "", false, cfg->mqtt_site, sizeof cfg->mqtt_site) ||
-        get_name(c, q, S, "stand", "", true, cfg->mqtt_stand, sizeof cfg->mqtt_stand) ||
-        get_string(c, q, S, "topic_prefix", "vibid/v1", cfg->mqtt_prefix, sizeof cfg->mqtt_prefix) ||
-        get_name(c, q, S, "client_id", "", true, cfg->mqtt_client_id, sizeof cfg->mqtt_client_id) ||
-        get_string(c, q, S, "username", "", cfg->mqtt_username, sizeof cfg->mqtt_username) ||
-        get_path(c, q, S, "password_file", cfg->mqtt_password_file, sizeof cfg->mqtt_password_file) ||
-        get_path(c, q, S, "ca_file", cfg->mqtt_ca_file, sizeof cfg->mqtt_ca_file) ||
-        get_path(c, q, S, "cert_file", cfg->mqtt_cert_file, sizeof cfg->mqtt_cert_file) ||
-        get_path(c, q, S, "key_file", cfg->mqtt_key_file, sizeof cfg->mqtt_key_file) ||
+        get_string(c, q, S, "url", q ? "mqtt://127.0.0.1:1883" : "", cfg->mqtt.url, sizeof cfg->mqtt.url) ||
+        get_name(c, q, S, "site", "", false, cfg->mqtt.site, sizeof cfg->mqtt.site) ||
+        get_name(c, q, S, "stand", "", true, cfg->mqtt.stand, sizeof cfg->mqtt.stand) ||
+        get_string(c, q, S, "topic_prefix", "vibid/v1", cfg->mqtt.prefix, sizeof cfg->mqtt.prefix) ||
+        get_name(c, q, S, "client_id", "", true, cfg->mqtt.client_id, sizeof cfg->mqtt.client_id) ||
+        get_string(c, q, S, "username", "", cfg->mqtt.username, sizeof cfg->mqtt.username) ||
+        get_path(c, q, S, "password_file", cfg->mqtt.password_file, sizeof cfg->mqtt.password_file) ||
+        get_path(c, q, S, "ca_file", cfg->mqtt.ca_file, sizeof cfg->mqtt.ca_file) ||
+        get_path(c, q, S, "cert_file", cfg->mqtt.cert_file, sizeof cfg->mqtt.cert_file) ||
+        get_path(c, q, S, "key_file", cfg->mqtt.key_file, sizeof cfg->mqtt.key_file) ||
         get_int(c, q, S, "qos", 1, 1, 2, &v))
         return -1;
-    cfg->mqtt_qos = (int)v;
+    cfg->mqtt.qos = (int)v;
     if (get_int(c, q, S, "queue_size", 10000, 1, 10000000, &v))
         return -1;
-    cfg->mqtt_queue_size = (unsigned)v;
+    cfg->mqtt.queue_size = (unsigned)v;
     if (get_enum(c, q, S, "format", 0, fmts, &fi) || get_int(c, q, S, "keepalive", 30, 5, 3600, &v))
         return -1;
-    cfg->mqtt_format = fi;
-    cfg->mqtt_keepalive = (int)v;
+    cfg->mqtt.format = fi;
+    cfg->mqtt.keepalive = (int)v;
     if (get_enum(c, q, S, "protocol", 0, protos, &pi) ||
-        get_double(c, q, S, "drain_timeout", 5.0, 0.0, 60.0, &cfg->mqtt_drain_timeout_s))
+        get_double(c, q, S, "drain_timeout", 5.0, 0.0, 60.0, &cfg->mqtt.drain_timeout_s))
         return -1;
-    cfg->mqtt_protocol = pi == 0 ? 5 : 4;
-    if (!cfg->mqtt_url[0])
+    cfg->mqtt.protocol = pi == 0 ? 5 : 4;
+    if (!cfg->mqtt.url[0])
         return 0;
     char why[400];
     if (parse_mqtt_url(cfg, why, sizeof why))
@@ -823,9 +827,9 @@ static int load_mqtt(ctx *c, const config_setting_t *q)
                               "(<topic_prefix>/<site>/<stand>/tracks)");
     /* site and stand are names (get_name): no '/', '+' or '#' can make more topic levels */
     /* topic_prefix: levels separated by '/', each a name */
-    for (const char *lv = cfg->mqtt_prefix;;) {
+    for (const char *lv = cfg->mqtt.prefix;;) {
         const char *sl = strchr(lv, '/');
-        char level[sizeof cfg->mqtt_prefix], lwhy[512];
+        char level[sizeof cfg->mqtt.prefix], lwhy[512];
         snprintf(level, sizeof level, "%.*s", (int)(sl ? sl - lv : (long)strlen(lv)), lv);
         if (vibid_cfg_name_problem(level, lwhy, sizeof lwhy))
             return vibid_cfg_fail(&c->r, config_setting_get_member(q, "topic_prefix"), "outputs.mqtt.topic_prefix",
@@ -834,13 +838,13 @@ static int load_mqtt(ctx *c, const config_setting_t *q)
             break;
         lv = sl + 1;
     }
-    if (cfg->mqtt_password_file[0] && !cfg->mqtt_username[0])
+    if (cfg->mqtt.password_file[0] && !cfg->mqtt.username[0])
         return vibid_cfg_fail(&c->r, config_setting_get_member(q, "password_file"), "outputs.mqtt.password_file",
                               "a password needs a username (outputs.mqtt.username)");
-    if (!cfg->mqtt_tls && (cfg->mqtt_ca_file[0] || cfg->mqtt_cert_file[0] || cfg->mqtt_key_file[0]))
+    if (!cfg->mqtt.tls && (cfg->mqtt.ca_file[0] || cfg->mqtt.cert_file[0] || cfg->mqtt.key_file[0]))
         return vibid_cfg_fail(&c->r, q, "outputs.mqtt",
                               "ca_file, cert_file and key_file are for TLS: the url must be mqtts://");
-    if (!cfg->mqtt_cert_file[0] != !cfg->mqtt_key_file[0])
+    if (!cfg->mqtt.cert_file[0] != !cfg->mqtt.key_file[0])
         return vibid_cfg_fail(&c->r, q, "outputs.mqtt",
                               "a client certificate needs both cert_file and key_file");
     return 0;
@@ -905,72 +909,72 @@ static int load_influx_http(ctx *c, const config_setting_t *h)
     long long v;
     int api = 0;
     if (check_known(c, h, S, hk) ||
-        get_string(c, h, S, "url", h ? "http://127.0.0.1:8086" : "", cfg->influx_http_url, sizeof cfg->influx_http_url) ||
+        get_string(c, h, S, "url", h ? "http://127.0.0.1:8086" : "", cfg->influx_http.url, sizeof cfg->influx_http.url) ||
         get_enum(c, h, S, "api", 0, apis, &api) ||
-        get_string(c, h, S, "database", "vibid", cfg->influx_http_database, sizeof cfg->influx_http_database) ||
-        get_string(c, h, S, "retention_policy", "", cfg->influx_http_rp, sizeof cfg->influx_http_rp) ||
-        get_string(c, h, S, "org", "", cfg->influx_http_org, sizeof cfg->influx_http_org) ||
-        get_string(c, h, S, "bucket", "", cfg->influx_http_bucket, sizeof cfg->influx_http_bucket) ||
-        get_string(c, h, S, "username", "", cfg->influx_http_username, sizeof cfg->influx_http_username) ||
-        get_path(c, h, S, "password_file", cfg->influx_http_password_file, sizeof cfg->influx_http_password_file) ||
-        get_path(c, h, S, "token_file", cfg->influx_http_token_file, sizeof cfg->influx_http_token_file) ||
-        get_path(c, h, S, "ca_file", cfg->influx_http_ca_file, sizeof cfg->influx_http_ca_file))
+        get_string(c, h, S, "database", "vibid", cfg->influx_http.database, sizeof cfg->influx_http.database) ||
+        get_string(c, h, S, "retention_policy", "", cfg->influx_http.rp, sizeof cfg->influx_http.rp) ||
+        get_string(c, h, S, "org", "", cfg->influx_http.org, sizeof cfg->influx_http.org) ||
+        get_string(c, h, S, "bucket", "", cfg->influx_http.bucket, sizeof cfg->influx_http.bucket) ||
+        get_string(c, h, S, "username", "", cfg->influx_http.username, sizeof cfg->influx_http.username) ||
+        get_path(c, h, S, "password_file", cfg->influx_http.password_file, sizeof cfg->influx_http.password_file) ||
+        get_path(c, h, S, "token_file", cfg->influx_http.token_file, sizeof cfg->influx_http.token_file) ||
+        get_path(c, h, S, "ca_file", cfg->influx_http.ca_file, sizeof cfg->influx_http.ca_file))
         return -1;
-    cfg->influx_http_api = api + 1;
+    cfg->influx_http.api = api + 1;
     /* 5000 lines: InfluxDB's own advice for a batch; a stand's line is ~0.3-2 KB */
     if (get_int(c, h, S, "batch_size", 5000, 1, 100000, &v))
         return -1;
-    cfg->influx_http_batch_lines = (unsigned)v;
-    if (get_double(c, h, S, "batch_interval", 1.0, 0.01, 60.0, &cfg->influx_http_batch_interval_s))
+    cfg->influx_http.batch_lines = (unsigned)v;
+    if (get_double(c, h, S, "batch_interval", 1.0, 0.01, 60.0, &cfg->influx_http.batch_interval_s))
         return -1;
     /* MiB; 16 MiB holds ~40 000 rows of a 6-parameter stand: ~7 min at 100 rows/s */
     if (get_int(c, h, S, "buffer_size", 16, 1, 4096, &v))
         return -1;
-    cfg->influx_http_buffer_mib = (unsigned)v;
-    if (get_double(c, h, S, "timeout", 10.0, 0.1, 300.0, &cfg->influx_http_timeout_s) ||
-        get_double(c, h, S, "drain_timeout", 10.0, 0.0, 300.0, &cfg->influx_http_drain_timeout_s))
+    cfg->influx_http.buffer_mib = (unsigned)v;
+    if (get_double(c, h, S, "timeout", 10.0, 0.1, 300.0, &cfg->influx_http.timeout_s) ||
+        get_double(c, h, S, "drain_timeout", 10.0, 0.0, 300.0, &cfg->influx_http.drain_timeout_s))
         return -1;
-    if (!cfg->influx_http_url[0])
+    if (!cfg->influx_http.url[0])
         return 0;
-    const char *u = cfg->influx_http_url;
+    const char *u = cfg->influx_http.url;
     const char *host = !strncmp(u, "http://", 7) ? u + 7 : !strncmp(u, "https://", 8) ? u + 8 : NULL;
     if (!host || !*host || *host == '/' || *host == ':' || strpbrk(u, "?#@ \t"))
         return vibid_cfg_fail(&c->r, config_setting_get_member(h, "url"), "outputs.influx.http.url",
                               "'%s': expected http://HOST[:PORT][/PATH] or https://HOST[:PORT][/PATH] (the "
                               "server's base URL, without a query, fragment or credentials)",
                               u);
-    size_t ul = strlen(cfg->influx_http_url);
-    while (ul && cfg->influx_http_url[ul - 1] == '/')
-        cfg->influx_http_url[--ul] = '\0'; /* "/write" is appended */
+    size_t ul = strlen(cfg->influx_http.url);
+    while (ul && cfg->influx_http.url[ul - 1] == '/')
+        cfg->influx_http.url[--ul] = '\0'; /* "/write" is appended */
     bool tls = !strncmp(u, "https://", 8);
-    if (cfg->influx_http_ca_file[0] && !tls)
+    if (cfg->influx_http.ca_file[0] && !tls)
         return vibid_cfg_fail(&c->r, config_setting_get_member(h, "ca_file"), "outputs.influx.http.ca_file",
                               "is for TLS: the url must be https://");
-    if (cfg->influx_http_api == 1) {
-        if (!cfg->influx_http_database[0])
+    if (cfg->influx_http.api == 1) {
+        if (!cfg->influx_http.database[0])
             return vibid_cfg_fail(&c->r, config_setting_get_member(h, "database"), "outputs.influx.http.database",
                                   "must not be empty (api \"v1\" writes into a database)");
-        if (cfg->influx_http_org[0] || cfg->influx_http_bucket[0] || cfg->influx_http_token_file[0])
+        if (cfg->influx_http.org[0] || cfg->influx_http.bucket[0] || cfg->influx_http.token_file[0])
             return vibid_cfg_fail(&c->r, h, S,
                                   "org, bucket and token_file belong to api = \"v2\" (InfluxDB 2.x); api \"v1\" "
                                   "uses database, retention_policy, username and password_file");
-        if (cfg->influx_http_password_file[0] && !cfg->influx_http_username[0])
+        if (cfg->influx_http.password_file[0] && !cfg->influx_http.username[0])
             return vibid_cfg_fail(&c->r, config_setting_get_member(h, "password_file"),
                                   "outputs.influx.http.password_file", "a password needs a username (outputs.influx.http.username)");
-        if (cfg->influx_http_username[0] && !cfg->influx_http_password_file[0])
+        if (cfg->influx_http.username[0] && !cfg->influx_http.password_file[0])
             return vibid_cfg_fail(&c->r, config_setting_get_member(h, "username"), "outputs.influx.http.username",
                                   "a username needs its password_file");
     } else {
-        if (!cfg->influx_http_org[0] || !cfg->influx_http_bucket[0] || !cfg->influx_http_token_file[0])
+        if (!cfg->influx_http.org[0] || !cfg->influx_http.bucket[0] || !cfg->influx_http.token_file[0])
             return vibid_cfg_fail(&c->r, h, S,
                                   "api = \"v2\" needs org, bucket and token_file (an InfluxDB 2.x API token with "
                                   "write permission on the bucket)");
-        if (config_setting_get_member(h, "database") || cfg->influx_http_rp[0] || cfg->influx_http_username[0] ||
-            cfg->influx_http_password_file[0])
+        if (config_setting_get_member(h, "database") || cfg->influx_http.rp[0] || cfg->influx_http.username[0] ||
+            cfg->influx_http.password_file[0])
             return vibid_cfg_fail(&c->r, h, S,
                                   "database, retention_policy, username and password_file belong to api = "
                                   "\"v1\"; api \"v2\" uses org, bucket and token_file");
-        cfg->influx_http_database[0] = '\0';
+        cfg->influx_http.database[0] = '\0';
     }
     return 0;
 }
@@ -1037,14 +1041,14 @@ static int load_outputs(ctx *c, config_t *cf)
         return vibid_cfg_fail(&c->r, p, "outputs.prometheus", "must be a group { listen = \"%s\"; }",
                               VD_PROMETHEUS_DEFAULT);
     if (check_known(c, p, "outputs.prometheus", pk) ||
-        get_string(c, p, "outputs.prometheus", "listen", p ? VD_PROMETHEUS_DEFAULT : "", cfg->prom_listen,
-                   sizeof cfg->prom_listen))
+        get_string(c, p, "outputs.prometheus", "listen", p ? VD_PROMETHEUS_DEFAULT : "", cfg->prometheus.listen,
+                   sizeof cfg->prometheus.listen))
         return -1;
-    if (cfg->prom_listen[0]) {
+    if (cfg->prometheus.listen[0]) {
         struct sockaddr_storage a;
         socklen_t len;
         char why[300];
-        if (vd_metrics_parse_listen(cfg->prom_listen, &a, &len, why, sizeof why))
+        if (vd_metrics_parse_listen(cfg->prometheus.listen, &a, &len, why, sizeof why))
             return vibid_cfg_fail(&c->r, config_setting_get_member(p, "listen"), "outputs.prometheus.listen", "%s",
                                   why);
     }
@@ -1205,14 +1209,33 @@ static bool same_file(const path_id *a, const path_id *b)
     return a->exists ? a->dev == b->dev && a->ino == b->ino : strcmp(a->canon, b->canon) == 0;
 }
 
+/* The path of output part name when outputs selects it (NULL: all), else "". */
+static const char *selected_path(const char *const *outputs, const char *name, const char *path)
+{
+    if (!outputs)
+        return path;
+    for (const char *const *o = outputs; *o; o++)
+        if (!strcmp(*o, name) || !strcmp(*o, "files"))
+            return path;
+    return "";
+}
+
 int vd_config_check_paths(const vd_config *cfg, const char *replay, char *msg, size_t n)
+{
+    return vd_config_check_paths_for(cfg, replay, NULL, msg, n);
+}
+
+int vd_config_check_paths_for(const vd_config *cfg, const char *replay, const char *const *outputs, char *msg,
+                              size_t n)
 {
     struct named {
         const char *what, *path;
         bool output;
     } f[] = {
-        {"outputs.tracks.path", cfg->tracks_path, true},   {"outputs.influx.path", cfg->influx_path, true},
-        {"outputs.record.path", cfg->record_path, true},   {"outputs.status.path", cfg->status_path, true},
+        {"outputs.tracks.path", selected_path(outputs, "tracks", cfg->tracks_path), true},
+        {"outputs.influx.path", selected_path(outputs, "influx", cfg->influx_path), true},
+        {"outputs.record.path", selected_path(outputs, "record", cfg->record_path), true},
+        {"outputs.status.path", selected_path(outputs, "status", cfg->status_path), true},
         {"the configuration file", cfg->path, false},       {"stand", cfg->stand_file, false},
         {"source.dbc", cfg->dbc_file, false},               {"source.channel_map", cfg->chanmap_file, false},
         {"source.register_map", cfg->regmap_file, false},
@@ -1238,8 +1261,8 @@ const char *vd_source_kind_name(vd_source_kind k) { return (unsigned)k < 3 ? src
 
 const char *vd_estimator_name(vibid_estimator e)
 {
-    static const char *const n[] = {"ls", "iv", "rls", "auto", "ekf", "kf_rls"};
-    return (unsigned)e < 6 ? n[e] : "?";
+    const char *n = vibid_estimator_name(e);
+    return n ? n : "?";
 }
 
 static const char *yes(bool b) { return b ? "true" : "false"; }
@@ -1421,14 +1444,14 @@ void vd_config_print(const vd_config *cfg, FILE *o)
             "  record = { path = \"%s\"; format = \"%s\"; };\n  status = { path = \"%s\"; interval = %s; };\n"
             "  prometheus = { listen = \"%s\"; };  # \"\" = off\n",
             cfg->tracks_path, num(cfg->flush_interval_s), yes(cfg->fsync_on_flush), cfg->influx_path, cfg->influx_udp,
-            cfg->influx_measurement, esc(cfg->influx_site), esc(cfg->influx_stand), esc(cfg->influx_http_url),
-            cfg->influx_http_api, esc(cfg->influx_http_database), esc(cfg->influx_http_rp), esc(cfg->influx_http_org),
-            esc(cfg->influx_http_bucket), esc(cfg->influx_http_username), esc(cfg->influx_http_password_file),
-            esc(cfg->influx_http_token_file), esc(cfg->influx_http_ca_file), cfg->influx_http_batch_lines,
-            num(cfg->influx_http_batch_interval_s), cfg->influx_http_buffer_mib, num(cfg->influx_http_timeout_s),
-            num(cfg->influx_http_drain_timeout_s), cfg->record_path, cfg->record_format == VD_REC_CSV ? "csv" : "candump",
-            cfg->status_path, num(cfg->status_interval_s), cfg->prom_listen);
-    if (!cfg->mqtt_url[0])
+            cfg->influx_measurement, esc(cfg->influx_site), esc(cfg->influx_stand), esc(cfg->influx_http.url),
+            cfg->influx_http.api, esc(cfg->influx_http.database), esc(cfg->influx_http.rp), esc(cfg->influx_http.org),
+            esc(cfg->influx_http.bucket), esc(cfg->influx_http.username), esc(cfg->influx_http.password_file),
+            esc(cfg->influx_http.token_file), esc(cfg->influx_http.ca_file), cfg->influx_http.batch_lines,
+            num(cfg->influx_http.batch_interval_s), cfg->influx_http.buffer_mib, num(cfg->influx_http.timeout_s),
+            num(cfg->influx_http.drain_timeout_s), cfg->record_path, cfg->record_format == VD_REC_CSV ? "csv" : "candump",
+            cfg->status_path, num(cfg->status_interval_s), cfg->prometheus.listen);
+    if (!cfg->mqtt.url[0])
         fprintf(o, "  mqtt = { url = \"\"; };  # \"\" = off\n};\n");
     else
         fprintf(o,
@@ -1437,10 +1460,10 @@ void vd_config_print(const vd_config *cfg, FILE *o)
                 "    username = \"%s\";\n    password_file = \"%s\";\n    ca_file = \"%s\";\n    cert_file = \"%s\";\n"
                 "    key_file = \"%s\";\n    qos = %d;\n    queue_size = %u;\n    format = \"%s\";\n    keepalive = %d;\n"
                 "    protocol = \"%s\";\n    drain_timeout = %s;\n  };\n};\n",
-                esc(cfg->mqtt_url), esc(cfg->mqtt_site), esc(cfg->mqtt_stand), esc(cfg->mqtt_prefix),
-                esc(cfg->mqtt_client_id), esc(cfg->mqtt_username), esc(cfg->mqtt_password_file),
-                esc(cfg->mqtt_ca_file), esc(cfg->mqtt_cert_file), esc(cfg->mqtt_key_file), cfg->mqtt_qos, cfg->mqtt_queue_size, cfg->mqtt_format ? "line" : "json",
-                cfg->mqtt_keepalive, cfg->mqtt_protocol == 5 ? "5" : "3.1.1", num(cfg->mqtt_drain_timeout_s));
+                esc(cfg->mqtt.url), esc(cfg->mqtt.site), esc(cfg->mqtt.stand), esc(cfg->mqtt.prefix),
+                esc(cfg->mqtt.client_id), esc(cfg->mqtt.username), esc(cfg->mqtt.password_file),
+                esc(cfg->mqtt.ca_file), esc(cfg->mqtt.cert_file), esc(cfg->mqtt.key_file), cfg->mqtt.qos, cfg->mqtt.queue_size, cfg->mqtt.format ? "line" : "json",
+                cfg->mqtt.keepalive, cfg->mqtt.protocol == 5 ? "5" : "3.1.1", num(cfg->mqtt.drain_timeout_s));
     fprintf(o,
             "alarms = {\n  enabled = %s;\n  threshold = %s;\n  min_relative = %s;\n  hold = %s;\n"
             "  learn_start = %s;\n  learn_duration = %s;\n  parameters = (",

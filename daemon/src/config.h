@@ -42,6 +42,49 @@ typedef struct vd_alarm_param {
     double baseline;
 } vd_alarm_param;
 
+/* The settings of the network outputs (output.h), one struct each: the output reads its own
+ * struct and nothing else of them; config.c fills them from the output's group. */
+
+/* outputs.prometheus (metrics.h, docs/vibidd.md "Prometheus metrics") */
+typedef struct vd_prometheus_config {
+    char listen[128];            /* "HOST:PORT"; "" = off */
+} vd_prometheus_config;
+
+/* outputs.mqtt (mqtt.h, docs/vibidd.md "MQTT"); url "" = off */
+typedef struct vd_mqtt_config {
+    char url[256];
+    bool tls;                    /* mqtts:// */
+    char host[200];              /* from the URL (an IPv6 literal without its brackets) */
+    int port;
+    char site[64], stand[64];    /* topic levels; stand "" = the stand's name */
+    char prefix[128];            /* topic_prefix, e.g. "vibid/v1" */
+    char client_id[128];         /* "" = "vibidd-<site>-<stand>" */
+    char username[128];
+    char password_file[VD_PATH_MAX], ca_file[VD_PATH_MAX], cert_file[VD_PATH_MAX], key_file[VD_PATH_MAX];
+    int qos;                     /* 1 or 2 */
+    unsigned queue_size;         /* messages between the estimation thread and the publisher */
+    int format;                  /* 0 json, 1 line (InfluxDB line protocol) */
+    int keepalive;               /* s */
+    int protocol;                /* 5 (MQTT 5) or 4 (MQTT 3.1.1) */
+    double drain_timeout_s;      /* at the end: longest wait for the queue to reach the broker */
+} vd_mqtt_config;
+
+/* outputs.influx.http (influx_http.h, docs/vibidd.md "InfluxDB over HTTP"); url "" = off */
+typedef struct vd_influx_http_config {
+    char url[256];               /* http(s)://HOST[:PORT][/PATH], no trailing slash */
+    int api;                     /* 1: POST /write?db=&rp= (InfluxDB 1.x, basic auth);
+                                    2: POST /api/v2/write?org=&bucket= (token) */
+    char database[128], rp[128]; /* api 1 */
+    char org[128], bucket[128];  /* api 2 */
+    char username[128];
+    char password_file[VD_PATH_MAX], token_file[VD_PATH_MAX], ca_file[VD_PATH_MAX];
+    unsigned batch_lines;        /* lines per request at most */
+    double batch_interval_s;     /* a line waits at most this long for its batch */
+    unsigned buffer_mib;         /* lines waiting for the server (the retry buffer) */
+    double timeout_s;            /* one request, connection included */
+    double drain_timeout_s;      /* at the end: longest wait for the buffer to reach the server */
+} vd_influx_http_config;
+
 typedef struct vd_config {
     char path[VD_PATH_MAX];      /* the configuration file */
     char dir[VD_PATH_MAX];       /* its directory: relative paths are relative to it */
@@ -127,39 +170,9 @@ typedef struct vd_config {
     double status_interval_s;
     double flush_interval_s;
     bool fsync_on_flush;
-    char prom_listen[128];       /* outputs.prometheus.listen "HOST:PORT" (metrics.h); "" = off */
-    /* outputs.mqtt (mqtt.h, docs/vibidd.md "MQTT"); mqtt_url "" = off */
-    char mqtt_url[256];
-    bool mqtt_tls;               /* mqtts:// */
-    char mqtt_host[200];         /* from the URL (an IPv6 literal without its brackets) */
-    int mqtt_port;
-    char mqtt_site[64], mqtt_stand[64]; /* topic levels; mqtt_stand "" = the stand's name */
-    char mqtt_prefix[128];       /* topic_prefix, e.g. "vibid/v1" */
-    char mqtt_client_id[128];    /* "" = "vibidd-<site>-<stand>" */
-    char mqtt_username[128];
-    char mqtt_password_file[VD_PATH_MAX], mqtt_ca_file[VD_PATH_MAX], mqtt_cert_file[VD_PATH_MAX],
-        mqtt_key_file[VD_PATH_MAX];
-    int mqtt_qos;                /* 1 or 2 */
-    unsigned mqtt_queue_size;    /* messages between the estimation thread and the publisher */
-    int mqtt_format;             /* 0 json, 1 line (InfluxDB line protocol) */
-    int mqtt_keepalive;          /* s */
-    int mqtt_protocol;           /* 5 (MQTT 5) or 4 (MQTT 3.1.1) */
-    double mqtt_drain_timeout_s; /* at the end: longest wait for the queue to reach the broker */
-
-    /* outputs.influx.http (influx_http.h, docs/vibidd.md "InfluxDB over HTTP"); "" = off */
-    char influx_http_url[256];       /* http(s)://HOST[:PORT][/PATH], no trailing slash */
-    int influx_http_api;             /* 1: POST /write?db=&rp= (InfluxDB 1.x, basic auth);
-                                        2: POST /api/v2/write?org=&bucket= (token) */
-    char influx_http_database[128], influx_http_rp[128]; /* api 1 */
-    char influx_http_org[128], influx_http_bucket[128];  /* api 2 */
-    char influx_http_username[128];
-    char influx_http_password_file[VD_PATH_MAX], influx_http_token_file[VD_PATH_MAX],
-        influx_http_ca_file[VD_PATH_MAX];
-    unsigned influx_http_batch_lines;   /* lines per request at most */
-    double influx_http_batch_interval_s;/* a line waits at most this long for its batch */
-    unsigned influx_http_buffer_mib;    /* lines waiting for the server (the retry buffer) */
-    double influx_http_timeout_s;       /* one request, connection included */
-    double influx_http_drain_timeout_s; /* at the end: longest wait for the buffer to reach the server */
+    vd_prometheus_config prometheus; /* outputs.prometheus (metrics.c) */
+    vd_mqtt_config mqtt;             /* outputs.mqtt (mqtt.c) */
+    vd_influx_http_config influx_http; /* outputs.influx.http (influx_http.c) */
 
     /* alarms */
     bool alarms_enabled;
@@ -193,6 +206,10 @@ void vd_config_free(vd_config *cfg);
 int vd_check_readable_file(const char *setting, const char *path, char *err, size_t cap);
 int vd_read_secret_file(const char *setting, const char *path, char *out, size_t cap, char *err, size_t ecap);
 int vd_config_check_paths(const vd_config *cfg, const char *replay, char *msg, size_t n);
+/* The same for the output paths of the outputs named in outputs (NULL-terminated names of
+ * outputs or their parts, output.h: "tracks", "influx", "record", "status"; NULL: all). */
+int vd_config_check_paths_for(const vd_config *cfg, const char *replay, const char *const *outputs, char *msg,
+                              size_t n);
 /* Prints the effective configuration (valid libconfig syntax, defaults filled in). */
 void vd_config_print(const vd_config *cfg, FILE *out);
 const char *vd_source_kind_name(vd_source_kind k);

@@ -50,12 +50,6 @@ static bool is_recording(const char *path)
     return yes;
 }
 
-static bool has_csv_ext(const char *p)
-{
-    size_t L = strlen(p);
-    return L >= 4 && strcasecmp(p + L - 4, ".csv") == 0;
-}
-
 /* The replay source's configuration for capture `path` (vibidd's own recording: columns
  * by channel name, time column t). 0, or -1 with err. */
 static int replay_config(const vd_config *cfg, const char *path, int format, bool paced, double speed,
@@ -68,8 +62,10 @@ static int replay_config(const vd_config *cfg, const char *path, int format, boo
     rc.speed = speed > 0 ? speed : 1.0;
     rc.sample_period_s = 1.0 / cfg->sample_rate;
     rc.chanmap = cfg->chanmap;
-    bool csv = format == VIBID_REPLAY_CSV || (format == VIBID_REPLAY_AUTO && has_csv_ext(path));
-    if (csv) {
+    const vibid_replay_format resolved = vibid_replay_format_resolve((vibid_replay_format)format, path, err, cap);
+    if (resolved == VIBID_REPLAY_AUTO)
+        return -1;
+    if (resolved == VIBID_REPLAY_CSV) {
         rc.format = VIBID_REPLAY_CSV;
         if (is_recording(path)) {
             /* Our own recording: columns are the channel names, time in column t. */
@@ -386,6 +382,16 @@ static void note_plausibility(vd_daemon *d, const vd_row *row)
     }
 }
 
+/* An alarm event to every open output. */
+static void outputs_alarm(vd_daemon *d, const char *param, int raised, const vd_row *row, double value,
+                          double baseline, double z)
+{
+    const vd_output_alarm ev = {param, raised, row, value, baseline, z};
+    for (size_t i = 0; i < d->n_out; i++)
+        if (d->out[i].ops->alarm)
+            d->out[i].ops->alarm(d->out[i].o, &ev);
+}
+
 static void run_alarms(vd_daemon *d, vd_row *row)
 {
     if (!d->cfg->alarms_enabled)
@@ -407,19 +413,11 @@ static void run_alarms(vd_daemon *d, vd_row *row)
                        "%g s) at sample %llu, t = %.3f s",
                        pi.name, row->theta[k], a->base, a->last_z, a->cfg.threshold, a->cfg.hold_s,
                        (unsigned long long)row->index, row->run_s);
-            vd_writers_alarm(&d->w, pi.name, 1, row, row->theta[k], a->base, a->last_z);
-            if (d->mqtt)
-                d->mqtt_ops->alarm(d->mqtt, pi.name, 1, row, row->theta[k], a->base, a->last_z);
-            if (d->influx_http)
-                d->influx_http_ops->alarm(d->influx_http, pi.name, 1, row, row->theta[k], a->base, a->last_z);
+            outputs_alarm(d, pi.name, 1, row, row->theta[k], a->base, a->last_z);
         } else if (ev == VD_ALARM_CLEARED) {
             vd_notice("alarm %s cleared: %.6g is back within %g standard errors of %.6g at sample %llu", pi.name,
                       row->theta[k], a->cfg.threshold, a->base, (unsigned long long)row->index);
-            vd_writers_alarm(&d->w, pi.name, 0, row, row->theta[k], a->base, a->last_z);
-            if (d->mqtt)
-                d->mqtt_ops->alarm(d->mqtt, pi.name, 0, row, row->theta[k], a->base, a->last_z);
-            if (d->influx_http)
-                d->influx_http_ops->alarm(d->influx_http, pi.name, 0, row, row->theta[k], a->base, a->last_z);
+            outputs_alarm(d, pi.name, 0, row, row->theta[k], a->base, a->last_z);
         } else if (a->have_baseline && a->cfg.learn && !d->base_reported[k]) {
             vd_info("alarm baseline of %s learned: %.9g (mean standard error %.3g, %llu estimates)", pi.name,
                     a->base, a->base_se, (unsigned long long)a->n_learn);
@@ -451,8 +449,6 @@ double vd_daemon_latency_us(const vd_daemon *d, double q)
     }
     return VD_LAT_BUCKETS;
 }
-
-static void write_status_file(vd_daemon *d, const char *buf, size_t len);
 
 /* The sample rate over the last status interval (the status file's sample_rate_hz). */
 static void update_rate(vd_daemon *d, double now)
@@ -520,16 +516,6 @@ static void take_snapshot(vd_daemon *d, const char *state, double now)
             acc += d->lat_hist[i];
         s->lat_le[b] = acc;
     }
-    s->write_errors = d->w.write_errors;
-    s->torn_lines = d->w.torn_lines;
-    for (int k = 0; k < VD_OUT_FILES; k++) {
-        s->output_on[k] = d->w.out[k].path && d->w.out[k].path[0];
-        s->output_open_failures[k] = d->w.out[k].open_failures;
-        s->output_lost[k] = d->w.out[k].lost;
-    }
-    s->outputs_closed = vd_writers_closed(&d->w);
-    s->udp_sent = d->w.udp_sent;
-    s->udp_errors = d->w.udp_errors;
     s->alarms_raised = d->alarms_raised;
     s->n_params = cfg->n_params;
     s->n_modes = cfg->n_modes;
@@ -551,14 +537,9 @@ static void take_snapshot(vd_daemon *d, const char *state, double now)
         memcpy(s->zeta, r->zeta, cfg->n_modes * sizeof *s->zeta);
         memcpy(s->zeta_se, r->zeta_se, cfg->n_modes * sizeof *s->zeta_se);
     }
-    if (d->metrics_on) {
-        vd_metrics_counters(&d->metrics, s);
-        s->metrics_listen = d->metrics.where;
-    }
-    if (d->mqtt)
-        d->mqtt_ops->counters(d->mqtt, s);
-    if (d->influx_http)
-        d->influx_http_ops->counters(d->influx_http, s);
+    for (size_t o = 0; o < d->n_out; o++) /* the outputs' own counters (output.h) */
+        if (d->out[o].ops->counters)
+            d->out[o].ops->counters(d->out[o].o, s);
 }
 
 /* The status file's text from the snapshot (key=value lines, docs/vibidd.md) into
@@ -630,62 +611,15 @@ static void format_status(vd_daemon *d, const vd_snapshot *sn)
         for (size_t i = 0; i < sn->n_modes; i++)
             S("f%zu_hz=%.6g\nzeta%zu=%.6g\n", i + 1, sn->freq[i], i + 1, sn->zeta[i]);
     }
-    if (sn->metrics_on) {
-        unsigned long long refused = 0;
-        for (unsigned r = 0; r < VD_REFUSED_N; r++)
-            refused += sn->refused[r];
-        S("metrics_listen=%s\nmetrics_scrapes=%llu\nmetrics_refused=%llu\n", sn->metrics_listen,
-          (unsigned long long)sn->scrapes, refused);
-    }
-    if (sn->mqtt_on)
-        S("mqtt_connected=%d\nmqtt_published=%llu\nmqtt_refused=%llu\nmqtt_dropped=%llu\nmqtt_queue_fill=%zu\n"
-          "mqtt_queue_capacity=%zu\nmqtt_inflight=%llu\nmqtt_reconnects=%llu\nmqtt_connect_failures=%llu\n"
-          "mqtt_unsent=%llu\n",
-          sn->mqtt_connected ? 1 : 0, (unsigned long long)sn->mqtt_published, (unsigned long long)sn->mqtt_refused,
-          (unsigned long long)sn->mqtt_dropped, sn->mqtt_queue_fill, sn->mqtt_queue_capacity,
-          (unsigned long long)sn->mqtt_inflight, (unsigned long long)sn->mqtt_reconnects,
-          (unsigned long long)sn->mqtt_connect_failures, (unsigned long long)sn->mqtt_unsent);
-    if (sn->influx_http_on)
-        S("influx_http_ok=%d\ninflux_http_written=%llu\ninflux_http_requests=%llu\ninflux_http_failures=%llu\n"
-          "influx_http_rejected=%llu\ninflux_http_dropped=%llu\ninflux_http_waiting=%llu\n"
-          "influx_http_buffer_fill=%zu\ninflux_http_buffer_capacity=%zu\n",
-          sn->influx_http_ok ? 1 : 0, (unsigned long long)sn->influx_http_written,
-          (unsigned long long)sn->influx_http_requests, (unsigned long long)sn->influx_http_failures,
-          (unsigned long long)sn->influx_http_rejected, (unsigned long long)sn->influx_http_dropped,
-          (unsigned long long)sn->influx_http_waiting, sn->influx_http_buffer_fill, sn->influx_http_buffer_capacity);
 #undef S
+    for (size_t o = 0; o < d->n_out; o++) /* each open output's own lines, in registry order (output.h) */
+        if (d->out[o].ops->status_lines) {
+            const size_t at = off < cap ? off : cap;
+            off += d->out[o].ops->status_lines(sn, buf + at, cap - at);
+        }
     if (off > cap)
         off = cap;
     d->status_len = off;
-}
-
-/* The status file is replaced atomically (a .tmp renamed over it). When that fails (a full
- * disk: the .tmp gets no blocks) the .tmp is removed and the file is overwritten in place:
- * it fits the block it already has, so a full disk still shows in it (write_errors)
- * instead of a stale "write_errors=0". Each failure counts (vd_writers_failed), which
- * also makes the exit status 1. */
-static void write_status_file(vd_daemon *d, const char *buf, size_t len)
-{
-    const char *path = d->cfg->status_path;
-    char tmp[VD_PATH_MAX + 8];
-    snprintf(tmp, sizeof tmp, "%s.tmp", path);
-    FILE *f = fopen(tmp, "we");
-    bool ok = f && fwrite(buf, 1, len, f) == len;
-    if (f && fclose(f) != 0)
-        ok = false;
-    if (ok && rename(tmp, path) == 0)
-        return;
-    const int e = errno;
-    if (f)
-        unlink(tmp);
-    errno = e;
-    vd_writers_failed(&d->w, "the status file", path);
-    const int fd = open(path, O_WRONLY | O_CLOEXEC);
-    if (fd < 0)
-        return;
-    if (pwrite(fd, buf, len, 0) == (ssize_t)len)
-        (void)ftruncate(fd, (off_t)len);
-    close(fd);
 }
 
 static void log_status_line(vd_daemon *d)
@@ -708,39 +642,64 @@ static void log_status_line(vd_daemon *d)
             (unsigned long long)vd_ring_overflows(d->ring), est);
 }
 
+/* Hands the snapshot (and its text) to every open output whose status is due: those at
+ * the status interval when it is due (or when they were busy the last time), those with a
+ * status_period at every snapshot (and they make one due at their period). */
+static void outputs_status(vd_daemon *d, bool status_due, bool final, double now)
+{
+    bool snap_due = status_due, text_due = status_due;
+    for (size_t i = 0; i < d->n_out; i++) {
+        vd_output_slot *o = &d->out[i];
+        if (!o->ops->status)
+            continue;
+        if (o->ops->status_period) {
+            o->due = final || o->pending || now - o->t_last >= o->ops->status_period(d->cfg);
+        } else {
+            o->due = status_due || o->pending;
+            if (o->due && (o->ops->flags & VD_OUTPUT_STATUS_TEXT))
+                text_due = true;
+        }
+        snap_due = snap_due || o->due;
+    }
+    if (!snap_due)
+        return;
+    take_snapshot(d, final ? "stopped" : "running", now);
+    if (text_due)
+        format_status(d, &d->snap);
+    for (size_t i = 0; i < d->n_out; i++) {
+        vd_output_slot *o = &d->out[i];
+        if (!o->ops->status)
+            continue;
+        /* never waits while estimating: a busy output gets the next one (output.h) */
+        if (o->ops->status_period) {
+            o->pending = !o->ops->status(o->o, &d->snap, d->status_text, d->status_len, final);
+            o->t_last = now;
+        } else if (o->due) {
+            o->pending = !o->ops->status(o->o, &d->snap, d->status_text, d->status_len, final);
+        }
+    }
+}
+
 static void housekeeping(vd_daemon *d, bool final)
 {
     double now = mono_s();
     atomic_fetch_add_explicit(&d->est_beat, 1, memory_order_relaxed);
     if (atomic_exchange(&d->reopen, 0))
-        vd_writers_reopen(&d->w);
+        for (size_t i = 0; i < d->n_out; i++)
+            if (d->out[i].ops->reopen)
+                d->out[i].ops->reopen(d->out[i].o);
     if (final || now - d->t_last_flush >= d->cfg->flush_interval_s) {
-        vd_writers_flush(&d->w, d->cfg->fsync_on_flush);
+        for (size_t i = 0; i < d->n_out; i++)
+            if (d->out[i].ops->flush)
+                d->out[i].ops->flush(d->out[i].o, d->cfg->fsync_on_flush);
         d->t_last_flush = now;
     }
-    /* One snapshot for both: the status file at its interval, the metrics at least every
+    /* One snapshot for all: the status file at its interval, the metrics at least every
      * second (sooner with a shorter status interval). */
     const bool status_due = final || now - d->t_last_status >= d->cfg->status_interval_s;
-    const bool metrics_due = d->metrics_on && (final || d->metrics_pending ||
-                                               now - d->t_last_metrics >= fmin(d->cfg->status_interval_s, 1.0));
     if (status_due)
         update_rate(d, now);
-    const bool mqtt_due = d->mqtt && (status_due || d->mqtt_pending);
-    if (status_due || metrics_due || mqtt_due) {
-        take_snapshot(d, final ? "stopped" : "running", now);
-        if (status_due || mqtt_due)
-            format_status(d, &d->snap);
-        if (status_due && d->cfg->status_path[0])
-            write_status_file(d, d->status_text, d->status_len);
-        /* the same text to MQTT; never waits while estimating (mqtt.h) */
-        if (mqtt_due)
-            d->mqtt_pending = !d->mqtt_ops->status(d->mqtt, d->status_text, d->status_len, final);
-        if (d->metrics_on) {
-            /* never waits while estimating: a busy server gets the next one (metrics.h) */
-            d->metrics_pending = !vd_metrics_publish(&d->metrics, &d->snap, final);
-            d->t_last_metrics = now;
-        }
-    }
+    outputs_status(d, status_due, final, now);
     if (d->cfg->log_status_interval_s > 0 && now - d->t_last_logstatus >= d->cfg->log_status_interval_s) {
         log_status_line(d);
         d->t_last_logstatus = now;
@@ -830,11 +789,9 @@ static void emit_row(vd_daemon *d, vd_row *row)
 {
     note_plausibility(d, row);
     run_alarms(d, row);
-    vd_writers_row(&d->w, row);
-    if (d->mqtt)
-        d->mqtt_ops->track(d->mqtt, row); /* queued; never waits (mqtt.h) */
-    if (d->influx_http)
-        d->influx_http_ops->row(d->influx_http, row); /* buffered; never waits (influx_http.h) */
+    for (size_t i = 0; i < d->n_out; i++) /* queued or buffered; never waits (output.h) */
+        if (d->out[i].ops->row)
+            d->out[i].ops->row(d->out[i].o, row);
 }
 
 /* One record as the outlier test releases it (vd_est_next): to the estimator, a row when
@@ -903,7 +860,9 @@ static void process(vd_daemon *d, const vd_item *it)
     drain_released(d);
     /* the raw recording keeps every sample as received, glitches included; written after
      * the estimate took it, so that the latency does not include its formatting */
-    vd_writers_sample(&d->w, rec);
+    for (size_t i = 0; i < d->n_out; i++)
+        if (d->out[i].ops->sample)
+            d->out[i].ops->sample(d->out[i].o, rec);
 }
 
 /* acquisition.handoff_spin: waking a thread sleeping in poll() costs 20-40 us on the
@@ -988,11 +947,36 @@ static void *est_main(void *arg)
 
 /* ------------------------------------------------------------ life cycle ---- */
 
-static const vd_mqtt_ops *mqtt_impl; /* vd_daemon_use_mqtt */
-
-void vd_daemon_use_mqtt(const vd_mqtt_ops *ops) { mqtt_impl = ops; }
-static const vd_influx_http_ops *influx_http_impl; /* vd_daemon_use_influx_http */
-void vd_daemon_use_influx_http(const vd_influx_http_ops *ops) { influx_http_impl = ops; }
+/* Opens every output of the registry (output.h) that is configured and selected, in
+ * registry order. 0, or -1 with err (fini closes what was opened). */
+static int open_outputs(vd_daemon *d, char *err, size_t cap)
+{
+    const vd_config *cfg = d->cfg;
+    d->out_ctx.cfg = cfg;
+    d->out_ctx.rec_chanmap = &d->rec_chanmap;
+    d->out_ctx.tracks_preamble = d->est.choices;
+    d->out_ctx.stand = cfg->influx_stand[0] ? cfg->influx_stand : vibid_stand_name(cfg->stand);
+    d->out_ctx.select = d->opt.outputs;
+    for (size_t i = 0; i < vd_n_outputs; i++) {
+        const vd_output_ops *ops = vd_outputs[i];
+        if (!vd_output_wanted(&d->out_ctx, ops) || (ops->enabled && !ops->enabled(cfg)))
+            continue;
+        if (d->n_out == VD_MAX_OUTPUTS) {
+            snprintf(err, cap, "more than %d outputs", VD_MAX_OUTPUTS);
+            return -1;
+        }
+        if (cap)
+            err[0] = '\0';
+        void *o = ops->open(&d->out_ctx, err, cap);
+        if (!o) {
+            if (cap && err[0])
+                return -1;
+            continue; /* this program has none: the output warned */
+        }
+        d->out[d->n_out++] = (vd_output_slot){.ops = ops, .o = o};
+    }
+    return 0;
+}
 
 int vd_daemon_init(vd_daemon *d, vd_config *cfg, const vd_options *opt, char *err, size_t cap)
 {
@@ -1065,30 +1049,10 @@ int vd_daemon_init(vd_daemon *d, vd_config *cfg, const vd_options *opt, char *er
     else
         vd_info("refinement off: %s", cfg->refine_why[0] ? cfg->refine_why : "estimator.refine_every = 0");
     vd_est_log_choices(&d->est);
-    if (vd_writers_open(&d->w, cfg, &d->rec_chanmap, d->est.choices, err, cap))
-        return -1;
-    /* the endpoint's socket is bound here, before READY=1: an address that cannot be
-     * bound is a configuration error (exit 2), not a run-time surprise */
-    if (cfg->prom_listen[0]) {
-        if (vd_metrics_open(&d->metrics, cfg, err, cap))
-            return -1;
-        d->metrics_on = true;
-    }
-    if (cfg->mqtt_url[0]) {
-        d->mqtt_ops = mqtt_impl;
-        if (!d->mqtt_ops)
-            vd_warning("outputs.mqtt ignored: this program has no MQTT client (libmosquitto); vibidd has");
-        else if (!(d->mqtt = d->mqtt_ops->open(cfg, err, cap)))
-            return -1;
-    }
-    if (cfg->influx_http_url[0]) {
-        d->influx_http_ops = influx_http_impl;
-        if (!d->influx_http_ops)
-            vd_warning("outputs.influx.http ignored: this program has no HTTP client (libcurl); vibidd has");
-        else if (!(d->influx_http = d->influx_http_ops->open(cfg, d->w.stand_name, err, cap)))
-            return -1;
-    }
-    return 0;
+    /* every output is opened here, before READY=1: an output that cannot be opened (a
+     * directory, an address that cannot be bound, a secret file) is a configuration error
+     * (exit 2), not a run-time surprise */
+    return open_outputs(d, err, cap);
 }
 
 static void stop_threads(vd_daemon *d)
@@ -1139,25 +1103,9 @@ int vd_daemon_run(vd_daemon *d)
         return 1;
     }
     d->acq_started = true;
-    if (d->metrics_on) {
+    for (size_t i = 0; i < d->n_out; i++) {
         char err[256];
-        if (vd_metrics_start(&d->metrics, err, sizeof err)) {
-            vd_error("%s", err);
-            stop_threads(d);
-            return 1;
-        }
-    }
-    if (d->mqtt) {
-        char err[256];
-        if (d->mqtt_ops->start(d->mqtt, err, sizeof err)) {
-            vd_error("%s", err);
-            stop_threads(d);
-            return 1;
-        }
-    }
-    if (d->influx_http) {
-        char err[256];
-        if (d->influx_http_ops->start(d->influx_http, err, sizeof err)) {
+        if (d->out[i].ops->start && d->out[i].ops->start(d->out[i].o, err, sizeof err)) {
             vd_error("%s", err);
             stop_threads(d);
             return 1;
@@ -1200,21 +1148,23 @@ int vd_daemon_run(vd_daemon *d)
         }
     }
     stop_threads(d);
-    if (d->mqtt || d->influx_http) {
-        /* the final status is handed over: publish what is queued (outputs.mqtt.drain_timeout
-         * at most), disconnect cleanly; write what is buffered for InfluxDB
-         * (outputs.influx.http.drain_timeout at most; both drain at the same time); then the
-         * status file once more, with the counters after the drain (the estimation thread is
-         * gone: this thread owns them) */
-        if (d->influx_http)
-            d->influx_http_ops->drain(d->influx_http);
-        if (d->mqtt)
-            d->mqtt_ops->drain(d->mqtt);
-        if (d->cfg->status_path[0]) {
-            take_snapshot(d, "stopped", mono_s());
-            format_status(d, &d->snap);
-            write_status_file(d, d->status_text, d->status_len);
+    /* the final status is handed over: each output with a drain sends what it holds (its
+     * own drain_timeout at most: outputs.mqtt publishes what is queued and disconnects
+     * cleanly, outputs.influx.http writes what is buffered), in reverse registry order; then
+     * the status file once more, with the counters after the drain (the estimation thread
+     * is gone: this thread owns them) */
+    bool drained = false;
+    for (size_t i = d->n_out; i-- > 0;)
+        if (d->out[i].ops->drain) {
+            d->out[i].ops->drain(d->out[i].o);
+            drained = true;
         }
+    if (drained) {
+        take_snapshot(d, "stopped", mono_s());
+        format_status(d, &d->snap);
+        for (size_t i = 0; i < d->n_out; i++)
+            if ((d->out[i].ops->flags & VD_OUTPUT_STATUS_AFTER_DRAIN) && d->out[i].ops->status)
+                (void)d->out[i].ops->status(d->out[i].o, &d->snap, d->status_text, d->status_len, true);
     }
     vd_notice("stopped: %llu samples, %llu rows, %llu gaps (%llu missing samples), %llu faults, %llu ring overflows, "
               "latency p50 %.1f us p99 %.1f us",
@@ -1236,20 +1186,21 @@ int vd_daemon_run(vd_daemon *d)
             vd_error("%s: no sample in the capture (it has no data line): nothing to identify", cap_path);
         return 2;
     }
-    return d->w.write_errors ? 1 : 0;
+    for (size_t i = 0; i < d->n_out; i++) /* a write failed: exit status 1 */
+        if (d->out[i].ops->failed && d->out[i].ops->failed(d->out[i].o))
+            return 1;
+    return 0;
 }
 
 void vd_daemon_fini(vd_daemon *d)
 {
     stop_threads(d);
-    vd_metrics_close(&d->metrics); /* after the threads: the final state was published */
-    if (d->mqtt)
-        d->mqtt_ops->close(d->mqtt);
-    d->mqtt = NULL;
-    if (d->influx_http)
-        d->influx_http_ops->close(d->influx_http);
-    d->influx_http = NULL;
-    vd_writers_close(&d->w);
+    /* after the threads: the final state was published; reverse registry order */
+    for (size_t i = d->n_out; i-- > 0;) {
+        d->out[i].ops->close(d->out[i].o);
+        d->out[i].o = NULL;
+    }
+    d->n_out = 0;
     vibid_source_close(d->src);
     d->src = NULL;
     vd_rate_check_destroy(d->rate);

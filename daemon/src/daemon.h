@@ -13,6 +13,9 @@
  *   main thread: signals (sigtimedwait on a blocked set: no asynchronous handler at all),
  *     the systemd notifications and watchdog pings (only while both threads make
  *     progress).
+ * The outputs (output.h) are opened from the registry and reached only through their ops:
+ * the estimation thread hands each open output the samples, rows, alarms and status; some
+ * have a thread of their own:
  *   metrics thread (outputs.prometheus only): the HTTP endpoint (metrics.h); it reads the
  *     text the estimation thread renders at its housekeeping and nothing else.
  *   MQTT thread (outputs.mqtt only): the broker connection (mqtt.h); it takes the messages the
@@ -39,6 +42,7 @@
 #include "metrics.h"
 #include "mqtt.h"
 #include "notify.h"
+#include "output.h"
 #include "rate_check.h"
 #include "refine.h"
 #include "ring.h"
@@ -49,16 +53,27 @@ typedef struct vd_options {
     bool pace;                 /* --pace: replay at the recorded pace */
     double speed;              /* --speed (with --pace) */
     vd_rate_mode rate_check;   /* --rate-check (default error): capture/stand rate mismatch */
+    const char *const *outputs;/* the outputs (or parts, output.h) to open by name, NULL-terminated;
+                                  NULL: every configured output */
 } vd_options;
 
-/* outputs.mqtt's implementation (vibidd: vd_mqtt_libmosquitto, mqtt.h), given before
- * vd_daemon_init. Without it (a program that links vibidd_core without libmosquitto, e.g. the
- * Python module's vibid.replay) outputs.mqtt is ignored with a warning. */
-void vd_daemon_use_mqtt(const vd_mqtt_ops *ops);
+#define VD_MAX_OUTPUTS 16 /* open outputs at most (the registry has fewer) */
 
-/* outputs.influx.http's implementation (vibidd: vd_influx_http_curl, influx_http.h), the same
- * way: without it outputs.influx.http is ignored with a warning. */
-void vd_daemon_use_influx_http(const vd_influx_http_ops *ops);
+/* One open output (output.h). */
+typedef struct vd_output_slot {
+    const vd_output_ops *ops;
+    void *o;
+    bool pending; /* the last status found it busy: offered again at the next housekeeping */
+    bool due;     /* status due at this housekeeping */
+    double t_last;/* its last status (status_period outputs), monotonic s */
+} vd_output_slot;
+
+/* An output whose client library the core does not link (vibidd: vd_mqtt_libmosquitto,
+ * mqtt.h; vd_influx_http_curl, influx_http.h), given before vd_daemon_init: it takes the
+ * place of the registry's stand-in of the same name (output.c). Without it (a program that
+ * links vibidd_core alone, e.g. the Python module's vibid.replay) a configured outputs.mqtt
+ * or outputs.influx.http is ignored with a warning. */
+void vd_daemon_use_output(const vd_output_ops *ops);
 
 #define VD_LAT_BUCKETS 20000   /* 1 us buckets up to 20 ms; the last one collects the rest */
 
@@ -79,7 +94,6 @@ typedef struct vd_daemon {
     bool refine_waits;         /* an unpaced replay waits for each refinement (reproducible rows) */
     uint64_t refine_gaps_seen; /* est.gaps at the last look: a new gap ends the clean window */
     bool row_pending;
-    vd_writers w;
     vd_alarm alarm[VD_MAX_PARAMS];
     bool base_reported[VD_MAX_PARAMS];
     vd_notify notify;
@@ -108,23 +122,16 @@ typedef struct vd_daemon {
     uint32_t *lat_hist;        /* receipt -> estimate pushed, 1 us buckets */
     uint64_t lat_n;
     uint64_t lat_sum_us;       /* sum of the measured latencies (not clipped), us */
-    double t_start, t_last_flush, t_last_status, t_last_logstatus, t_last_metrics;
+    double t_start, t_last_flush, t_last_status, t_last_logstatus;
     uint64_t samples_at_last_status;
     double rate_hz;
     /* the counters at one instant, for the status file and the metrics alike (metrics.h);
      * filled by the estimation thread at its housekeeping */
     vd_snapshot snap;
-    /* outputs.prometheus: the endpoint (its own thread, metrics.h) */
-    vd_metrics metrics;
-    bool metrics_on;
-    bool metrics_pending;      /* the last publish found the server busy: retry */
-    /* outputs.mqtt: the publisher (its own thread, mqtt.h), reached through mqtt_ops */
-    const vd_mqtt_ops *mqtt_ops;
-    vd_mqtt *mqtt;
-    bool mqtt_pending;         /* the last status hand-over found the publisher busy: retry */
-    /* outputs.influx.http: the writer (its own thread, influx_http.h), through influx_http_ops */
-    const vd_influx_http_ops *influx_http_ops;
-    vd_influx_http *influx_http;
+    /* the open outputs (output.h), in registry order; out_ctx is what they were opened with */
+    vd_output_ctx out_ctx;
+    vd_output_slot out[VD_MAX_OUTPUTS];
+    size_t n_out;
     char status_text[8192];    /* the status file's text, also the MQTT status */
     size_t status_len;
 } vd_daemon;

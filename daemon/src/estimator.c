@@ -7,9 +7,6 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include <vibid/modal.h>
-#include <vibid/plausibility.h>
-
 int64_t vd_ns_to_us(int64_t t_ns)
 {
     int64_t q = t_ns / 1000, r = t_ns % 1000;
@@ -50,7 +47,15 @@ int vd_est_init(vd_est *e, const vd_config *cfg, char *err, size_t cap)
         return -1;
     }
     e->nmodes = cfg->n_modes;
-    e->cov = calloc(e->p * e->p, sizeof *e->cov);
+    /* The row's checks (vibid/report.h); its plausibility reference (the stand's nominal
+     * modes) is made here: it allocates, rows do not add to that. */
+    e->report = vibid_report_create(e->model, 1.0 / cfg->sample_rate);
+    if (!e->report) {
+        snprintf(err, cap, "estimator: %s", vibid_last_error());
+        vd_est_free(e);
+        return -1;
+    }
+    e->pref = *vibid_report_reference(e->report);
     if (cfg->outlier_threshold > 0.0) {
         vibid_outlier_config oc;
         vibid_outlier_config_init(&oc, e->nch);
@@ -66,7 +71,7 @@ int vd_est_init(vd_est *e, const vd_config *cfg, char *err, size_t cap)
         e->held = calloc(e->held_cap, sizeof *e->held);
         e->held_tag = calloc(e->held_cap, sizeof *e->held_tag);
     }
-    if (!e->cov || (e->outl && (!e->held || !e->held_tag))) {
+    if (e->outl && (!e->held || !e->held_tag)) {
         snprintf(err, cap, "estimator: out of memory");
         vd_est_free(e);
         return -1;
@@ -120,8 +125,8 @@ void vd_est_free(vd_est *e)
     e->twin = NULL;
     vibid_ident_destroy(e->ident);
     e->ident = NULL;
-    free(e->cov);
-    e->cov = NULL;
+    vibid_report_destroy(e->report);
+    e->report = NULL;
     vibid_outlier_destroy(e->outl);
     e->outl = NULL;
     free(e->held);
@@ -251,42 +256,6 @@ static void note_outlier(vd_est *e, const vibid_record *rec)
               (unsigned long long)(rec->index - e->first_index), what, (unsigned long long)e->outliers);
 }
 
-/* Flags the row P when its estimate is physically impossible (a failed modal computation,
- * NaN modes, counts too: the estimate has no physical modes; so does an unstable one,
- * `unstable_why` non-NULL: vibid_model_modal's VIBID_E_UNSTABLE, which a growth within the
- * rules' 1e-6 zeta tolerance would otherwise pass). The reference for the
- * damping-ratio rule (the stand's nominal modes) is made at the first row: it allocates,
- * which the row rate tolerates; the check itself allocates nothing. */
-static void check_plausible(vd_est *e, vd_row *row, const char *unstable_why)
-{
-    if (!e->pref_ready) {
-        if (vibid_plausibility_ref_init(e->model, NULL, &e->pref) != VIBID_OK) {
-            memset(&e->pref, 0, sizeof e->pref); /* cannot happen for a finalized model */
-            e->pref.zeta_rule = 0;
-            snprintf(e->pref.zeta_rule_off, sizeof e->pref.zeta_rule_off, "%s", vibid_last_error());
-        }
-        e->pref_ready = true;
-    }
-    unsigned found = 0;
-    const vibid_plausibility_ref *ref = e->pref.n_modes ? &e->pref : NULL;
-    if (vibid_plausibility_check(e->model, 1.0 / e->cfg->sample_rate, row->theta, row->freq, row->zeta, e->nmodes,
-                                 ref, &found, NULL, NULL, e->why, sizeof e->why) != VIBID_OK) {
-        /* an argument error (a bug): nothing can be said for the estimate, so it is not
-         * passed as plausible either */
-        snprintf(e->why, sizeof e->why, "plausibility check failed: %s", vibid_last_error());
-        found = VIBID_IMPLAUSIBLE_NONFINITE;
-    }
-    if (unstable_why && !found) {
-        snprintf(e->why, sizeof e->why, "%s", unstable_why);
-        found = VIBID_IMPLAUSIBLE_ZETA_NEGATIVE;
-    }
-    if (found) {
-        row->implausible = found;
-        row->flags |= VD_FLAG_IMPLAUSIBLE;
-        e->implausible_rows++;
-    }
-}
-
 /* The pre-filter pilot (identify.h) ended since the last row: its choice goes to the
  * log (the tracks file's header was written at the start; it states the rule). */
 static void note_new_choices(vd_est *e)
@@ -330,35 +299,28 @@ static void start_row(vd_est *e, const vibid_record *rec, uint64_t rel, vd_row *
 void vd_est_finish_row(vd_est *e, vd_row *row)
 {
     note_new_choices(e);
-    vibid_ident *from = e->twin ? e->twin : e->ident;
-    vibid_status st = e->sync_status != VIBID_OK ? e->sync_status
-                                                 : vibid_ident_estimate(from, row->theta, row->se, NULL);
-    row->est_status = (int)st;
-    if (st != VIBID_OK) {
-        for (size_t k = 0; k < e->p; k++)
-            row->theta[k] = row->se[k] = NAN;
-        row->flags |= VD_FLAG_NOEST;
+    /* The library's row (vibid/report.h): estimate, covariance, modes, plausibility and
+     * quality, the same checks as the Python binding's. */
+    vibid_report_row_out out = {.theta = row->theta,
+                                .se = row->se,
+                                .freq = row->freq,
+                                .freq_se = row->freq_se,
+                                .zeta = row->zeta,
+                                .zeta_se = row->zeta_se};
+    if (e->sync_status != VIBID_OK)
+        (void)vibid_report_no_estimate(e->report, e->sync_status, &out);
+    else
+        (void)vibid_report_row(e->report, e->twin ? e->twin : e->ident, &out); /* arguments checked at init */
+    if (!(out.flags & VIBID_ROW_NOEST))
+        e->pref_ready = true; /* the log tells of the reference at the first estimate */
+    row->est_status = (int)out.est_status;
+    row->implausible = out.implausible;
+    row->flags |= out.flags;
+    if (out.flags & VIBID_ROW_NOEST)
         e->est_errors++;
-    } else {
-        const double *cov = vibid_ident_covariance(from, e->cov) == VIBID_OK ? e->cov : NULL;
-        vibid_status ms = vibid_model_modal(e->model, row->theta, cov, row->freq, cov ? row->freq_se : NULL,
-                                            row->zeta, cov ? row->zeta_se : NULL, NULL, NULL);
-        if (ms != VIBID_OK && ms != VIBID_E_UNSTABLE) {
-            for (size_t k = 0; k < e->nmodes; k++)
-                row->freq[k] = row->freq_se[k] = row->zeta[k] = row->zeta_se[k] = NAN;
-        }
-        /* copied: the plausibility calls may replace the last error */
-        char unstable_why[256];
-        if (ms == VIBID_E_UNSTABLE)
-            snprintf(unstable_why, sizeof unstable_why, "%s", vibid_last_error());
-        check_plausible(e, row, ms == VIBID_E_UNSTABLE ? unstable_why : NULL);
-        vibid_ident_quality q;
-        if (vibid_ident_get_quality(from, &q, NULL) == VIBID_OK) {
-            if (q.flags & VIBID_QUALITY_SE_INVALID)
-                row->flags |= VD_FLAG_SE_INVALID;
-            if (q.flags & VIBID_QUALITY_NOT_EXCITED)
-                row->flags |= VD_FLAG_NOT_EXCITED;
-        }
+    if (out.flags & VIBID_ROW_IMPLAUSIBLE) {
+        snprintf(e->why, sizeof e->why, "%s", out.why);
+        e->implausible_rows++;
     }
     e->rows++;
     e->last = *row;

@@ -52,21 +52,24 @@
 #include <vibid/identify.h>
 #include <vibid/outlier.h>
 #include <vibid/plausibility.h>
+#include <vibid/report.h>
 #include <vibid_drivers/sample.h>
 
 #include "config.h"
 
+/* E, P, U and I are the library's row flags (vibid/report.h), the same bits. */
 enum {
     VD_FLAG_GAP = 1u,       /* samples missing since the previous row */
-    VD_FLAG_NOEST = 2u,     /* no estimate yet / estimate failed (values NaN) */
+    VD_FLAG_NOEST = VIBID_ROW_NOEST, /* no estimate yet / estimate failed (values NaN) */
     VD_FLAG_ALARM = 4u,     /* a drift alarm is active */
-    VD_FLAG_IMPLAUSIBLE = 8u, /* the estimate is physically impossible (vibid/plausibility.h):
-                                written as it is, flagged P, ignored by the alarms */
-    VD_FLAG_SE_INVALID = 16u, /* U: the standard errors do not hold (VIBID_QUALITY_SE_INVALID:
-                                 the older and newer half of the data disagree, too few blocks
-                                 yet, or an LS/RLS estimator) */
-    VD_FLAG_NOT_EXCITED = 32u, /* I: some parameter is hardly informed by the data (its
-                                  standard error is written as inf) */
+    VD_FLAG_IMPLAUSIBLE = VIBID_ROW_IMPLAUSIBLE, /* the estimate is physically impossible
+                                (vibid/plausibility.h) or unstable: written as it is,
+                                flagged P, ignored by the alarms */
+    VD_FLAG_SE_INVALID = VIBID_ROW_SE_INVALID, /* U: the standard errors do not hold
+                                 (VIBID_QUALITY_SE_INVALID: the older and newer half of the
+                                 data disagree, too few blocks yet, or an LS/RLS estimator) */
+    VD_FLAG_NOT_EXCITED = VIBID_ROW_NOT_EXCITED, /* I: some parameter is hardly informed by
+                                  the data (its standard error is written as inf) */
     VD_FLAG_OUTLIER = 64u,     /* O: a sample since the previous row had a glitch taken out
                                   (vibid/outlier.h): the estimator saw it as a gap */
     VD_FLAG_REFINED = 128u     /* R: the output-error refinement over the window ending at the
@@ -126,16 +129,18 @@ typedef struct vd_est {
     uint64_t samples, gaps, missing, push_errors, est_errors, rows;
     uint64_t gap_since_row;
     double chan[VIBID_DRV_MAX_CHANNELS];
-    double *cov;            /* p x p */
+    vibid_report *report;   /* the row's checks (vibid/report.h) */
     vd_row last;            /* the latest row (for the status) */
     bool have_last;
     int last_push_status;
-    /* physical plausibility of each row's estimate (vibid_plausibility_check); the
-     * reference (nominal modes) is computed at the first row (it allocates) */
+    /* physical plausibility of each row's estimate (vibid_report_row); the reference
+     * (nominal modes: a copy of the report's, made at init) is reported from the first
+     * row on (pref_ready) */
     bool pref_ready;
     vibid_plausibility_ref pref;
     uint64_t implausible_rows;
-    char why[512];          /* what the latest flagged row's estimate got wrong */
+    char why[1024];         /* what the latest flagged row's estimate got wrong (the rules'
+                               findings, then an unstable estimate's message) */
     vibid_ident_config resolved;   /* the settings in force (automatic choices resolved) */
     char choices[2048];            /* vibid_ident_describe: one line per choice and why */
     size_t choices_len;            /* its full length (the description grows when the
@@ -174,10 +179,10 @@ const vibid_record *vd_est_next(vd_est *e, int64_t *tag);
  * one (LS, EKF, KF+RLS) before the next record. */
 int vd_est_record(vd_est *e, const vibid_record *rec, vd_row *row);
 
-/* Completes a due row: the estimate and its standard errors (from the twin), the modes
- * with theirs (vibid_model_modal), the quality flags and the plausibility check; counts it
- * and keeps it as vd_est.last. Allocates (the estimate, the modal analysis): 30-100 us a
- * row, at the decimated rate. */
+/* Completes a due row: vibid_report_row (vibid/report.h) on the twin: the estimate and
+ * its standard errors, the modes with theirs, the quality flags and the plausibility
+ * check; counts it and keeps it as vd_est.last. Allocates inside the estimate and the
+ * modal analysis only (report.h): 30-100 us a row, at the decimated rate. */
 void vd_est_finish_row(vd_est *e, vd_row *row);
 
 /* A row of the output-error refinement (refine.h) over the window ending at sample index

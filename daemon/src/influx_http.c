@@ -77,17 +77,17 @@ int vd_influx_http_write_url(char *buf, size_t cap, const vd_config *cfg) {
     size_t off = 0;
     if (cap == 0) return -1;
     buf[0] = '\0';
-    if (cfg->influx_http_api == 2) {
-        if (put_text(buf, cap, &off, cfg->influx_http_url) || put_text(buf, cap, &off, "/api/v2/write?org=") ||
-            put_query_value(buf, cap, &off, cfg->influx_http_org) || put_text(buf, cap, &off, "&bucket=") ||
-            put_query_value(buf, cap, &off, cfg->influx_http_bucket))
+    if (cfg->influx_http.api == 2) {
+        if (put_text(buf, cap, &off, cfg->influx_http.url) || put_text(buf, cap, &off, "/api/v2/write?org=") ||
+            put_query_value(buf, cap, &off, cfg->influx_http.org) || put_text(buf, cap, &off, "&bucket=") ||
+            put_query_value(buf, cap, &off, cfg->influx_http.bucket))
             return -1;
     } else {
-        if (put_text(buf, cap, &off, cfg->influx_http_url) || put_text(buf, cap, &off, "/write?db=") ||
-            put_query_value(buf, cap, &off, cfg->influx_http_database))
+        if (put_text(buf, cap, &off, cfg->influx_http.url) || put_text(buf, cap, &off, "/write?db=") ||
+            put_query_value(buf, cap, &off, cfg->influx_http.database))
             return -1;
-        if (cfg->influx_http_rp[0] &&
-            (put_text(buf, cap, &off, "&rp=") || put_query_value(buf, cap, &off, cfg->influx_http_rp)))
+        if (cfg->influx_http.rp[0] &&
+            (put_text(buf, cap, &off, "&rp=") || put_query_value(buf, cap, &off, cfg->influx_http.rp)))
             return -1;
     }
     if (put_text(buf, cap, &off, "&precision=ns")) return -1;
@@ -221,21 +221,27 @@ static void push_line(vd_influx_http *h, char *buf, int n) {
     uint64_t in = atomic_fetch_add(&h->lines_in, 1) + 1;
     /* a full batch wakes the writer at once; a smaller one waits for batch_interval (the
      * writer's own timer), so a busy stand makes no system call per line */
-    if (in - atomic_load(&h->lines_out) >= h->cfg->influx_http_batch_lines) wake(h);
+    if (in - atomic_load(&h->lines_out) >= h->cfg->influx_http.batch_lines) wake(h);
 }
 
-static void op_row(vd_influx_http *h, const vd_row *row) {
+static void op_row(void *p, const vd_row *row) {
+    vd_influx_http *h = p;
     push_line(h, h->fmt, vd_format_influx_row(h->fmt, sizeof h->fmt - 1, h->cfg, h->stand, row));
 }
 
-static void op_alarm(vd_influx_http *h, const char *param, int raised, const vd_row *row, double value,
-                     double baseline, double z) {
+static void op_alarm(void *p, const vd_output_alarm *a) {
+    vd_influx_http *h = p;
+    const char *param = a->param;
+    const int raised = a->raised;
+    const vd_row *row = a->row;
+    const double value = a->value, baseline = a->baseline, z = a->z;
     push_line(h, h->fmt,
               vd_format_influx_alarm(h->fmt, sizeof h->fmt - 1, h->cfg, h->stand, param, raised, row, value,
                                      baseline, z));
 }
 
-static void op_counters(vd_influx_http *h, vd_snapshot *s) {
+static void op_counters(void *p, vd_snapshot *s) {
+    vd_influx_http *h = p;
     s->influx_http_on = true;
     s->influx_http_ok = atomic_load(&h->ok) != 0;
     s->influx_http_written = atomic_load(&h->written);
@@ -418,7 +424,7 @@ static void *writer_main(void *arg) {
         if (oldest_t == 0) oldest_t = now;
         /* a batch goes when it is full, when its oldest line waited batch_interval, or at the end;
          * never before the back-off of a failure is over (also while draining) */
-        double due = (waiting >= h->batch_limit || stopping) ? now : oldest_t + cfg->influx_http_batch_interval_s;
+        double due = (waiting >= h->batch_limit || stopping) ? now : oldest_t + cfg->influx_http.batch_interval_s;
         if (next_try > due) due = next_try;
         if (due > now) {
             double until_deadline = stopping ? 1e-9 * (double)(atomic_load(&h->deadline_ns) - mono_ns()) : 1.0;
@@ -499,7 +505,7 @@ static void *writer_main(void *arg) {
                    no_retry ? "the server did not take them, and its next try was due after the deadline"
                    : h->failing ? "the server did not take them"
                                 : "time ran out",
-                   cfg->influx_http_drain_timeout_s);
+                   cfg->influx_http.drain_timeout_s);
     else
         vd_info("influx http: every line written (%llu in %llu requests)", (unsigned long long)atomic_load(&h->written),
                 (unsigned long long)atomic_load(&h->requests));
@@ -510,25 +516,29 @@ static void *writer_main(void *arg) {
 
 static int read_secret(const vd_config *cfg, char *out, size_t cap, char *err, size_t ecap) {
     out[0] = '\0';
-    if (cfg->influx_http_api == 2)
-        return vd_read_secret_file("outputs.influx.http.token_file", cfg->influx_http_token_file, out, cap, err, ecap);
-    if (cfg->influx_http_password_file[0])
-        return vd_read_secret_file("outputs.influx.http.password_file", cfg->influx_http_password_file, out, cap, err,
+    if (cfg->influx_http.api == 2)
+        return vd_read_secret_file("outputs.influx.http.token_file", cfg->influx_http.token_file, out, cap, err, ecap);
+    if (cfg->influx_http.password_file[0])
+        return vd_read_secret_file("outputs.influx.http.password_file", cfg->influx_http.password_file, out, cap, err,
                                    ecap);
     return 0;
 }
 
-int vd_influx_http_check(const vd_config *cfg, char *err, size_t cap) {
-    if (!cfg->influx_http_url[0]) return 0;
+int vd_influx_http_check(const vd_config *cfg, char *note, size_t note_cap, char *err, size_t cap) {
+    (void)note;
+    (void)note_cap;
+    if (!cfg->influx_http.url[0]) return 0;
     char s[512];
     int rc = read_secret(cfg, s, sizeof s, err, cap);
     memset(s, 0, sizeof s);
-    return rc ? -1 : vd_check_readable_file("outputs.influx.http.ca_file", cfg->influx_http_ca_file, err, cap);
+    return rc ? -1 : vd_check_readable_file("outputs.influx.http.ca_file", cfg->influx_http.ca_file, err, cap);
 }
 
-static void op_close(vd_influx_http *h);
+static void op_close(void *p);
 
-static vd_influx_http *op_open(const vd_config *cfg, const char *stand, char *err, size_t cap) {
+static void *op_open(const vd_output_ctx *ctx, char *err, size_t cap) {
+    const vd_config *cfg = ctx->cfg;
+    const char *stand = ctx->stand;
     vd_influx_http *h = calloc(1, sizeof *h);
     if (!h) {
         snprintf(err, cap, "out of memory");
@@ -536,18 +546,18 @@ static vd_influx_http *op_open(const vd_config *cfg, const char *stand, char *er
     }
     h->cfg = cfg;
     h->efd = -1;
-    h->batch_limit = cfg->influx_http_batch_lines;
+    h->batch_limit = cfg->influx_http.batch_lines;
     snprintf(h->stand, sizeof h->stand, "%s", stand);
     if (vd_influx_http_write_url(h->url, sizeof h->url, cfg) < 0) {
         snprintf(err, cap, "outputs.influx.http: the write URL is longer than %zu bytes", sizeof h->url - 1);
         goto fail;
     }
-    h->cap = (size_t)cfg->influx_http_buffer_mib << 20;
+    h->cap = (size_t)cfg->influx_http.buffer_mib << 20;
     h->ring = malloc(h->cap);
     h->body_cap = h->cap < BATCH_BYTES_MAX ? h->cap : BATCH_BYTES_MAX;
     h->body = malloc(h->body_cap);
     if (!h->ring || !h->body) {
-        snprintf(err, cap, "outputs.influx.http.buffer_size %u MiB: out of memory", cfg->influx_http_buffer_mib);
+        snprintf(err, cap, "outputs.influx.http.buffer_size %u MiB: out of memory", cfg->influx_http.buffer_mib);
         goto fail;
     }
     h->efd = eventfd(0, EFD_CLOEXEC | EFD_NONBLOCK);
@@ -569,7 +579,7 @@ static vd_influx_http *op_open(const vd_config *cfg, const char *stand, char *er
     h->headers = curl_slist_append(NULL, "Content-Type: text/plain; charset=utf-8");
     /* no "Expect: 100-continue" round trip before a large body */
     if (h->headers) h->headers = curl_slist_append(h->headers, "Expect:");
-    if (h->headers && cfg->influx_http_api == 2) {
+    if (h->headers && cfg->influx_http.api == 2) {
         snprintf(h->auth_header, sizeof h->auth_header, "Authorization: Token %s", h->secret);
         h->headers = curl_slist_append(h->headers, h->auth_header);
         memset(h->auth_header, 0, sizeof h->auth_header); /* curl keeps its own copy */
@@ -586,8 +596,8 @@ static vd_influx_http *op_open(const vd_config *cfg, const char *stand, char *er
     if (!rc) rc = curl_easy_setopt(c, CURLOPT_USERAGENT, "vibidd");
     /* threads: no SIGALRM for name resolution time-outs */
     if (!rc) rc = curl_easy_setopt(c, CURLOPT_NOSIGNAL, 1L);
-    if (!rc) rc = curl_easy_setopt(c, CURLOPT_TIMEOUT_MS, (long)(cfg->influx_http_timeout_s * 1000.0));
-    if (!rc) rc = curl_easy_setopt(c, CURLOPT_CONNECTTIMEOUT_MS, (long)(fmin(cfg->influx_http_timeout_s, 5.0) * 1000.0));
+    if (!rc) rc = curl_easy_setopt(c, CURLOPT_TIMEOUT_MS, (long)(cfg->influx_http.timeout_s * 1000.0));
+    if (!rc) rc = curl_easy_setopt(c, CURLOPT_CONNECTTIMEOUT_MS, (long)(fmin(cfg->influx_http.timeout_s, 5.0) * 1000.0));
     if (!rc) rc = curl_easy_setopt(c, CURLOPT_TCP_KEEPALIVE, 1L);
     if (!rc) rc = curl_easy_setopt(c, CURLOPT_ERRORBUFFER, h->curl_error);
     if (!rc) rc = curl_easy_setopt(c, CURLOPT_WRITEFUNCTION, on_answer);
@@ -597,27 +607,28 @@ static vd_influx_http *op_open(const vd_config *cfg, const char *stand, char *er
     if (!rc) rc = curl_easy_setopt(c, CURLOPT_XFERINFOFUNCTION, on_progress);
     if (!rc) rc = curl_easy_setopt(c, CURLOPT_XFERINFODATA, h);
     if (!rc) rc = curl_easy_setopt(c, CURLOPT_NOPROGRESS, 0L);
-    if (!rc && cfg->influx_http_api == 1 && cfg->influx_http_username[0]) {
+    if (!rc && cfg->influx_http.api == 1 && cfg->influx_http.username[0]) {
         rc = curl_easy_setopt(c, CURLOPT_HTTPAUTH, (long)CURLAUTH_BASIC);
-        if (!rc) rc = curl_easy_setopt(c, CURLOPT_USERNAME, cfg->influx_http_username);
+        if (!rc) rc = curl_easy_setopt(c, CURLOPT_USERNAME, cfg->influx_http.username);
         if (!rc) rc = curl_easy_setopt(c, CURLOPT_PASSWORD, h->secret);
     }
-    if (!rc && cfg->influx_http_ca_file[0]) rc = curl_easy_setopt(c, CURLOPT_CAINFO, cfg->influx_http_ca_file);
+    if (!rc && cfg->influx_http.ca_file[0]) rc = curl_easy_setopt(c, CURLOPT_CAINFO, cfg->influx_http.ca_file);
     if (rc) {
         snprintf(err, cap, "outputs.influx.http: setting up libcurl: %s", curl_easy_strerror(rc));
         goto fail;
     }
     vd_info("influx http: %s (API v%d%s), batches of up to %u lines every %g s, buffer %u MiB",
-            h->url, cfg->influx_http_api,
-            cfg->influx_http_api == 2 ? ", token" : cfg->influx_http_username[0] ? ", basic authentication" : "",
-            cfg->influx_http_batch_lines, cfg->influx_http_batch_interval_s, cfg->influx_http_buffer_mib);
+            h->url, cfg->influx_http.api,
+            cfg->influx_http.api == 2 ? ", token" : cfg->influx_http.username[0] ? ", basic authentication" : "",
+            cfg->influx_http.batch_lines, cfg->influx_http.batch_interval_s, cfg->influx_http.buffer_mib);
     return h;
 fail:
     op_close(h);
     return NULL;
 }
 
-static int op_start(vd_influx_http *h, char *err, size_t cap) {
+static int op_start(void *p, char *err, size_t cap) {
+    vd_influx_http *h = p;
     int rc = pthread_create(&h->thread, NULL, writer_main, h);
     if (rc) {
         snprintf(err, cap, "cannot start the InfluxDB writer thread: %s", strerror(rc));
@@ -627,9 +638,10 @@ static int op_start(vd_influx_http *h, char *err, size_t cap) {
     return 0;
 }
 
-static void op_drain(vd_influx_http *h) {
+static void op_drain(void *p) {
+    vd_influx_http *h = p;
     if (!h || !h->started) return;
-    atomic_store(&h->deadline_ns, mono_ns() + (int64_t)(h->cfg->influx_http_drain_timeout_s * 1e9));
+    atomic_store(&h->deadline_ns, mono_ns() + (int64_t)(h->cfg->influx_http.drain_timeout_s * 1e9));
     atomic_store(&h->stop, 1);
     atomic_store(&h->sleeping, 1);
     wake(h);
@@ -637,7 +649,8 @@ static void op_drain(vd_influx_http *h) {
     h->started = false;
 }
 
-static void op_close(vd_influx_http *h) {
+static void op_close(void *p) {
+    vd_influx_http *h = p;
     if (!h) return;
     op_drain(h);
     if (h->curl) curl_easy_cleanup(h->curl);
@@ -650,4 +663,31 @@ static void op_close(vd_influx_http *h) {
     free(h);
 }
 
-const vd_influx_http_ops vd_influx_http_curl = {op_open, op_start, op_row, op_alarm, op_counters, op_drain, op_close};
+static size_t op_status_lines(const vd_snapshot *sn, char *buf, size_t cap) {
+    int n = snprintf(
+        buf, cap,
+        "influx_http_ok=%d\ninflux_http_written=%llu\ninflux_http_requests=%llu\ninflux_http_failures=%llu\n"
+        "influx_http_rejected=%llu\ninflux_http_dropped=%llu\ninflux_http_waiting=%llu\n"
+        "influx_http_buffer_fill=%zu\ninflux_http_buffer_capacity=%zu\n",
+        sn->influx_http_ok ? 1 : 0, (unsigned long long)sn->influx_http_written,
+        (unsigned long long)sn->influx_http_requests, (unsigned long long)sn->influx_http_failures,
+        (unsigned long long)sn->influx_http_rejected, (unsigned long long)sn->influx_http_dropped,
+        (unsigned long long)sn->influx_http_waiting, sn->influx_http_buffer_fill, sn->influx_http_buffer_capacity);
+    return n > 0 ? (size_t)n : 0;
+}
+
+static bool op_enabled(const vd_config *cfg) { return cfg->influx_http.url[0] != '\0'; }
+
+const vd_output_ops vd_influx_http_curl = {
+    .name = "influx.http",
+    .enabled = op_enabled,
+    .check = vd_influx_http_check,
+    .open = op_open,
+    .start = op_start,
+    .row = op_row,
+    .alarm = op_alarm,
+    .status_lines = op_status_lines,
+    .counters = op_counters,
+    .drain = op_drain,
+    .close = op_close,
+};

@@ -37,7 +37,7 @@
  * left (influx_http_waiting).
  *
  * The daemon's core (vibidd_core) does not link libcurl (the Python module links the core
- * without it): vibidd's main() hands this module over with vd_daemon_use_influx_http.
+ * without it): vibidd's main() hands its output ops over with vd_daemon_use_output.
  */
 #ifndef VIBIDD_INFLUX_HTTP_H
 #define VIBIDD_INFLUX_HTTP_H
@@ -49,36 +49,23 @@
 #include "config.h"
 #include "estimator.h"
 #include "metrics.h"
+#include "output.h"
 
 typedef struct vd_influx_http vd_influx_http;
 
-/* The module as the daemon sees it: open, start, drain and close from the main thread,
- * row, alarm and counters from the estimation thread (counters also from the main thread
- * after drain). */
-typedef struct vd_influx_http_ops {
-    /* Reads the password or token file, allocates the ring, sets up libcurl (nothing is
-     * connected). stand: the stand tag. NULL with err on failure (a configuration error). */
-    vd_influx_http *(*open)(const vd_config *cfg, const char *stand, char *err, size_t cap);
-    /* Starts the writer thread (signals blocked). 0, or -1 with err. */
-    int (*start)(vd_influx_http *h, char *err, size_t cap);
-    /* Buffers a track row / an alarm event; never waits (a full ring drops and counts). */
-    void (*row)(vd_influx_http *h, const vd_row *row);
-    void (*alarm)(vd_influx_http *h, const char *param, int raised, const vd_row *row, double value,
-                  double baseline, double z);
-    /* The influx_http_* counters into s. */
-    void (*counters)(vd_influx_http *h, vd_snapshot *s);
-    /* Sends what is buffered (at most drain_timeout), joins the thread; the counters stay
-     * readable. */
-    void (*drain)(vd_influx_http *h);
-    /* drain, then frees. NULL-safe. */
-    void (*close)(vd_influx_http *h);
-} vd_influx_http_ops;
-
-extern const vd_influx_http_ops vd_influx_http_curl;
+/* The output "influx.http" (output.h), the state a vd_influx_http: open reads the password
+ * or token file, allocates the ring and sets up libcurl (nothing is connected; the stand tag
+ * is the context's stand; NULL with err on failure: a configuration error); start starts the
+ * writer thread; row and alarm buffer a line and never wait (a full ring drops and counts);
+ * counters: the influx_http_* counters (also from the main thread after drain); drain sends
+ * what is buffered (at most drain_timeout) and joins the thread, the counters stay readable;
+ * close drains, then frees (NULL-safe). */
+extern const vd_output_ops vd_influx_http_curl;
 
 /* --check: the password or token file and the CA file can be read (nothing is
- * connected). 0, or -1 with err naming the setting and the file. */
-int vd_influx_http_check(const vd_config *cfg, char *err, size_t cap);
+ * connected). 0 (no note: the output's check, output.h), or -1 with err naming the setting
+ * and the file. */
+int vd_influx_http_check(const vd_config *cfg, char *note, size_t note_cap, char *err, size_t cap);
 
 /* The write endpoint of cfg (url, API, database or org and bucket, precision=ns) with the
  * query values percent-encoded, into buf. The length, or -1 if cap is too small. */

@@ -7,12 +7,11 @@
 #include "config.h"
 #include "refine.h"
 #include "daemon.h"
-#include "writers.h"
 #include "log.h"
-#include "metrics.h"
 #include "influx_http.h"
 #include "mqtt.h"
 
+#include <getopt.h>
 #include <locale.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -37,7 +36,10 @@ static void usage(FILE *o)
             "  --rate-check M      the capture's or device's sample rate more than 1 %% off the\n"
             "                      stand's: error (default: exit 2), warn (go on), off\n"
             "  -h, --help          this text;  --version  version\n"
-            "Signals: SIGTERM/SIGINT drain, flush and exit 0; SIGHUP reopens the output files.\n");
+            "Options take their value as the next argument or after '=' (--replay=FILE).\n"
+            "Signals: SIGTERM/SIGINT drain, flush and exit 0; SIGHUP reopens the output files.\n"
+            "Exit status: 0 normal end (signal, end of a replay), 1 run-time failure (source\n"
+            "failed, outputs could not be written), 2 bad command line or configuration.\n");
 }
 
 static int set_override(char *dst, size_t cap, const char *val, const char *opt)
@@ -56,59 +58,50 @@ int main(int argc, char **argv)
     const char *cfg_path = NULL, *tracks = NULL, *influx = NULL, *record = NULL, *status = NULL, *level = NULL;
     const char *rate_check = NULL;
     bool check = false;
-    vd_options opt = {NULL, false, 1.0, VD_RATE_MODE_ERROR};
-    for (int i = 1; i < argc; i++) {
-        const char *a = argv[i];
-        const char **val = NULL;
-        if (!strcmp(a, "-c") || !strcmp(a, "--config"))
-            val = &cfg_path;
-        else if (!strcmp(a, "--replay"))
-            val = &opt.replay;
-        else if (!strcmp(a, "--tracks"))
-            val = &tracks;
-        else if (!strcmp(a, "--influx"))
-            val = &influx;
-        else if (!strcmp(a, "--record"))
-            val = &record;
-        else if (!strcmp(a, "--status"))
-            val = &status;
-        else if (!strcmp(a, "--log-level"))
-            val = &level;
-        else if (!strcmp(a, "--rate-check"))
-            val = &rate_check;
-        else if (!strcmp(a, "--check"))
-            check = true;
-        else if (!strcmp(a, "--pace"))
-            opt.pace = true;
-        else if (!strcmp(a, "--speed")) {
-            if (i + 1 >= argc) {
-                fprintf(stderr, "vibidd: --speed needs a value\n");
-                return 2;
-            }
+    vd_options opt = {NULL, false, 1.0, VD_RATE_MODE_ERROR, NULL}; /* every configured output */
+    enum { O_CHECK = 256, O_REPLAY, O_PACE, O_SPEED, O_TRACKS, O_INFLUX, O_RECORD, O_STATUS, O_LOG_LEVEL,
+           O_RATE_CHECK, O_VERSION };
+    static const struct option lopts[] = {
+        {"config", required_argument, NULL, 'c'},        {"check", no_argument, NULL, O_CHECK},
+        {"replay", required_argument, NULL, O_REPLAY},   {"pace", no_argument, NULL, O_PACE},
+        {"speed", required_argument, NULL, O_SPEED},     {"tracks", required_argument, NULL, O_TRACKS},
+        {"influx", required_argument, NULL, O_INFLUX},   {"record", required_argument, NULL, O_RECORD},
+        {"status", required_argument, NULL, O_STATUS},   {"log-level", required_argument, NULL, O_LOG_LEVEL},
+        {"rate-check", required_argument, NULL, O_RATE_CHECK},
+        {"help", no_argument, NULL, 'h'},                {"version", no_argument, NULL, O_VERSION},
+        {NULL, 0, NULL, 0}};
+    opterr = 0; /* our own messages, naming the option as given */
+    int o;
+    while ((o = getopt_long(argc, argv, ":c:h", lopts, NULL)) != -1) {
+        switch (o) {
+        case 'c': cfg_path = optarg; break;
+        case O_CHECK: check = true; break;
+        case O_REPLAY: opt.replay = optarg; break;
+        case O_PACE: opt.pace = true; break;
+        case O_SPEED: {
             char *end;
-            opt.speed = strtod(argv[++i], &end);
-            if (*end || !(opt.speed >= 1e-3 && opt.speed <= 1e6)) {
-                fprintf(stderr, "vibidd: --speed '%s': expected a number in [0.001, 1e6]\n", argv[i]);
+            opt.speed = strtod(optarg, &end);
+            if (end == optarg || *end || !(opt.speed >= 1e-3 && opt.speed <= 1e6)) {
+                fprintf(stderr, "vibidd: --speed '%s': expected a number in [0.001, 1e6]\n", optarg);
                 return 2;
             }
-        } else if (!strcmp(a, "-h") || !strcmp(a, "--help")) {
-            usage(stdout);
-            return 0;
-        } else if (!strcmp(a, "--version")) {
-            printf("vibidd %s (libvibid %s)\n", VIBID_VERSION_STRING, vibid_version_string());
-            return 0;
-        } else {
-            fprintf(stderr, "vibidd: unknown option '%s'\n", a);
-            usage(stderr);
-            return 2;
+            break;
         }
-        if (val) {
-            if (i + 1 >= argc) {
-                fprintf(stderr, "vibidd: %s needs a value\n", a);
-                return 2;
-            }
-            *val = argv[++i];
+        case O_TRACKS: tracks = optarg; break;
+        case O_INFLUX: influx = optarg; break;
+        case O_RECORD: record = optarg; break;
+        case O_STATUS: status = optarg; break;
+        case O_LOG_LEVEL: level = optarg; break;
+        case O_RATE_CHECK: rate_check = optarg; break;
+        case 'h': usage(stdout); return 0;
+        case O_VERSION: printf("vibidd %s (libvibid %s)\n", VIBID_VERSION_STRING, vibid_version_string()); return 0;
+        case ':': fprintf(stderr, "vibidd: option %s needs a value (see --help)\n", argv[optind - 1]); return 2;
+        default: fprintf(stderr, "vibidd: unknown option '%s' (see --help)\n", argv[optind - 1]); return 2;
         }
+    }
+    if (optind < argc) {
+        fprintf(stderr, "vibidd: unexpected argument '%s' (options only; see --help)\n", argv[optind]);
+        return 2;
     }
     if (rate_check) {
         int m = vd_rate_mode_parse(rate_check);
@@ -155,6 +148,8 @@ int main(int argc, char **argv)
         }
         vd_log_set_level((vd_log_level)l);
     }
+    vd_daemon_use_output(&vd_mqtt_libmosquitto); /* outputs.mqtt (mqtt.h) */
+    vd_daemon_use_output(&vd_influx_http_curl);  /* outputs.influx.http (influx_http.h) */
     if (check) {
         /* The estimator is created too: identifiability is part of a valid configuration. */
         vd_est est;
@@ -180,46 +175,38 @@ int main(int argc, char **argv)
             vd_config_free(&cfg);
             return 2;
         }
-        /* the outputs' start-up checks (directories, files, the UDP host) */
-        if (vd_writers_check(&cfg, e2, sizeof e2)) {
-            vd_error("%s", e2);
-            vd_est_free(&est);
-            vd_config_free(&cfg);
-            return 2;
+        /* the outputs' start-up checks (output.h: directories, files, the UDP host, the
+         * password, token and TLS files; no connection is made; the metrics address is bound
+         * and released, as start-up binds it: in use, by the running vibidd this --check is
+         * meant to replace?, is a note) */
+        static char out_notes[VD_MAX_OUTPUTS * 400];
+        size_t notes_len = 0;
+        for (size_t i = 0; i < vd_n_outputs; i++) {
+            char note[400] = "";
+            int orc = vd_outputs[i]->check ? vd_outputs[i]->check(&cfg, note, sizeof note, e2, sizeof e2) : 0;
+            if (orc < 0) {
+                vd_error("%s", e2);
+                vd_est_free(&est);
+                vd_config_free(&cfg);
+                return 2;
+            }
+            if (orc > 0 && notes_len < sizeof out_notes) {
+                vd_warning("%s", note);
+                int n = snprintf(out_notes + notes_len, sizeof out_notes - notes_len, "# %s\n", note);
+                if (n > 0)
+                    notes_len += (size_t)n;
+            }
         }
-        /* outputs.mqtt and outputs.influx.http: the password, token and TLS files can be read
-         * (no connection is made) */
-        if (vd_mqtt_check(&cfg, e2, sizeof e2) || vd_influx_http_check(&cfg, e2, sizeof e2)) {
-            vd_error("%s", e2);
-            vd_est_free(&est);
-            vd_config_free(&cfg);
-            return 2;
-        }
-        /* the metrics endpoint: the address is bound and released, as start-up binds it;
-         * in use (by the running vibidd this --check is meant to replace?) is a warning */
-        char prom_note[400];
-        int prc = vd_metrics_check(&cfg, prom_note, sizeof prom_note, e2, sizeof e2);
-        if (prc < 0) {
-            vd_error("%s", e2);
-            vd_est_free(&est);
-            vd_config_free(&cfg);
-            return 2;
-        }
-        if (prc > 0)
-            vd_warning("%s", prom_note);
         vd_config_print(&cfg, stdout);
         vd_est_print_choices(&est, stdout, "# ");
         if (rate_note[0])
             printf("# %s\n", rate_note);
-        if (prc > 0)
-            printf("# %s\n", prom_note);
+        fputs(out_notes, stdout);
         vd_est_free(&est);
         vd_config_free(&cfg);
         return 0;
     }
     static vd_daemon d;
-    vd_daemon_use_mqtt(&vd_mqtt_libmosquitto); /* outputs.mqtt (mqtt.h) */
-    vd_daemon_use_influx_http(&vd_influx_http_curl); /* outputs.influx.http (influx_http.h) */
     char e3[2048];
     int rc;
     if (vd_daemon_init(&d, &cfg, &opt, e3, sizeof e3)) {

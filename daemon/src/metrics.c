@@ -5,6 +5,7 @@
 
 #include "estimator.h"
 #include "log.h"
+#include "output.h"
 
 #include <arpa/inet.h>
 #include <errno.h>
@@ -471,10 +472,10 @@ int vd_metrics_check(const vd_config *cfg, char *note, size_t note_cap, char *er
 {
     if (note_cap)
         note[0] = '\0';
-    if (!cfg->prom_listen[0])
+    if (!cfg->prometheus.listen[0])
         return 0;
     struct sockaddr_storage a;
-    int fd = bind_listen(cfg->prom_listen, err, cap, &a);
+    int fd = bind_listen(cfg->prometheus.listen, err, cap, &a);
     if (fd >= 0) {
         close(fd);
         return 0;
@@ -483,7 +484,7 @@ int vd_metrics_check(const vd_config *cfg, char *note, size_t note_cap, char *er
         snprintf(note, note_cap,
                  "outputs.prometheus.listen %s is in use now (a running vibidd?): start-up fails unless it is "
                  "free then",
-                 cfg->prom_listen);
+                 cfg->prometheus.listen);
         return 1;
     }
     return -1;
@@ -528,7 +529,7 @@ int vd_metrics_open(vd_metrics *m, const vd_config *cfg, char *err, size_t cap)
         return -1;
     }
     struct sockaddr_storage a;
-    m->listen_fd = bind_listen(cfg->prom_listen, err, cap, &a);
+    m->listen_fd = bind_listen(cfg->prometheus.listen, err, cap, &a);
     if (m->listen_fd < 0)
         return -1;
     format_addr(&a, m->where, sizeof m->where);
@@ -893,3 +894,76 @@ void vd_metrics_close(vd_metrics *m)
     m->text = m->render = NULL;
     m->slots = NULL;
 }
+
+/* -------------------------------------------- the output "prometheus" (output.h) ---- */
+
+static bool prometheus_enabled(const vd_config *cfg) { return cfg->prometheus.listen[0] != '\0'; }
+
+/* The socket is bound here, before READY=1: an address that cannot be bound is a
+ * configuration error (exit 2), not a run-time surprise. */
+static void *prometheus_open(const vd_output_ctx *ctx, char *err, size_t cap)
+{
+    vd_metrics *m = calloc(1, sizeof *m);
+    if (!m) {
+        snprintf(err, cap, "outputs.prometheus: out of memory");
+        return NULL;
+    }
+    if (vd_metrics_open(m, ctx->cfg, err, cap)) {
+        vd_metrics_close(m);
+        free(m);
+        return NULL;
+    }
+    return m;
+}
+
+static int prometheus_start(void *o, char *err, size_t cap) { return vd_metrics_start(o, err, cap); }
+
+/* never waits while estimating: a busy server gets the next one */
+static bool prometheus_status(void *o, const vd_snapshot *s, const char *text, size_t len, bool final)
+{
+    (void)text;
+    (void)len;
+    return vd_metrics_publish(o, s, final);
+}
+
+static size_t prometheus_status_lines(const vd_snapshot *sn, char *buf, size_t cap)
+{
+    unsigned long long refused = 0;
+    for (unsigned r = 0; r < VD_REFUSED_N; r++)
+        refused += sn->refused[r];
+    int n = snprintf(buf, cap, "metrics_listen=%s\nmetrics_scrapes=%llu\nmetrics_refused=%llu\n", sn->metrics_listen,
+                     (unsigned long long)sn->scrapes, refused);
+    return n > 0 ? (size_t)n : 0;
+}
+
+/* at least every second, sooner with a shorter status interval */
+static double prometheus_status_period(const vd_config *cfg) { return fmin(cfg->status_interval_s, 1.0); }
+
+static void prometheus_counters(void *o, vd_snapshot *s)
+{
+    vd_metrics *m = o;
+    vd_metrics_counters(m, s);
+    s->metrics_listen = m->where;
+}
+
+/* after the threads: the final state was published */
+static void prometheus_close(void *o)
+{
+    if (!o)
+        return;
+    vd_metrics_close(o);
+    free(o);
+}
+
+const vd_output_ops vd_output_prometheus = {
+    .name = "prometheus",
+    .enabled = prometheus_enabled,
+    .check = vd_metrics_check,
+    .open = prometheus_open,
+    .start = prometheus_start,
+    .status = prometheus_status,
+    .status_lines = prometheus_status_lines,
+    .status_period = prometheus_status_period,
+    .counters = prometheus_counters,
+    .close = prometheus_close,
+};

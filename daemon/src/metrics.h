@@ -181,7 +181,7 @@ typedef struct vd_metrics {
     _Atomic uint64_t scrapes, refused[VD_REFUSED_N];
 } vd_metrics;
 
-/* Binds and listens on cfg->prom_listen (SO_REUSEADDR, non-blocking, close-on-exec) and
+/* Binds and listens on cfg->prometheus.listen (SO_REUSEADDR, non-blocking, close-on-exec) and
  * allocates the buffers; no thread yet. 0, or -1 with err naming the address and the
  * errno text. */
 int vd_metrics_open(vd_metrics *m, const vd_config *cfg, char *err, size_t cap);

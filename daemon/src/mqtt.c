@@ -88,7 +88,7 @@ static void put_header(vd_text *o, const vd_config *cfg, const char *stand, uint
     vd_text_put(o, "{\"stand\":");
     put_str(o, stand);
     vd_text_put(o, ",\"site\":");
-    put_str(o, cfg->mqtt_site);
+    put_str(o, cfg->mqtt.site);
     vd_text_put(o, ",\"seq\":%llu", (unsigned long long)seq);
 }
 
@@ -345,21 +345,22 @@ static void commit(vd_mqtt *m, slot_hdr *s, int kind, uint16_t param, int n) {
 
 static int format_track(vd_mqtt *m, char *buf, size_t cap, uint64_t seq, uint64_t dropped,
                         const vd_row *row) {
-    if (m->cfg->mqtt_format == 0) return vd_mqtt_format_track(buf, cap, m->cfg, m->stand, seq, dropped, row);
+    if (m->cfg->mqtt.format == 0) return vd_mqtt_format_track(buf, cap, m->cfg, m->stand, seq, dropped, row);
     int n = vd_format_influx_row(buf, cap, m->cfg, m->stand, row);
     return n < 0 ? -1 : splice_seq(buf, cap, n, seq, dropped);
 }
 
 static int format_alarm(vd_mqtt *m, char *buf, size_t cap, uint64_t seq, uint64_t dropped, const char *param,
                         int raised, const vd_row *row, double value, double baseline, double z) {
-    if (m->cfg->mqtt_format == 0)
+    if (m->cfg->mqtt.format == 0)
         return vd_mqtt_format_alarm(buf, cap, m->cfg, m->stand, seq, dropped, param, raised, row, value,
                                     baseline, z);
     int n = vd_format_influx_alarm(buf, cap, m->cfg, m->stand, param, raised, row, value, baseline, z);
     return n < 0 ? -1 : splice_seq(buf, cap, n, seq, dropped);
 }
 
-static void op_track(vd_mqtt *m, const vd_row *row) {
+static void op_track(void *p, const vd_row *row) {
+    vd_mqtt *m = p;
     uint64_t seq = ++m->seq[VD_MQTT_TRACKS];
     slot_hdr *s = claim(m, VD_MQTT_TRACKS);
     if (!s) return;
@@ -367,8 +368,12 @@ static void op_track(vd_mqtt *m, const vd_row *row) {
     commit(m, s, VD_MQTT_TRACKS, 0, n);
 }
 
-static void op_alarm(vd_mqtt *m, const char *param, int raised, const vd_row *row, double value,
-                     double baseline, double z) {
+static void op_alarm(void *p, const vd_output_alarm *a) {
+    vd_mqtt *m = p;
+    const char *param = a->param;
+    const int raised = a->raised;
+    const vd_row *row = a->row;
+    const double value = a->value, baseline = a->baseline, z = a->z;
     uint64_t seq = ++m->seq[VD_MQTT_ALARMS];
     uint16_t k = 0;
     const vibid_model *mod = vibid_stand_model(m->cfg->stand);
@@ -384,7 +389,9 @@ static void op_alarm(vd_mqtt *m, const char *param, int raised, const vd_row *ro
     commit(m, s, VD_MQTT_ALARMS, k, n);
 }
 
-static bool op_status(vd_mqtt *m, const char *text, size_t len, bool wait) {
+static bool op_status(void *p, const vd_snapshot *snap, const char *text, size_t len, bool wait) {
+    (void)snap; /* the status file's text is what is published */
+    vd_mqtt *m = p;
     if (len >= VD_MQTT_STATUS_MAX) len = VD_MQTT_STATUS_MAX - 1;
     if (wait ? pthread_mutex_lock(&m->st_mu) != 0 : pthread_mutex_trylock(&m->st_mu) != 0) return false;
     memcpy(m->st_text, text, len);
@@ -396,7 +403,8 @@ static bool op_status(vd_mqtt *m, const char *text, size_t len, bool wait) {
     return true;
 }
 
-static void op_counters(vd_mqtt *m, vd_snapshot *s) {
+static void op_counters(void *p, vd_snapshot *s) {
+    vd_mqtt *m = p;
     s->mqtt_on = true;
     s->mqtt_connected = atomic_load(&m->connected) != 0;
     s->mqtt_published = atomic_load(&m->published);
@@ -413,7 +421,7 @@ static void op_counters(vd_mqtt *m, vd_snapshot *s) {
 /* ------------------------------------------------------ publisher thread ---- */
 
 static const char *url_of(const vd_mqtt *m) {
-    return m->cfg->mqtt_url;
+    return m->cfg->mqtt.url;
 }
 
 static void on_log(struct mosquitto *mosq, void *obj, int level, const char *str) {
@@ -457,8 +465,8 @@ static void on_publish(struct mosquitto *mosq, void *obj, int mid, int reason,
             vd_warning(
                 "mqtt: the broker refused a message (mid %d): %s (%llu refused so far; an ACL that does not "
                 "allow this client to publish under %s/%s/%s/?)",
-                mid, mosquitto_reason_string(reason), (unsigned long long)n, m->cfg->mqtt_prefix,
-                m->cfg->mqtt_site, m->stand);
+                mid, mosquitto_reason_string(reason), (unsigned long long)n, m->cfg->mqtt.prefix,
+                m->cfg->mqtt.site, m->stand);
     } else {
         atomic_fetch_add(&m->published, 1);
     }
@@ -511,7 +519,7 @@ static void publish_status(vd_mqtt *m) {
         n = vd_mqtt_format_status(m->st_json, VD_MQTT_STATUS_MAX * 2, m->cfg, m->stand, seq,
                                   "state=running\n", 14);
     if (n < 0) return;
-    int rc = mosquitto_publish(m->mosq, NULL, m->topic_status, n, m->st_json, m->cfg->mqtt_qos, true);
+    int rc = mosquitto_publish(m->mosq, NULL, m->topic_status, n, m->st_json, m->cfg->mqtt.qos, true);
     if (rc == MOSQ_ERR_SUCCESS || rc == MOSQ_ERR_NO_CONN || rc == MOSQ_ERR_CONN_LOST || rc == MOSQ_ERR_ERRNO)
         atomic_fetch_add(&m->inflight, 1);
 }
@@ -528,7 +536,7 @@ static void publish_pending(vd_mqtt *m) {
     if (m->just_connected) {
         m->just_connected = false;
         vd_notice("mqtt: connected to %s as '%s'%s; publishing under %s/%s/%s/", url_of(m), m->client_id,
-                  m->ever_connected ? " again" : "", m->cfg->mqtt_prefix, m->cfg->mqtt_site, m->stand);
+                  m->ever_connected ? " again" : "", m->cfg->mqtt.prefix, m->cfg->mqtt.site, m->stand);
         m->ever_connected = true;
         m->last_logged[0] = '\0';
         pthread_mutex_lock(&m->st_mu); /* the publisher may wait: the estimation thread only trylocks */
@@ -555,7 +563,7 @@ static void publish_pending(vd_mqtt *m) {
         if (tail == head) break;
         slot_hdr *s = slot_at(m, tail);
         const char *topic = s->kind == VD_MQTT_TRACKS ? m->topic_tracks : m->topic_alarm[s->param];
-        int rc = mosquitto_publish(m->mosq, NULL, topic, (int)s->len, s + 1, m->cfg->mqtt_qos,
+        int rc = mosquitto_publish(m->mosq, NULL, topic, (int)s->len, s + 1, m->cfg->mqtt.qos,
                                    s->kind == VD_MQTT_ALARMS);
         if (refused_locally(rc)) {
             uint64_t e = atomic_fetch_add(&m->errors, 1) + 1;
@@ -590,7 +598,7 @@ static const char *silent_reason(vd_mqtt *m, char *buf, size_t cap) {
     else
         snprintf(buf, cap, "the peer accepted the connection but did not answer CONNECT within %.0f s (not an MQTT "
                  "broker? %s)", CONNECT_TIMEOUT_S,
-                 m->cfg->mqtt_tls ? "a listener without TLS for mqtts://?" : "a TLS listener for mqtt://?");
+                 m->cfg->mqtt.tls ? "a listener without TLS for mqtts://?" : "a TLS listener for mqtt://?");
     return buf;
 }
 
@@ -647,7 +655,7 @@ static void *pub_main(void *arg) {
         double now = mono_s();
         if (!stopping && atomic_load(&m->stop)) {
             stopping = true;
-            drain_until = now + m->cfg->mqtt_drain_timeout_s;
+            drain_until = now + m->cfg->mqtt.drain_timeout_s;
         }
         if (m->sock_active && !m->connected_local && now - m->attempt_t >= CONNECT_TIMEOUT_S) {
             /* the socket stays open until the next attempt (mosquitto_reconnect_async closes it) */
@@ -681,8 +689,8 @@ static void *pub_main(void *arg) {
             m->lib_error[0] = '\0';
             m->refused_rc = 0;
             errno = 0;
-            int rc = first ? mosquitto_connect_async(m->mosq, m->cfg->mqtt_host, m->cfg->mqtt_port,
-                                                     m->cfg->mqtt_keepalive)
+            int rc = first ? mosquitto_connect_async(m->mosq, m->cfg->mqtt.host, m->cfg->mqtt.port,
+                                                     m->cfg->mqtt.keepalive)
                            : mosquitto_reconnect_async(m->mosq);
             int e = errno;
             if (rc == MOSQ_ERR_SUCCESS) {
@@ -737,7 +745,7 @@ static void *pub_main(void *arg) {
     atomic_store(&m->connected, 0);
     if (left || unacked || !clean)
         vd_warning("mqtt: stopped with %zu messages unsent and %llu unacknowledged (%s; drain_timeout %g s)%s",
-                   left, (unsigned long long)unacked, why_end ? why_end : "disconnected", m->cfg->mqtt_drain_timeout_s,
+                   left, (unsigned long long)unacked, why_end ? why_end : "disconnected", m->cfg->mqtt.drain_timeout_s,
                    clean || !m->ever_connected ? "" : "; the broker has published the will (offline), not the final status");
     else
         vd_info("mqtt: every message acknowledged by the broker (%llu), disconnected",
@@ -747,23 +755,26 @@ static void *pub_main(void *arg) {
 
 /* ------------------------------------------------------------ life cycle ---- */
 
-int vd_mqtt_check(const vd_config *cfg, char *err, size_t cap) {
-    if (!cfg->mqtt_url[0]) return 0;
+int vd_mqtt_check(const vd_config *cfg, char *note, size_t note_cap, char *err, size_t cap) {
+    (void)note;
+    (void)note_cap;
+    if (!cfg->mqtt.url[0]) return 0;
     char pw[512];
-    if (cfg->mqtt_password_file[0] &&
-        vd_read_secret_file("outputs.mqtt.password_file", cfg->mqtt_password_file, pw, sizeof pw, err, cap))
+    if (cfg->mqtt.password_file[0] &&
+        vd_read_secret_file("outputs.mqtt.password_file", cfg->mqtt.password_file, pw, sizeof pw, err, cap))
         return -1;
     memset(pw, 0, sizeof pw);
-    return vd_check_readable_file("outputs.mqtt.ca_file", cfg->mqtt_ca_file, err, cap) ||
-                   vd_check_readable_file("outputs.mqtt.cert_file", cfg->mqtt_cert_file, err, cap) ||
-                   vd_check_readable_file("outputs.mqtt.key_file", cfg->mqtt_key_file, err, cap)
+    return vd_check_readable_file("outputs.mqtt.ca_file", cfg->mqtt.ca_file, err, cap) ||
+                   vd_check_readable_file("outputs.mqtt.cert_file", cfg->mqtt.cert_file, err, cap) ||
+                   vd_check_readable_file("outputs.mqtt.key_file", cfg->mqtt.key_file, err, cap)
                ? -1
                : 0;
 }
 
-static void op_close(vd_mqtt *m);
+static void op_close(void *p);
 
-static vd_mqtt *op_open(const vd_config *cfg, char *err, size_t cap) {
+static void *op_open(const vd_output_ctx *ctx, char *err, size_t cap) {
+    const vd_config *cfg = ctx->cfg;
     vd_mqtt *m = calloc(1, sizeof *m);
     if (!m) {
         snprintf(err, cap, "out of memory");
@@ -773,14 +784,14 @@ static vd_mqtt *op_open(const vd_config *cfg, char *err, size_t cap) {
     m->efd = -1;
     pthread_mutex_init(&m->st_mu, NULL);
     snprintf(m->stand, sizeof m->stand, "%s",
-             cfg->mqtt_stand[0] ? cfg->mqtt_stand : vibid_stand_name(cfg->stand));
-    if (cfg->mqtt_client_id[0])
-        snprintf(m->client_id, sizeof m->client_id, "%s", cfg->mqtt_client_id);
+             cfg->mqtt.stand[0] ? cfg->mqtt.stand : vibid_stand_name(cfg->stand));
+    if (cfg->mqtt.client_id[0])
+        snprintf(m->client_id, sizeof m->client_id, "%s", cfg->mqtt.client_id);
     else
-        snprintf(m->client_id, sizeof m->client_id, "vibidd-%s-%s", cfg->mqtt_site, m->stand);
-    snprintf(m->topic_tracks, sizeof m->topic_tracks, "%s/%s/%s/tracks", cfg->mqtt_prefix, cfg->mqtt_site,
+        snprintf(m->client_id, sizeof m->client_id, "vibidd-%s-%s", cfg->mqtt.site, m->stand);
+    snprintf(m->topic_tracks, sizeof m->topic_tracks, "%s/%s/%s/tracks", cfg->mqtt.prefix, cfg->mqtt.site,
              m->stand);
-    snprintf(m->topic_status, sizeof m->topic_status, "%s/%s/%s/status", cfg->mqtt_prefix, cfg->mqtt_site,
+    snprintf(m->topic_status, sizeof m->topic_status, "%s/%s/%s/status", cfg->mqtt.prefix, cfg->mqtt.site,
              m->stand);
     m->topic_alarm = calloc(cfg->n_params ? cfg->n_params : 1, sizeof *m->topic_alarm);
     m->st_text = malloc(VD_MQTT_STATUS_MAX);
@@ -795,8 +806,8 @@ static vd_mqtt *op_open(const vd_config *cfg, char *err, size_t cap) {
     for (size_t k = 0; k < cfg->n_params; k++) {
         vibid_param_info pi;
         vibid_model_param_info(mod, k, &pi);
-        snprintf(m->topic_alarm[k], sizeof m->topic_alarm[k], "%s/%s/%s/alarms/%s", cfg->mqtt_prefix,
-                 cfg->mqtt_site, m->stand, pi.name);
+        snprintf(m->topic_alarm[k], sizeof m->topic_alarm[k], "%s/%s/%s/alarms/%s", cfg->mqtt.prefix,
+                 cfg->mqtt.site, m->stand, pi.name);
         if (strlen(pi.name) > longest_name) longest_name = strlen(pi.name);
         if (mosquitto_pub_topic_check(m->topic_alarm[k]) != MOSQ_ERR_SUCCESS) {
             snprintf(err, cap, "outputs.mqtt: '%s' is not a valid MQTT topic (the parameter's name)",
@@ -836,7 +847,7 @@ static vd_mqtt *op_open(const vd_config *cfg, char *err, size_t cap) {
         m->payload_max = (size_t)(a > b ? a : b) + 64;
     }
     m->stride = (sizeof(slot_hdr) + m->payload_max + 7) & ~(size_t)7;
-    m->n_slots = cfg->mqtt_queue_size;
+    m->n_slots = cfg->mqtt.queue_size;
     m->slots = calloc(m->n_slots, m->stride);
     if (!m->slots) {
         snprintf(err, cap, "outputs.mqtt.queue_size %zu: out of memory for %zu messages of %zu bytes",
@@ -848,7 +859,7 @@ static vd_mqtt *op_open(const vd_config *cfg, char *err, size_t cap) {
         snprintf(err, cap, "eventfd: %s", strerror(errno));
         goto fail;
     }
-    if (cfg->mqtt_password_file[0] && vd_read_secret_file("outputs.mqtt.password_file", cfg->mqtt_password_file,
+    if (cfg->mqtt.password_file[0] && vd_read_secret_file("outputs.mqtt.password_file", cfg->mqtt.password_file,
                                                           m->password, sizeof m->password, err, cap))
         goto fail;
     mosquitto_lib_init();
@@ -859,7 +870,7 @@ static vd_mqtt *op_open(const vd_config *cfg, char *err, size_t cap) {
         goto fail;
     }
     int rc = mosquitto_int_option(m->mosq, MOSQ_OPT_PROTOCOL_VERSION,
-                                  cfg->mqtt_protocol == 5 ? MQTT_PROTOCOL_V5 : MQTT_PROTOCOL_V311);
+                                  cfg->mqtt.protocol == 5 ? MQTT_PROTOCOL_V5 : MQTT_PROTOCOL_V311);
     /* the last will: the stand offline, retained, until the next status replaces it */
     char will[600];
     size_t wl = 0;
@@ -868,24 +879,24 @@ static vd_mqtt *op_open(const vd_config *cfg, char *err, size_t cap) {
         vd_text_put(&o, "{\"stand\":");
         put_str(&o, m->stand);
         vd_text_put(&o, ",\"site\":");
-        put_str(&o, cfg->mqtt_site);
+        put_str(&o, cfg->mqtt.site);
         vd_text_put(&o, ",\"seq\":null,\"index\":null,\"state\":\"offline\"}");
         wl = o.off;
     }
-    if (!rc) rc = mosquitto_will_set(m->mosq, m->topic_status, (int)wl, will, cfg->mqtt_qos, true);
-    if (!rc && cfg->mqtt_username[0])
-        rc = mosquitto_username_pw_set(m->mosq, cfg->mqtt_username, m->password[0] ? m->password : NULL);
-    if (!rc && cfg->mqtt_tls) {
+    if (!rc) rc = mosquitto_will_set(m->mosq, m->topic_status, (int)wl, will, cfg->mqtt.qos, true);
+    if (!rc && cfg->mqtt.username[0])
+        rc = mosquitto_username_pw_set(m->mosq, cfg->mqtt.username, m->password[0] ? m->password : NULL);
+    if (!rc && cfg->mqtt.tls) {
         /* no ca_file: the system's CA store (Debian's ca-certificates) */
-        rc = mosquitto_tls_set(m->mosq, cfg->mqtt_ca_file[0] ? cfg->mqtt_ca_file : NULL,
-                               cfg->mqtt_ca_file[0] ? NULL : "/etc/ssl/certs",
-                               cfg->mqtt_cert_file[0] ? cfg->mqtt_cert_file : NULL,
-                               cfg->mqtt_key_file[0] ? cfg->mqtt_key_file : NULL, NULL);
+        rc = mosquitto_tls_set(m->mosq, cfg->mqtt.ca_file[0] ? cfg->mqtt.ca_file : NULL,
+                               cfg->mqtt.ca_file[0] ? NULL : "/etc/ssl/certs",
+                               cfg->mqtt.cert_file[0] ? cfg->mqtt.cert_file : NULL,
+                               cfg->mqtt.key_file[0] ? cfg->mqtt.key_file : NULL, NULL);
         if (!rc) rc = mosquitto_tls_opts_set(m->mosq, 1 /* SSL_VERIFY_PEER */, NULL, NULL);
     }
     if (rc) {
         snprintf(err, cap, "outputs.mqtt: setting up libmosquitto: %s%s", mosquitto_strerror(rc),
-                 cfg->mqtt_tls ? " (are ca_file, cert_file and key_file readable PEM files?)" : "");
+                 cfg->mqtt.tls ? " (are ca_file, cert_file and key_file readable PEM files?)" : "");
         goto fail;
     }
     mosquitto_log_callback_set(m->mosq, on_log);
@@ -895,8 +906,8 @@ static vd_mqtt *op_open(const vd_config *cfg, char *err, size_t cap) {
         "mqtt: %s as '%s' (MQTT %s, QoS %d, %s), topics %s/%s/%s/{tracks,alarms/<parameter>,status}; queue "
         "of "
         "%zu messages (%zu KiB)",
-        cfg->mqtt_url, m->client_id, cfg->mqtt_protocol == 5 ? "5" : "3.1.1", cfg->mqtt_qos,
-        cfg->mqtt_format ? "line protocol" : "JSON", cfg->mqtt_prefix, cfg->mqtt_site, m->stand, m->n_slots,
+        cfg->mqtt.url, m->client_id, cfg->mqtt.protocol == 5 ? "5" : "3.1.1", cfg->mqtt.qos,
+        cfg->mqtt.format ? "line protocol" : "JSON", cfg->mqtt.prefix, cfg->mqtt.site, m->stand, m->n_slots,
         m->n_slots * m->stride / 1024);
     return m;
 fail:
@@ -904,7 +915,8 @@ fail:
     return NULL;
 }
 
-static int op_start(vd_mqtt *m, char *err, size_t cap) {
+static int op_start(void *p, char *err, size_t cap) {
+    vd_mqtt *m = p;
     int rc = pthread_create(&m->thread, NULL, pub_main, m);
     if (rc) {
         snprintf(err, cap, "cannot start the MQTT thread: %s", strerror(rc));
@@ -914,7 +926,8 @@ static int op_start(vd_mqtt *m, char *err, size_t cap) {
     return 0;
 }
 
-static void op_drain(vd_mqtt *m) {
+static void op_drain(void *p) {
+    vd_mqtt *m = p;
     if (!m || !m->started) return;
     atomic_store(&m->stop, 1);
     atomic_store(&m->sleeping, 1);
@@ -923,7 +936,8 @@ static void op_drain(vd_mqtt *m) {
     m->started = false;
 }
 
-static void op_close(vd_mqtt *m) {
+static void op_close(void *p) {
+    vd_mqtt *m = p;
     if (!m) return;
     op_drain(m);
     if (m->mosq) mosquitto_destroy(m->mosq);
@@ -939,5 +953,33 @@ static void op_close(vd_mqtt *m) {
     free(m);
 }
 
-const vd_mqtt_ops vd_mqtt_libmosquitto = {op_open,   op_start,    op_track, op_alarm,
-                                          op_status, op_counters, op_drain, op_close};
+static size_t op_status_lines(const vd_snapshot *sn, char *buf, size_t cap) {
+    int n = snprintf(
+        buf, cap,
+        "mqtt_connected=%d\nmqtt_published=%llu\nmqtt_refused=%llu\nmqtt_dropped=%llu\nmqtt_queue_fill=%zu\n"
+        "mqtt_queue_capacity=%zu\nmqtt_inflight=%llu\nmqtt_reconnects=%llu\nmqtt_connect_failures=%llu\n"
+        "mqtt_unsent=%llu\n",
+        sn->mqtt_connected ? 1 : 0, (unsigned long long)sn->mqtt_published, (unsigned long long)sn->mqtt_refused,
+        (unsigned long long)sn->mqtt_dropped, sn->mqtt_queue_fill, sn->mqtt_queue_capacity,
+        (unsigned long long)sn->mqtt_inflight, (unsigned long long)sn->mqtt_reconnects,
+        (unsigned long long)sn->mqtt_connect_failures, (unsigned long long)sn->mqtt_unsent);
+    return n > 0 ? (size_t)n : 0;
+}
+
+static bool op_enabled(const vd_config *cfg) { return cfg->mqtt.url[0] != '\0'; }
+
+const vd_output_ops vd_mqtt_libmosquitto = {
+    .name = "mqtt",
+    .flags = VD_OUTPUT_STATUS_TEXT,
+    .enabled = op_enabled,
+    .check = vd_mqtt_check,
+    .open = op_open,
+    .start = op_start,
+    .row = op_track,
+    .alarm = op_alarm,
+    .status = op_status,
+    .status_lines = op_status_lines,
+    .counters = op_counters,
+    .drain = op_drain,
+    .close = op_close,
+};

@@ -37,8 +37,8 @@
  * attempt would come after the deadline) and counts what is left (mqtt_unsent).
  *
  * The daemon's core (vibidd_core) does not link libmosquitto (the Python module links the
- * core without it): the daemon reaches this module through vd_mqtt_ops, which vibidd's
- * main() gives it with vd_daemon_use_mqtt.
+ * core without it): vibidd's main() hands its output ops over with vd_daemon_use_output, in
+ * place of the registry's stand-in (output.c).
  */
 #ifndef VIBIDD_MQTT_H
 #define VIBIDD_MQTT_H
@@ -50,6 +50,7 @@
 #include "config.h"
 #include "estimator.h"
 #include "metrics.h"
+#include "output.h"
 
 #define VD_MQTT_WINDOW 100 /* messages handed to libmosquitto and not yet acknowledged */
 #define VD_MQTT_STATUS_MAX 16384
@@ -58,35 +59,20 @@ typedef enum vd_mqtt_kind { VD_MQTT_TRACKS = 0, VD_MQTT_ALARMS = 1, VD_MQTT_STAT
 
 typedef struct vd_mqtt vd_mqtt;
 
-/* The module as the daemon sees it (all calls from the estimation thread but open, start
- * and close, which the main thread makes). */
-typedef struct vd_mqtt_ops {
-    /* Reads the password file, builds the topics and the queue, sets up libmosquitto (no
-     * connection yet). NULL with err on failure (a configuration error). */
-    vd_mqtt *(*open)(const vd_config *cfg, char *err, size_t cap);
-    /* Starts the publisher thread (signals blocked). 0, or -1 with err. */
-    int (*start)(vd_mqtt *m, char *err, size_t cap);
-    /* Queue a track row / an alarm event; never waits (a full queue drops and counts). */
-    void (*track)(vd_mqtt *m, const vd_row *row);
-    void (*alarm)(vd_mqtt *m, const char *param, int raised, const vd_row *row, double value, double baseline,
-                  double z);
-    /* Hands over the status file's text (key=value lines). Without wait, false when the
-     * publisher was copying the previous one just then (call again later). */
-    bool (*status)(vd_mqtt *m, const char *text, size_t len, bool wait);
-    /* The mqtt_* counters into s. */
-    void (*counters)(vd_mqtt *m, vd_snapshot *s);
-    /* Publishes what is left (at most drain_timeout, reconnecting if it can), disconnects,
-     * joins the thread; the counters stay readable (mqtt_unsent: what was left). */
-    void (*drain)(vd_mqtt *m);
-    /* drain, then frees. NULL-safe. */
-    void (*close)(vd_mqtt *m);
-} vd_mqtt_ops;
+/* The output "mqtt" (output.h), the state a vd_mqtt: open reads the password file, builds
+ * the topics and the queue and sets up libmosquitto (no connection yet; NULL with err on
+ * failure: a configuration error); start starts the publisher thread; row (one message per
+ * track row) and alarm queue and never wait (a full queue drops and counts); status hands
+ * over the status file's text (key=value lines; the snapshot is not used): without final,
+ * false when the publisher was copying the previous one just then; counters: the mqtt_*
+ * counters; drain publishes what is left (at most drain_timeout, reconnecting if it can),
+ * disconnects and joins the thread, the counters stay readable (mqtt_unsent: what was
+ * left); close drains, then frees (NULL-safe). */
+extern const vd_output_ops vd_mqtt_libmosquitto;
 
-extern const vd_mqtt_ops vd_mqtt_libmosquitto;
-
-/* --check: the password file and the TLS files can be read (nothing is connected). 0, or
- * -1 with err naming the setting and the file. */
-int vd_mqtt_check(const vd_config *cfg, char *err, size_t cap);
+/* --check: the password file and the TLS files can be read (nothing is connected). 0 (no
+ * note: the output's check, output.h), or -1 with err naming the setting and the file. */
+int vd_mqtt_check(const vd_config *cfg, char *note, size_t note_cap, char *err, size_t cap);
 
 /* Formatters (pure; the unit test calls them). stand: the topic's stand name. Return the
  * length, or -1 if cap is too small. JSON numbers as the tracks CSV writes them (%.10g);

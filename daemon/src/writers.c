@@ -470,23 +470,34 @@ static int check_output_path(const char *what, const char *path, char *err, size
     return 0;
 }
 
-int vd_writers_check(const vd_config *cfg, char *err, size_t cap)
+/* The configured path of a part, or "" when the part is not selected. */
+static const char *part_path(const char *path, unsigned parts, unsigned part) { return parts & part ? path : ""; }
+
+static int check_parts(const vd_config *cfg, unsigned parts, char *err, size_t cap)
 {
-    if (check_output_path("outputs.tracks.path", cfg->tracks_path, err, cap) ||
-        check_output_path("outputs.influx.path", cfg->influx_path, err, cap) ||
-        check_output_path("outputs.record.path", cfg->record_path, err, cap) ||
-        check_output_path("outputs.status.path", cfg->status_path, err, cap))
+    if (check_output_path("outputs.tracks.path", part_path(cfg->tracks_path, parts, VD_PART_TRACKS), err, cap) ||
+        check_output_path("outputs.influx.path", part_path(cfg->influx_path, parts, VD_PART_INFLUX), err, cap) ||
+        check_output_path("outputs.record.path", part_path(cfg->record_path, parts, VD_PART_RECORD), err, cap) ||
+        check_output_path("outputs.status.path", part_path(cfg->status_path, parts, VD_PART_STATUS), err, cap))
         return -1;
     struct sockaddr_in addr;
-    if (cfg->influx_udp[0] && resolve_udp(cfg->influx_udp, &addr, err, cap))
+    if ((parts & VD_PART_INFLUX) && cfg->influx_udp[0] && resolve_udp(cfg->influx_udp, &addr, err, cap))
         return -1;
     return 0;
 }
 
+int vd_writers_check(const vd_config *cfg, char *err, size_t cap) { return check_parts(cfg, VD_PARTS_ALL, err, cap); }
+
 int vd_writers_open(vd_writers *w, const vd_config *cfg, const vibid_chanmap *chanmap, const char *tracks_preamble,
                     char *err, size_t cap)
 {
-    if (vd_writers_check(cfg, err, cap))
+    return vd_writers_open_parts(w, cfg, chanmap, tracks_preamble, VD_PARTS_ALL, err, cap);
+}
+
+int vd_writers_open_parts(vd_writers *w, const vd_config *cfg, const vibid_chanmap *chanmap,
+                          const char *tracks_preamble, unsigned parts, char *err, size_t cap)
+{
+    if (check_parts(cfg, parts, err, cap))
         return -1;
     memset(w, 0, sizeof *w);
     w->cfg = cfg;
@@ -494,13 +505,16 @@ int vd_writers_open(vd_writers *w, const vd_config *cfg, const vibid_chanmap *ch
     w->chanmap = chanmap;
     w->stand_name = cfg->influx_stand[0] ? cfg->influx_stand : vibid_stand_name(cfg->stand);
     w->udp_fd = -1;
-    const char *const paths[VD_OUT_FILES] = {cfg->tracks_path, cfg->influx_path, cfg->record_path};
+    const char *const paths[VD_OUT_FILES] = {part_path(cfg->tracks_path, parts, VD_PART_TRACKS),
+                                             part_path(cfg->influx_path, parts, VD_PART_INFLUX),
+                                             part_path(cfg->record_path, parts, VD_PART_RECORD)};
     const char *const whats[VD_OUT_FILES] = {"tracks", "influx", "raw recording"};
     for (int k = 0; k < VD_OUT_FILES; k++) {
         w->out[k].path = paths[k];
         w->out[k].what = whats[k];
     }
-    if (cfg->record_path[0] && cfg->record_format == VD_REC_CANDUMP) {
+    w->status_path = part_path(cfg->status_path, parts, VD_PART_STATUS);
+    if (w->out[VD_OUT_RECORD].path[0] && cfg->record_format == VD_REC_CANDUMP) {
         vibid_drv_error de = {0};
         w->record_encoder = cfg->dbc ? vibid_can_assembler_create(cfg->dbc, chanmap, &de) : NULL;
         if (!w->record_encoder) {
@@ -513,7 +527,7 @@ int vd_writers_open(vd_writers *w, const vd_config *cfg, const vibid_chanmap *ch
         vd_writers_close(w);
         return -1;
     }
-    if (cfg->influx_udp[0]) {
+    if ((parts & VD_PART_INFLUX) && cfg->influx_udp[0]) {
         if (resolve_udp(cfg->influx_udp, &w->udp_addr, err, cap)) {
             vd_writers_close(w);
             return -1;
@@ -697,3 +711,134 @@ void vd_writers_close(vd_writers *w)
     vibid_can_assembler_destroy(w->record_encoder);
     w->record_encoder = NULL;
 }
+
+/* The status file is replaced atomically (a .tmp renamed over it). When that fails (a full
+ * disk: the .tmp gets no blocks) the .tmp is removed and the file is overwritten in place:
+ * it fits the block it already has, so a full disk still shows in it (write_errors)
+ * instead of a stale "write_errors=0". Each failure counts (vd_writers_failed), which
+ * also makes the exit status 1. */
+void vd_writers_status(vd_writers *w, const char *buf, size_t len)
+{
+    const char *path = w->status_path;
+    if (!path || !path[0])
+        return;
+    char tmp[VD_PATH_MAX + 8];
+    snprintf(tmp, sizeof tmp, "%s.tmp", path);
+    FILE *f = fopen(tmp, "we");
+    bool ok = f && fwrite(buf, 1, len, f) == len;
+    if (f && fclose(f) != 0)
+        ok = false;
+    if (ok && rename(tmp, path) == 0)
+        return;
+    const int e = errno;
+    if (f)
+        unlink(tmp);
+    errno = e;
+    vd_writers_failed(w, "the status file", path);
+    const int fd = open(path, O_WRONLY | O_CLOEXEC);
+    if (fd < 0)
+        return;
+    if (pwrite(fd, buf, len, 0) == (ssize_t)len)
+        (void)ftruncate(fd, (off_t)len);
+    close(fd);
+}
+
+/* ------------------------------------------------- the output "files" (output.h) ---- */
+
+/* The parts, in the order of the VD_PART_* bits. */
+static const char *const files_parts[] = {"tracks", "influx", "record", "status", NULL};
+
+/* Always opened: a part without its path writes nothing, and the write-error accounting
+ * (the exit status) lives here. */
+static bool files_enabled(const vd_config *cfg)
+{
+    (void)cfg;
+    return true;
+}
+
+static int files_check(const vd_config *cfg, char *note, size_t note_cap, char *err, size_t cap)
+{
+    (void)note;
+    (void)note_cap;
+    return vd_writers_check(cfg, err, cap);
+}
+
+static void *files_open(const vd_output_ctx *ctx, char *err, size_t cap)
+{
+    unsigned parts = 0;
+    for (unsigned i = 0; files_parts[i]; i++)
+        if (vd_output_selected(ctx, "files") || vd_output_selected(ctx, files_parts[i]))
+            parts |= 1u << i;
+    vd_writers *w = calloc(1, sizeof *w);
+    if (!w) {
+        snprintf(err, cap, "out of memory for the file outputs");
+        return NULL;
+    }
+    if (vd_writers_open_parts(w, ctx->cfg, ctx->rec_chanmap, ctx->tracks_preamble, parts, err, cap)) {
+        free(w);
+        return NULL;
+    }
+    return w;
+}
+
+static void files_sample(void *o, const vibid_record *rec) { vd_writers_sample(o, rec); }
+static void files_row(void *o, const vd_row *row) { vd_writers_row(o, row); }
+
+static void files_alarm(void *o, const vd_output_alarm *a)
+{
+    vd_writers_alarm(o, a->param, a->raised, a->row, a->value, a->baseline, a->z);
+}
+
+static bool files_status(void *o, const vd_snapshot *s, const char *text, size_t len, bool final)
+{
+    (void)s;
+    (void)final;
+    vd_writers_status(o, text, len);
+    return true;
+}
+
+static void files_flush(void *o, bool sync) { vd_writers_flush(o, sync); }
+static void files_reopen(void *o) { (void)vd_writers_reopen(o); }
+
+static void files_counters(void *o, vd_snapshot *s)
+{
+    const vd_writers *w = o;
+    s->write_errors = w->write_errors;
+    s->torn_lines = w->torn_lines;
+    for (int k = 0; k < VD_OUT_FILES; k++) {
+        s->output_on[k] = w->out[k].path && w->out[k].path[0];
+        s->output_open_failures[k] = w->out[k].open_failures;
+        s->output_lost[k] = w->out[k].lost;
+    }
+    s->outputs_closed = vd_writers_closed(w);
+    s->udp_sent = w->udp_sent;
+    s->udp_errors = w->udp_errors;
+}
+
+static bool files_failed(void *o) { return ((const vd_writers *)o)->write_errors != 0; }
+
+static void files_close(void *o)
+{
+    if (!o)
+        return;
+    vd_writers_close(o);
+    free(o);
+}
+
+const vd_output_ops vd_output_files = {
+    .name = "files",
+    .parts = files_parts,
+    .flags = VD_OUTPUT_STATUS_TEXT | VD_OUTPUT_STATUS_AFTER_DRAIN,
+    .enabled = files_enabled,
+    .check = files_check,
+    .open = files_open,
+    .sample = files_sample,
+    .row = files_row,
+    .alarm = files_alarm,
+    .status = files_status,
+    .flush = files_flush,
+    .reopen = files_reopen,
+    .counters = files_counters,
+    .failed = files_failed,
+    .close = files_close,
+};

@@ -40,11 +40,23 @@
 
 #include "config.h"
 #include "estimator.h"
+#include "output.h"
 
 #define VD_RECORDING_MAGIC "# vibidd raw recording"
 
 /* The file outputs (vd_writers.out[]) and, for the per-output error counts, the status file. */
 enum { VD_OUT_TRACKS = 0, VD_OUT_INFLUX, VD_OUT_RECORD, VD_OUT_FILES, VD_OUT_STATUS = VD_OUT_FILES };
+
+/* The parts of the output "files" (output.h) that can be selected on their own (the replay
+ * of the Python package opens the tracks alone): bit 1 << i is part i of "tracks",
+ * "influx" (file and UDP), "record", "status". */
+enum {
+    VD_PART_TRACKS = 1u << 0,
+    VD_PART_INFLUX = 1u << 1,
+    VD_PART_RECORD = 1u << 2,
+    VD_PART_STATUS = 1u << 3,
+    VD_PARTS_ALL = 15u
+};
 
 /* One file output. Each is opened, reopened (SIGHUP), failed and retried on its own: a
  * reopen that fails leaves that output closed (closed = true) and never the others; what
@@ -66,6 +78,7 @@ typedef struct vd_writers {
     const vibid_chanmap *chanmap; /* channels of the raw recording, in record order */
     const char *stand_name;
     const char *tracks_preamble;  /* "# " lines before the tracks header, or NULL */
+    const char *status_path;      /* outputs.status.path, "" = off (or not selected) */
     vd_output out[VD_OUT_FILES];
     vibid_can_assembler *record_encoder; /* candump recording: samples -> frames (source DBC) */
     int udp_fd;
@@ -85,6 +98,11 @@ typedef struct vd_writers {
  * must live as long as w. 0, or -1 with err naming the file and errno. */
 int vd_writers_open(vd_writers *w, const vd_config *cfg, const vibid_chanmap *chanmap, const char *tracks_preamble,
                     char *err, size_t cap);
+/* The same for the parts (VD_PART_*) only: the others stay off as if their paths were "". */
+int vd_writers_open_parts(vd_writers *w, const vd_config *cfg, const vibid_chanmap *chanmap,
+                          const char *tracks_preamble, unsigned parts, char *err, size_t cap);
+/* Replaces the status file (outputs.status.path; nothing when off) with buf[0..len). */
+void vd_writers_status(vd_writers *w, const char *buf, size_t len);
 /* The start-up checks of every output, without creating anything: each output's
  * (tracks, InfluxDB file, record, status) directory exists and is writable, an existing
  * output file is a writable regular file, and outputs.influx.udp names a host that

@@ -13,10 +13,28 @@
 
 #include <vibid_drivers/can_assembler.h>
 #include <vibid_drivers/candump.h>
+#include <vibid_drivers/capture_format.h>
 #include <vibid_drivers/csv_capture.h>
 
 #include "rec_queue.h"
 #include "source_util.h"
+
+vibid_replay_format vibid_replay_format_resolve(vibid_replay_format f, const char *path, char *err, size_t cap)
+{
+    if (f == VIBID_REPLAY_CSV || f == VIBID_REPLAY_CANDUMP) return f;
+    const vibid_capture_format c = vibid_capture_format_of_file(path);
+    if (c == VIBID_CAPTURE_CSV) return VIBID_REPLAY_CSV;
+    const vibid_capture_format_info *info = vibid_capture_format_info_of(c);
+    if (info && !info->vibidd_replays) {
+        char list[256];
+        snprintf(err, cap,
+                 "%s: an %s capture, which vibidd does not replay (it replays %s): convert it to CSV first, "
+                 "e.g. `vibid convert STAND %s OUT.csv` (docs/python.md)",
+                 path, info->title, vibid_capture_format_list(list, sizeof list, true), path);
+        return VIBID_REPLAY_AUTO;
+    }
+    return VIBID_REPLAY_CANDUMP; /* a candump log, or content that says nothing: the candump reader judges */
+}
 
 #define QUEUE_CAP 64
 #define PRODUCE_RESERVE 24 /* records one input line can produce, with margin */
@@ -152,9 +170,11 @@ static vibid_drv_status replay_open(vibid_source *src, const void *config, vibid
     const char *slash = strrchr(r->path, '/');
     r->base = slash ? slash + 1 : r->path;
     src->chanmap = cfg->chanmap;
-    size_t pl = strlen(r->path);
-    r->csv = cfg->format == VIBID_REPLAY_CSV ||
-             (cfg->format == VIBID_REPLAY_AUTO && pl >= 4 && strcasecmp(r->path + pl - 4, ".csv") == 0);
+    char why[512];
+    const vibid_replay_format format = vibid_replay_format_resolve(cfg->format, r->path, why, sizeof why);
+    if (format == VIBID_REPLAY_AUTO)
+        return vibid_drv_fail(err, VIBID_DRV_E_UNSUPPORTED, "replay source: %s", why);
+    r->csv = format == VIBID_REPLAY_CSV;
     if (!rec_queue_init(&r->q, QUEUE_CAP))
         return vibid_drv_fail(err, VIBID_DRV_E_NOMEM, "replay source: out of memory");
     vibid_drv_status st = find_truncation(r, err);

@@ -90,6 +90,11 @@ struct StandEkfStats {
     // variance is exactly var(t0) - var(t); an estimate still crawling out of its start
     // transient under standard errors that shrank first shows as |z| >> 1.
     double drift_z = std::nan("");
+    // Error bars: true when the sandwich (robust) covariance was available to widen the
+    // filter's own (param_cov()), false when not (forgetting < 1, KF+RLS, or fewer than 16
+    // score blocks yet).
+    bool robust = false;
+    double robust_ratio = std::nan("");  // largest sandwich / filter variance over the parameters
     bool started = false;             // the start window is through
 };
 
@@ -148,7 +153,10 @@ private:
     void drift_snapshot();
     double drift_z() const;
     void regression_step(const double *prev, const double *cur);
-    void param_cov(Mat &cov) const;
+    void param_cov(Mat &cov);
+    void score_reset();
+    void score_accumulate();
+    bool sandwich(Mat &V);
     double base_disp(const double *ch) const;
     void base_now(const double *ch, const double *prev, double &s, double &sd) const;
     double cubic_rho(std::size_t e, const double *y, double s) const;
@@ -222,6 +230,21 @@ private:
     Vec x_prev_;          // nx: filtered state at t_k (before a held base's kick)
     double kick_ds_ = 0.0;  // base jump at t_k of the interval in step() (held base)
     bool scale_pass_ = false;  // collecting eq_ instead of estimating
+
+    // Sandwich (robust) covariance of the parameters (EKF without forgetting; see
+    // score_accumulate()): per block of consecutive samples the sums of the scores u_k,
+    // of the informations I_k and of I_k theta_{k-1} (scaled coordinates), so that the
+    // scores can be moved to the final estimate. Up to kScoreBlocks blocks; when they are
+    // full, neighbours are merged and the block length doubles.
+    static constexpr Eigen::Index kScoreBlocks = 64;
+    static constexpr unsigned long long kScoreBlockStart = 32;  // samples per block at first
+    Mat sc_U_, sc_W_;              // p x kScoreBlocks
+    std::vector<Mat> sc_J_;        // kScoreBlocks of p x p
+    Eigen::Index sc_blocks_ = 0;   // completed blocks
+    unsigned long long sc_len_ = kScoreBlockStart, sc_fill_ = 0;  // block length; samples in the current one
+    unsigned long long sc_done_ = 0, sc_skipped_ = 0;  // samples in completed blocks; samples without a score
+    Mat sc_L_, sc_psi_, sc_Spsi_, sc_G_, sc_T_;  // scratch: p x p, p x nz, nz x p, p x p, p x p
+    Vec sc_u_, sc_th_, sc_w_;      // p
 
     // Start window and continuity.
     Mat cov_;             // p x p scratch for estimate()

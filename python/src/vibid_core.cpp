@@ -1,4 +1,4 @@
-// vibid._core: the thin nanobind layer over libvibid's C API (identify.h, modal.h,
+// vibid._core: the thin nanobind layer over libvibid's C API (identify.h, report.h, modal.h,
 // plausibility.h, output_error.h; lsq.h, rls.h, iv.h for the estimator classes) and the stand loader (stand_file.h). All numerics stay in the C library;
 // this file converts arrays and statuses and nothing else. The Pythonic API (channel names,
 // DataFrames, tracks) is in vibid/*.py.
@@ -19,6 +19,7 @@ extern "C" {
 #include <vibid/output_error.h>
 #include <vibid/plausibility.h>
 #include <vibid/regressor.h>
+#include <vibid/report.h>
 #include <vibid/stand_file.h>
 #include <vibid/units.h>
 }
@@ -159,8 +160,10 @@ public:
         // divergences are reported and skipped in the same way.
         state_space_ = used.estimator == VIBID_ESTIMATOR_EKF || used.estimator == VIBID_ESTIMATOR_KF_RLS ||
                        used.estimator == VIBID_ESTIMATOR_OE;
-        // The reference for the damping-ratio rule, once (it allocates), as vibidd does.
-        if (vibid_plausibility_ref_init(model_, nullptr, &pref_) != VIBID_OK) pref_.n_modes = 0;
+        // The row's checks, vibidd's (vibid/report.h); its plausibility reference is made here.
+        vibid_report *r = vibid_report_create(model_, h_);
+        if (!r) throw VibidError(vibid_last_error());
+        report_.reset(r);
     }
 
     // Rows [start, stop) of a (n_samples x n_channels) float64 array of any strides.
@@ -214,9 +217,9 @@ public:
         return diverged;
     }
 
-    // The estimate, its covariance, modes with standard errors (vibid_model_modal's
-    // first-order propagation) and flags. A failed vibid_ident_estimate is not raised
-    // here (a track row early in a run may have too few samples): status and message say it.
+    // The estimate, its covariance, modes with standard errors and flags: vibid_report_row,
+    // the row vibidd writes. A failed vibid_ident_estimate is not raised here (a track row
+    // early in a run may have too few samples): status and message say it.
     Estimate estimate() {
         Estimate e;
         const size_t p = dims_.n_params, n = dims_.n_dof;
@@ -230,60 +233,31 @@ public:
         e.param_quality.assign(p, 0);
         e.param_implausible.assign(p, 0);
         e.mode_implausible.assign(n, 0);
-        vibid_ident_info info{};
+        vibid_report_row_out out{};
+        out.theta = e.theta.data();
+        out.se = e.se.data();
+        out.freq = e.freq.data();
+        out.freq_se = e.freq_se.data();
+        out.zeta = e.zeta.data();
+        out.zeta_se = e.zeta_se.data();
+        out.cov = e.cov.data();
+        out.param_quality = e.param_quality.data();
+        out.param_implausible = e.param_implausible.data();
+        out.mode_implausible = e.mode_implausible.data();
         vibid_status s;
         {
             nb::gil_scoped_release release;
-            s = vibid_ident_estimate(ident_.get(), e.theta.data(), e.se.data(), &info);
+            s = vibid_report_row(report_.get(), ident_.get(), &out);
         }
-        e.status = s;
-        e.n_samples = info.n_samples;
-        if (s != VIBID_OK) {
-            e.message = vibid_last_error();
-            std::fill(e.theta.begin(), e.theta.end(), NAN);
-            std::fill(e.se.begin(), e.se.end(), NAN);
-            return e;
-        }
-        const bool have_cov = vibid_ident_covariance(ident_.get(), e.cov.data()) == VIBID_OK;
-        // An unstable estimate (VIBID_E_UNSTABLE) keeps its modes: a negative zeta or f = 0
-        // is what the plausibility check below flags, and what the analyst needs to see.
-        const vibid_status ms = vibid_model_modal(model_, e.theta.data(), have_cov ? e.cov.data() : nullptr,
-                                                  e.freq.data(), e.freq_se.data(), e.zeta.data(),
-                                                  e.zeta_se.data(), nullptr, nullptr);
-        const std::string unstable_why = ms == VIBID_E_UNSTABLE ? vibid_last_error() : "";
-        if (ms != VIBID_OK && ms != VIBID_E_UNSTABLE) {
-            std::fill(e.freq.begin(), e.freq.end(), NAN);
-            std::fill(e.zeta.begin(), e.zeta.end(), NAN);
-        }
-        if (!have_cov) {
-            std::fill(e.freq_se.begin(), e.freq_se.end(), NAN);
-            std::fill(e.zeta_se.begin(), e.zeta_se.end(), NAN);
-        }
-        char why[1024];
-        why[0] = '\0';
-        vibid_status ps = vibid_plausibility_check(model_, h_, e.theta.data(), e.freq.data(), e.zeta.data(), n,
-                                                   pref_.n_modes ? &pref_ : nullptr, &e.implausible,
-                                                   e.param_implausible.data(), e.mode_implausible.data(), why,
-                                                   sizeof why);
-        if (ps != VIBID_OK) {
-            // An argument error (a bug): the estimate is not passed as plausible either (vibidd).
-            e.implausible = VIBID_IMPLAUSIBLE_NONFINITE;
-            e.why = std::string("plausibility check failed: ") + vibid_last_error();
-        } else {
-            e.why = why;
-        }
-        if (!unstable_why.empty()) {
-            // Impossible for a passive stand whatever the rules say (vibidd flags it P); a
-            // growth within the rules' 1e-6 zeta tolerance is a slightly negative zeta.
-            if (!e.implausible) e.implausible = VIBID_IMPLAUSIBLE_ZETA_NEGATIVE;
-            e.why += (e.why.empty() ? "" : "; ") + unstable_why;
-        }
-        vibid_ident_quality q;
-        if (vibid_ident_get_quality(ident_.get(), &q, e.param_quality.data()) == VIBID_OK) {
-            e.quality = q.flags;
-            e.z_consistency = q.z_consistency;
-            e.n_blocks = q.n_blocks;
-        }
+        if (s != VIBID_OK) raise_status("vibid_report_row", s);  // a bug: the arrays are sized here
+        e.status = out.est_status;
+        e.message = out.message;
+        e.n_samples = out.n_samples;
+        e.quality = out.quality;
+        e.implausible = out.implausible;
+        e.why = out.why;
+        e.z_consistency = out.z_consistency;
+        e.n_blocks = out.n_blocks;
         return e;
     }
 
@@ -330,8 +304,11 @@ private:
     vibid_model_dims dims_;
     double h_;
     bool state_space_ = false;
+    struct ReportDeleter {
+        void operator()(vibid_report *p) const { vibid_report_destroy(p); }
+    };
     std::unique_ptr<vibid_ident, Deleter> ident_;
-    vibid_plausibility_ref pref_{};
+    std::unique_ptr<vibid_report, ReportDeleter> report_;
 };
 
 // ---- Checks, residuals and simulation for `vibid check` and the report (issue 13) ----
@@ -1425,12 +1402,15 @@ private:
 // vibid_drivers.cpp: candump captures and vibid.replay (built only with the drivers).
 void vibid_register_drivers(nb::module_ &m);
 #endif
+// vibid_formats.cpp: the capture-format registry (every build).
+void vibid_register_formats(nb::module_ &m);
 
 NB_MODULE(_core, m) {
     m.doc() = "vibid._core: nanobind binding of libvibid's C API (use the vibid package instead)";
     nb::exception<VibidError>(m, "VibidError", PyExc_RuntimeError);
 
     m.def("version", [] { return std::string(vibid_version_string()); });
+    vibid_register_formats(m);
 #ifdef VIBID_HAVE_DRIVERS
     vibid_register_drivers(m);
 #endif
@@ -1510,6 +1490,13 @@ NB_MODULE(_core, m) {
     m.attr("ESTIMATOR_EKF") = static_cast<int>(VIBID_ESTIMATOR_EKF);
     m.attr("ESTIMATOR_KF_RLS") = static_cast<int>(VIBID_ESTIMATOR_KF_RLS);
     m.attr("ESTIMATOR_OE") = static_cast<int>(VIBID_ESTIMATOR_OE);
+    // The library's estimator names (identify.h), in the enum's order: list index = code.
+    m.def("estimator_names", []() {
+        std::vector<std::string> names;
+        for (int k = 0; const char *name = vibid_estimator_name(static_cast<vibid_estimator>(k)); ++k)
+            names.emplace_back(name);
+        return names;
+    });
 
     // vibid/units.h, the one unit table of every vibid program, for the capture readers:
     // (value in SI) = factor * (value in unit). ValueError naming the accepted spellings

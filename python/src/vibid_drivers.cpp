@@ -81,6 +81,237 @@ struct SourceDel {
     void operator()(vibid_source *s) const noexcept { vibid_source_close(s); }
 };
 
+// The stand's channels as listed in a channel-map file (docs/drivers.md): *map is the file's
+// map, col[i] the map's index of stand channel i. Raises when the file lacks one.
+void chanmap_from_file(const std::string &chanmap_path, const std::vector<std::string> &channels, vibid_chanmap *map,
+                       std::vector<size_t> &col) {
+    vibid_cfg_error ce{};
+    if (vibid_chanmap_read_file(chanmap_path.c_str(), map, &ce) != VIBID_DRV_OK) throw nb::value_error(ce.text);
+    for (size_t i = 0; i < channels.size(); ++i) {
+        size_t k = 0;
+        while (k < map->n && channels[i] != map->ch[k].name) ++k;
+        if (k == map->n)
+            throw nb::value_error((chanmap_path + ": no channel '" + channels[i] +
+                                   "', which the stand reads (a channel-map entry with name = \"" + channels[i] +
+                                   "\" and the DBC signal that carries it)")
+                                      .c_str());
+        col[i] = k;
+    }
+}
+
+// "M1.a, M1.b, M2.c": every signal of the DBC, for the message that names one missing.
+std::string dbc_signal_list(const vibid_dbc *dbc) {
+    std::string have;
+    for (size_t m = 0; m < vibid_dbc_message_count(dbc); ++m) {
+        const vibid_dbc_message *mm = vibid_dbc_message_at(dbc, m);
+        for (size_t s = 0; s < mm->n_signals; ++s)
+            have += std::string(have.empty() ? "" : ", ") + mm->name + "." + mm->signals[s].name;
+    }
+    return have;
+}
+
+// The default map: stand channel i is the DBC signal signals[i] (its own name unless
+// renamed), found in any message, in exactly one. The quantity and node fields are vibidd's
+// check against the stand; the assembler reads only the signal, so they stay zero here.
+// Apart from reading: it decides how samples are assembled (the counter), before any frame.
+void chanmap_from_dbc(const vibid_dbc *dbc, const std::string &dbc_path, const std::vector<std::string> &channels,
+                      const std::vector<std::string> &signals, vibid_chanmap *map, std::vector<size_t> &col) {
+    map->n = channels.size();
+    const vibid_dbc_message *first_msg = nullptr;
+    bool one_message = true, all_have_counter = true;
+    for (size_t i = 0; i < channels.size(); ++i) {
+        vibid_channel &ch = map->ch[i];
+        copy_name(ch.name, sizeof ch.name, channels[i], "channel");
+        copy_name(ch.ref, sizeof ch.ref, signals[i], "signal");
+        ch.source = VIBID_CHAN_SIGNAL;
+        ch.node = -1;
+        const vibid_dbc_message *msg = nullptr, *second = nullptr;
+        const vibid_dbc_signal *sig = vibid_dbc_lookup_signal(dbc, ch.ref, nullptr, &msg, &second);
+        std::string called = "'" + signals[i] + "'" +
+                             (signals[i] == channels[i] ? "" : " (the stand's channel '" + channels[i] + "')");
+        if (second)
+            throw nb::value_error((dbc_path + ": signal " + called + " is in messages " + msg->name + " and " +
+                                   second->name + ": give a channel map naming the message")
+                                      .c_str());
+        if (!sig) {
+            std::string have = dbc_signal_list(dbc);
+            throw nb::value_error((dbc_path + " has no signal " + called + " (its signals: " +
+                                   (have.empty() ? "none" : have) +
+                                   "); rename with channels={stand channel: signal} or give a channel map")
+                                      .c_str());
+        }
+        if (first_msg && msg != first_msg) one_message = false;
+        if (!first_msg) first_msg = msg;
+        if (!vibid_dbc_find_signal(msg, "SampleCounter")) all_have_counter = false;
+        col[i] = i;
+    }
+    // vibid-sim numbers every frame with SampleCounter (docs/sim.md), as vibidd's
+    // maps for its logs say (counter = "SampleCounter"). Without a counter in every
+    // message the samples can only be assembled from a single message.
+    if (all_have_counter)
+        std::strcpy(map->counter, "SampleCounter");
+    else if (!one_message)
+        throw nb::value_error((dbc_path + ": the stand's channels come from several messages and not all of "
+                                          "them carry a SampleCounter signal: give a channel map with counter = "
+                                          "\"<signal>\" or trigger = \"<message>\" (docs/drivers.md)")
+                                  .c_str());
+}
+
+// What the replay source delivered: per stand channel its values, per row the time and
+// whether it is a sample or a row of a gap; the gaps and faults as records; the source's
+// counters; a fatal error's text ("" when none).
+struct CandumpRows {
+    std::vector<std::vector<double>> values;  // [channel][row]
+    std::vector<int64_t> t_ns;
+    std::vector<uint8_t> present;  // 1: a sample, 0: a row of a gap
+    std::vector<uint64_t> gap_row, gap_count;
+    std::vector<std::string> gap_text, fault_kind, fault_text;
+    vibid_source_stats stats{};
+    std::string fatal;
+};
+
+// One record into rows: a fault is listed, a sample appended, a gap appended as NaN rows
+// (missing samples stay missing: rows the identify check refuses). first: the index of the
+// first sample or gap, from which gap rows count.
+void append_record(const vibid_record &rec, const std::vector<size_t> &col, bool &started, uint64_t &first,
+                   CandumpRows &rows) {
+    const size_t nch = col.size();
+    if (rec.kind == VIBID_REC_FAULT) {
+        rows.fault_kind.emplace_back(fault_name(rec.fault));
+        rows.fault_text.emplace_back(rec.text);
+        return;
+    }
+    if (!started) {
+        started = true;
+        first = rec.index;
+    }
+    if (rec.kind == VIBID_REC_SAMPLE) {
+        for (size_t c = 0; c < nch; ++c) rows.values[c].push_back(rec.values[col[c]]);
+        rows.t_ns.push_back(rec.t_ns);
+        rows.present.push_back(1);
+        return;
+    }
+    rows.gap_row.push_back(rec.index - first);
+    rows.gap_count.push_back(rec.count);
+    rows.gap_text.emplace_back(rec.text);
+    for (uint64_t k = 0; k < rec.count; ++k) {
+        for (size_t c = 0; c < nch; ++c) rows.values[c].push_back(NAN);
+        rows.t_ns.push_back(0);
+        rows.present.push_back(0);
+    }
+}
+
+// Every record of the capture through the drivers' replay source (the code vibidd --replay
+// runs). Pure C work, run by the caller without the GIL: it may take seconds.
+void read_replay_records(const vibid_source_replay_config &rc, const std::string &path, const std::vector<size_t> &col,
+                         CandumpRows &rows) {
+    vibid_drv_error de{};
+    rows.values.resize(col.size());
+    std::unique_ptr<vibid_source, SourceDel> src(vibid_source_open(&vibid_source_replay_ops, &rc, &de));
+    if (!src) {
+        rows.fatal = de.text;
+        return;
+    }
+    std::vector<vibid_record> recs(64);
+    bool started = false;
+    uint64_t first = 0;
+    for (;;) {
+        size_t n = 0;
+        vibid_drv_status s = vibid_source_read(src.get(), recs.data(), recs.size(), &n, -1, &de);
+        if (s == VIBID_DRV_E_EOF) break;
+        if (s != VIBID_DRV_OK && s != VIBID_DRV_E_AGAIN) {
+            rows.fatal = path + ": " + de.text;
+            break;
+        }
+        for (size_t r = 0; r < n; ++r) append_record(recs[r], col, started, first, rows);
+    }
+    vibid_source_stats_get(src.get(), &rows.stats);
+}
+
+// Units: the channel map's, else the DBC signal's (docs/drivers.md); "" = the stand's.
+std::vector<std::string> channel_units(const vibid_dbc *dbc, const vibid_chanmap &map, const std::vector<size_t> &col) {
+    std::vector<std::string> units(col.size());
+    for (size_t i = 0; i < col.size(); ++i) {
+        const vibid_channel &ch = map.ch[col[i]];
+        if (ch.unit[0]) {
+            units[i] = ch.unit;
+            continue;
+        }
+        const vibid_dbc_message *msg = nullptr, *second = nullptr;
+        const vibid_dbc_signal *sig = vibid_dbc_lookup_signal(dbc, ch.ref, ch.message, &msg, &second);
+        if (sig && sig->unit) units[i] = sig->unit;
+    }
+    return units;
+}
+
+// Time: seconds from the first sample, from the integer nanoseconds (exact); NaN in gaps.
+// *t0: the first sample's time in ns (0 when there is none).
+std::vector<double> seconds_from_first_sample(const CandumpRows &rows, int64_t *t0) {
+    const size_t n = rows.present.size();
+    std::vector<double> t(n, NAN);
+    *t0 = 0;
+    for (size_t k = 0; k < n; ++k)
+        if (rows.present[k]) {
+            *t0 = rows.t_ns[k];
+            break;
+        }
+    for (size_t k = 0; k < n; ++k)
+        if (rows.present[k]) t[k] = static_cast<double>(rows.t_ns[k] - *t0) * 1e-9;
+    return t;
+}
+
+// A numpy array that owns v's buffer (no copy): the one way columns and time leave here.
+nb::object numpy_owning(std::vector<double> &&v) {
+    auto *heap = new std::vector<double>(std::move(v));
+    nb::capsule owner(heap, [](void *p) noexcept { delete static_cast<std::vector<double> *>(p); });
+    return nb::ndarray<nb::numpy, double, nb::ndim<1>>(heap->data(), {heap->size()}, owner).cast();
+}
+
+// The result read_candump documents (vibid/_captures.py reads it): columns, time, units,
+// gaps, faults, the counter or trigger used, the source's counters.
+nb::dict candump_result(CandumpRows &rows, const vibid_chanmap &map, std::vector<std::string> &&units) {
+    int64_t t0;
+    std::vector<double> t = seconds_from_first_sample(rows, &t0);
+    nb::dict out;
+    nb::list cols;
+    for (auto &v : rows.values) cols.append(numpy_owning(std::move(v)));
+    out["values"] = cols;
+    out["time_s"] = numpy_owning(std::move(t));
+    out["start_time_ns"] = t0;
+    out["units"] = units;
+    nb::list gaps;
+    for (size_t g = 0; g < rows.gap_row.size(); ++g) {
+        nb::dict d;
+        d["row"] = rows.gap_row[g];
+        d["count"] = rows.gap_count[g];
+        d["text"] = rows.gap_text[g];
+        gaps.append(d);
+    }
+    out["gaps"] = gaps;
+    nb::list faults;
+    for (size_t f = 0; f < rows.fault_kind.size(); ++f) {
+        nb::dict d;
+        d["kind"] = rows.fault_kind[f];
+        d["text"] = rows.fault_text[f];
+        faults.append(d);
+    }
+    out["faults"] = faults;
+    out["counter"] = std::string(map.counter);
+    out["trigger"] = std::string(map.trigger);
+    const vibid_source_stats &st = rows.stats;
+    nb::dict stats;
+    stats["lines"] = st.lines;
+    stats["frames"] = st.frames;
+    stats["bad_lines"] = st.bad_lines;
+    stats["dropped"] = st.dropped;
+    stats["samples"] = st.samples;
+    stats["gaps"] = st.gaps;
+    stats["missing_samples"] = st.missing_samples;
+    stats["faults"] = st.faults;
+    out["stats"] = stats;
+    return out;
+}
+
 // A candump log through the drivers' replay source. channels: the stand's channel names;
 // signals: the DBC signal read for each (the same names unless renamed); chanmap_path: a
 // channel-map file (docs/drivers.md) instead, whose channels must include the stand's.
@@ -97,69 +328,10 @@ nb::dict read_candump(const std::string &path, const std::string &dbc_path, cons
     auto map = std::make_unique<vibid_chanmap>();
     std::memset(map.get(), 0, sizeof *map);
     std::vector<size_t> col(channels.size());  // stand channel i -> channel-map index
-    if (chanmap_path) {
-        vibid_cfg_error ce{};
-        if (vibid_chanmap_read_file(chanmap_path->c_str(), map.get(), &ce) != VIBID_DRV_OK)
-            throw nb::value_error(ce.text);
-        for (size_t i = 0; i < channels.size(); ++i) {
-            size_t k = 0;
-            while (k < map->n && channels[i] != map->ch[k].name) ++k;
-            if (k == map->n)
-                throw nb::value_error((*chanmap_path + ": no channel '" + channels[i] +
-                                       "', which the stand reads (a channel-map entry with name = \"" + channels[i] +
-                                       "\" and the DBC signal that carries it)")
-                                          .c_str());
-            col[i] = k;
-        }
-    } else {
-        // The default map: stand channel i is the DBC signal signals[i] (its own name unless
-        // renamed), found in any message. The quantity and node fields are vibidd's check
-        // against the stand; the assembler reads only the signal, so they stay zero here.
-        map->n = channels.size();
-        const vibid_dbc_message *first_msg = nullptr;
-        bool one_message = true, all_have_counter = true;
-        for (size_t i = 0; i < channels.size(); ++i) {
-            vibid_channel &ch = map->ch[i];
-            copy_name(ch.name, sizeof ch.name, channels[i], "channel");
-            copy_name(ch.ref, sizeof ch.ref, signals[i], "signal");
-            ch.source = VIBID_CHAN_SIGNAL;
-            ch.node = -1;
-            const vibid_dbc_message *msg = nullptr, *second = nullptr;
-            const vibid_dbc_signal *sig = vibid_dbc_lookup_signal(dbc.get(), ch.ref, nullptr, &msg, &second);
-            std::string called = "'" + signals[i] + "'" +
-                                 (signals[i] == channels[i] ? "" : " (the stand's channel '" + channels[i] + "')");
-            if (second)
-                throw nb::value_error((dbc_path + ": signal " + called + " is in messages " + msg->name + " and " +
-                                       second->name + ": give a channel map naming the message")
-                                          .c_str());
-            if (!sig) {
-                std::string have;
-                for (size_t m = 0; m < vibid_dbc_message_count(dbc.get()); ++m) {
-                    const vibid_dbc_message *mm = vibid_dbc_message_at(dbc.get(), m);
-                    for (size_t s = 0; s < mm->n_signals; ++s)
-                        have += std::string(have.empty() ? "" : ", ") + mm->name + "." + mm->signals[s].name;
-                }
-                throw nb::value_error((dbc_path + " has no signal " + called + " (its signals: " +
-                                       (have.empty() ? "none" : have) +
-                                       "); rename with channels={stand channel: signal} or give a channel map")
-                                          .c_str());
-            }
-            if (first_msg && msg != first_msg) one_message = false;
-            if (!first_msg) first_msg = msg;
-            if (!vibid_dbc_find_signal(msg, "SampleCounter")) all_have_counter = false;
-            col[i] = i;
-        }
-        // vibid-sim numbers every frame with SampleCounter (docs/sim.md), as vibidd's
-        // maps for its logs say (counter = "SampleCounter"). Without a counter in every
-        // message the samples can only be assembled from a single message.
-        if (all_have_counter)
-            std::strcpy(map->counter, "SampleCounter");
-        else if (!one_message)
-            throw nb::value_error((dbc_path + ": the stand's channels come from several messages and not all of "
-                                              "them carry a SampleCounter signal: give a channel map with counter = "
-                                              "\"<signal>\" or trigger = \"<message>\" (docs/drivers.md)")
-                                      .c_str());
-    }
+    if (chanmap_path)
+        chanmap_from_file(*chanmap_path, channels, map.get(), col);
+    else
+        chanmap_from_dbc(dbc.get(), dbc_path, channels, signals, map.get(), col);
 
     vibid_source_replay_config rc{};
     rc.path = path.c_str();
@@ -171,133 +343,13 @@ nb::dict read_candump(const std::string &path, const std::string &dbc_path, cons
     // the assembler's counter plausibility check (can_assembler.h), as vibidd sets it
     rc.sample_period_s = sample_rate > 0 ? 1.0 / sample_rate : 0.0;
 
-    const size_t nch = channels.size();
-    std::vector<std::vector<double>> values(nch);
-    std::vector<int64_t> t_ns;
-    std::vector<uint8_t> present;  // 1: a sample, 0: a row of a gap
-    std::vector<uint64_t> gap_row, gap_count;
-    std::vector<std::string> gap_text, fault_kind, fault_text;
-    std::vector<uint64_t> fault_index;
-    vibid_source_stats st{};
-    std::string fatal;
-    std::vector<std::string> units(nch);
+    CandumpRows rows;
     {
         nb::gil_scoped_release release;
-        std::unique_ptr<vibid_source, SourceDel> src(vibid_source_open(&vibid_source_replay_ops, &rc, &de));
-        if (!src) {
-            fatal = de.text;
-        } else {
-            std::vector<vibid_record> recs(64);
-            bool started = false;
-            uint64_t first = 0;
-            for (;;) {
-                size_t n = 0;
-                vibid_drv_status s = vibid_source_read(src.get(), recs.data(), recs.size(), &n, -1, &de);
-                if (s == VIBID_DRV_E_EOF) break;
-                if (s != VIBID_DRV_OK && s != VIBID_DRV_E_AGAIN) {
-                    fatal = path + ": " + de.text;
-                    break;
-                }
-                for (size_t r = 0; r < n; ++r) {
-                    const vibid_record &rec = recs[r];
-                    if (rec.kind == VIBID_REC_FAULT) {
-                        fault_kind.emplace_back(fault_name(rec.fault));
-                        fault_text.emplace_back(rec.text);
-                        fault_index.push_back(rec.index);
-                        continue;
-                    }
-                    if (!started) {
-                        started = true;
-                        first = rec.index;
-                    }
-                    if (rec.kind == VIBID_REC_SAMPLE) {
-                        for (size_t c = 0; c < nch; ++c) values[c].push_back(rec.values[col[c]]);
-                        t_ns.push_back(rec.t_ns);
-                        present.push_back(1);
-                    } else {
-                        // Missing samples stay missing: NaN rows the identify check refuses.
-                        gap_row.push_back(rec.index - first);
-                        gap_count.push_back(rec.count);
-                        gap_text.emplace_back(rec.text);
-                        for (uint64_t k = 0; k < rec.count; ++k) {
-                            for (size_t c = 0; c < nch; ++c) values[c].push_back(NAN);
-                            t_ns.push_back(0);
-                            present.push_back(0);
-                        }
-                    }
-                }
-            }
-            vibid_source_stats_get(src.get(), &st);
-        }
+        read_replay_records(rc, path, col, rows);
     }
-    if (!fatal.empty()) throw nb::value_error(fatal.c_str());
-    // Units: the channel map's, else the DBC signal's (docs/drivers.md); "" = the stand's.
-    for (size_t i = 0; i < nch; ++i) {
-        const vibid_channel &ch = map->ch[col[i]];
-        if (ch.unit[0]) {
-            units[i] = ch.unit;
-            continue;
-        }
-        const vibid_dbc_message *msg = nullptr, *second = nullptr;
-        const vibid_dbc_signal *sig = vibid_dbc_lookup_signal(dbc.get(), ch.ref, ch.message, &msg, &second);
-        if (sig && sig->unit) units[i] = sig->unit;
-    }
-
-    // Time: seconds from the first sample, from the integer nanoseconds (exact); NaN in gaps.
-    const size_t rows = present.size();
-    std::vector<double> t(rows, NAN);
-    int64_t t0 = 0;
-    for (size_t k = 0; k < rows; ++k)
-        if (present[k]) {
-            t0 = t_ns[k];
-            break;
-        }
-    for (size_t k = 0; k < rows; ++k)
-        if (present[k]) t[k] = static_cast<double>(t_ns[k] - t0) * 1e-9;
-
-    nb::dict out;
-    nb::list cols;
-    for (size_t c = 0; c < nch; ++c) {
-        auto *heap = new std::vector<double>(std::move(values[c]));
-        nb::capsule owner(heap, [](void *p) noexcept { delete static_cast<std::vector<double> *>(p); });
-        cols.append(nb::ndarray<nb::numpy, double, nb::ndim<1>>(heap->data(), {heap->size()}, owner).cast());
-    }
-    auto *th = new std::vector<double>(std::move(t));
-    nb::capsule towner(th, [](void *p) noexcept { delete static_cast<std::vector<double> *>(p); });
-    out["values"] = cols;
-    out["time_s"] = nb::ndarray<nb::numpy, double, nb::ndim<1>>(th->data(), {th->size()}, towner).cast();
-    out["start_time_ns"] = t0;
-    out["units"] = units;
-    nb::list gaps;
-    for (size_t g = 0; g < gap_row.size(); ++g) {
-        nb::dict d;
-        d["row"] = gap_row[g];
-        d["count"] = gap_count[g];
-        d["text"] = gap_text[g];
-        gaps.append(d);
-    }
-    out["gaps"] = gaps;
-    nb::list faults;
-    for (size_t f = 0; f < fault_kind.size(); ++f) {
-        nb::dict d;
-        d["kind"] = fault_kind[f];
-        d["text"] = fault_text[f];
-        faults.append(d);
-    }
-    out["faults"] = faults;
-    out["counter"] = std::string(map->counter);
-    out["trigger"] = std::string(map->trigger);
-    nb::dict stats;
-    stats["lines"] = st.lines;
-    stats["frames"] = st.frames;
-    stats["bad_lines"] = st.bad_lines;
-    stats["dropped"] = st.dropped;
-    stats["samples"] = st.samples;
-    stats["gaps"] = st.gaps;
-    stats["missing_samples"] = st.missing_samples;
-    stats["faults"] = st.faults;
-    out["stats"] = stats;
-    return out;
+    if (!rows.fatal.empty()) throw nb::value_error(rows.fatal.c_str());
+    return candump_result(rows, *map, channel_units(dbc.get(), *map, col));
 }
 
 #ifdef VIBID_HAVE_DAEMON

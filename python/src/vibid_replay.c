@@ -1,8 +1,8 @@
 /* vibid._core's side of vibid.replay, in C because vibidd's headers are C11 (daemon.h and
  * ring.h hold _Atomic members, which C++ cannot include). It runs the sequence of vibidd's
  * main() for `vibidd -c CONFIG [--replay CAPTURE]` through the daemon's own functions
- * (vd_config_load, vd_config_check_paths, vd_daemon_init, vd_daemon_run, vd_daemon_fini),
- * with the outputs replaced by one tracks file; vibid_drivers.cpp drives it. */
+ * (vd_config_load, vd_config_check_paths_for, vd_daemon_init, vd_daemon_run, vd_daemon_fini),
+ * with the output "tracks" alone (selected by name, output.h); vibid_drivers.cpp drives it. */
 #include "config.h"
 #include "daemon.h"
 #include "log.h"
@@ -45,19 +45,17 @@ vibid_py_replay *vibid_py_replay_open(const char *config, const char *capture, c
         vibid_py_replay_close(r);
         return NULL;
     }
-    /* Only the tracks: the configuration's outputs are not this call's to write. Neither
-     * mlockall of the whole interpreter (acquisition.lock_memory) nor SCHED_FIFO
-     * (realtime_priority) belongs in a Python process; neither changes a value. */
+    /* Only the tracks (at the caller's path, as vibidd --tracks): the configuration's other
+     * outputs are not this call's to write, nor does a Prometheus endpoint or a broker
+     * belong to a replay in a Python process; the daemon opens the outputs named here
+     * (output.h) and no other. Neither mlockall of the whole interpreter
+     * (acquisition.lock_memory) nor SCHED_FIFO (realtime_priority) belongs in a Python
+     * process; neither changes a value. */
+    static const char *const outputs[] = {"tracks", NULL};
     snprintf(cfg->tracks_path, sizeof cfg->tracks_path, "%s", tracks);
-    cfg->influx_path[0] = cfg->influx_udp[0] = cfg->record_path[0] = cfg->status_path[0] = '\0';
     cfg->lock_memory = false;
     cfg->rt_priority = 0;
-#if __has_include("metrics.h")
-    /* nor does a Prometheus endpoint (outputs.prometheus, metrics.h): a replay in a Python
-     * process must not listen on a port the configuration meant for the daemon */
-    cfg->prom_listen[0] = '\0';
-#endif
-    if (vd_config_check_paths(cfg, capture, err, cap)) {
+    if (vd_config_check_paths_for(cfg, capture, outputs, err, cap)) {
         vibid_py_replay_close(r);
         return NULL;
     }
@@ -67,7 +65,7 @@ vibid_py_replay *vibid_py_replay_open(const char *config, const char *capture, c
         vibid_py_replay_close(r);
         return NULL;
     }
-    vd_options opt = {capture, false, 1.0, (vd_rate_mode)rate_mode};
+    vd_options opt = {capture, false, 1.0, (vd_rate_mode)rate_mode, outputs};
     r->d_init = 1; /* fini releases what init opened, also when it failed (as main.c) */
     if (vd_daemon_init(&r->d, cfg, &opt, err, cap)) {
         vibid_py_replay_close(r);

@@ -200,7 +200,7 @@ def test_built_without_drivers(monkeypatch, tmp_path, stand):
     # read_candump / replay_run then): the error says what is missing and how to get it.
     monkeypatch.setattr(_core, "HAVE_DRIVERS", False)
     log = tmp_path / "c.log"
-    log.write_text("")
+    log.write_text("(1700000000.000000) can0 123#00\n")  # a log line (an empty file is refused first)
     with pytest.raises(ImportError, match=r"reading the candump log .*c\.log: vibid was built without the drivers .*libmodbus-dev"):
         vibid.read_capture(log, stand, dbc=DBC)
     with pytest.raises(ImportError, match=r"vibid\.replay: vibid was built without the drivers"):

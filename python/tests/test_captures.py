@@ -342,11 +342,13 @@ def test_tdms_time_base_2_percent_off_refused(tmp_path, example1_stand, ex1_clea
 
 def test_unknown_format_names_path_and_formats(tmp_path, example1_stand):
     path = tmp_path / "capture.h5"
-    path.write_bytes(b"")
-    with pytest.raises(ValueError, match=r"capture\.h5: unknown capture format '\.h5'; accepted: \.csv .*\.mf4 or "
-                                         r"\.mdf \(ASAM MDF4.*\.tdms \(NI TDMS"):
+    path.write_bytes(b"\x89HDF\r\n\x1a\n")  # HDF5's signature: neither its content nor its name is a capture format
+    # the accepted formats as the drivers' registry lists them (capture_format.h)
+    with pytest.raises(ValueError, match=r"capture\.h5: unknown capture format \(extension '\.h5', content not "
+                                         r"recognised\); accepted: \.log \(candump -l log, format='candump', with dbc=\), "
+                                         r"\.csv \(CSV.*\.mf4 or \.mdf \(ASAM MDF4.*\.tdms \(NI TDMS"):
         vibid.identify(example1_stand, path)
-    with pytest.raises(ValueError, match=r"format 'hdf5' for .*capture\.h5: one of 'csv', 'mdf', 'tdms'"):
+    with pytest.raises(ValueError, match=r"format 'hdf5' for .*capture\.h5: one of 'candump', 'csv', 'mdf', 'tdms'"):
         vibid.read_capture(path, example1_stand, format="hdf5")
 
 
@@ -355,6 +357,9 @@ def test_format_overrides_extension(tmp_path, example1_stand, ex1_clean, ref):
     data, _ = ex1_clean
     path = write_tdms(tmp_path / "capture.dat", {"g": {c: (data[c], waveform("m")) for c in ("x1", "x2", "s")}})
     assert_same_result(vibid.identify(example1_stand, vibid.read_capture(path, example1_stand, format="tdms")), ref)
+    # and without format=: recognised by its content ("TDSm"), as vibidd recognises files
+    assert vibid._core.capture_format_of_file(str(path)) == "tdms"
+    assert_same_result(vibid.identify(example1_stand, vibid.read_capture(path, example1_stand)), ref)
 
 
 def test_csv_through_read_capture(tmp_path, example1_stand, ex1_clean, ref):
@@ -404,7 +409,7 @@ def test_units_by_quantity_and_stand_length_unit(tmp_path):
 def test_missing_extra_says_how_to_install(tmp_path, monkeypatch, example1_stand, module, extra, name):
     # As without the extra installed: a None in sys.modules makes the import fail.
     path = tmp_path / name
-    path.write_bytes(b"")
+    path.write_bytes(b"MDF     4.10    " if extra == "mdf" else b"TDSm")  # the formats' first bytes
     monkeypatch.setitem(sys.modules, module, None)
     with pytest.raises(ImportError, match=rf"reading .*{name} needs the package '{module}': "
                                           rf"pip install '\./python\[{extra}\]'"):

@@ -17,7 +17,7 @@ import pytest
 
 import vibid
 from vibid import _adequacy
-from conftest import EX1_TRUTH, EXAMPLE1, REPO, example1_capture, sim_path
+from conftest import EX1_TRUTH, EXAMPLE1, REPO, example1_capture, sim_path, vibidd_path
 from vibid import _cli
 
 # The console script pip installed next to the interpreter running the tests (the venv's).
@@ -131,9 +131,9 @@ def test_report_is_self_contained(identified):
     assert "http://" not in doc and "https://" not in doc
     assert "<script" not in doc and "<link" not in doc and "href=" not in doc
     srcs = re.findall(r'src="([^"]*)"', doc)
-    # tracks, residuals, excitation spectrum, measured against model, held-out part measured
-    # against simulated, residual spectrum
-    assert len(srcs) == 6, srcs
+    # tracks, residuals, excitation spectrum, measured against model, FRF and coherence,
+    # held-out part measured against simulated, residual spectrum
+    assert len(srcs) == 7, srcs
     for s in srcs:
         assert s.startswith("data:image/png;base64,"), s[:40]
         assert base64.b64decode(s.split(",", 1)[1])[:8] == b"\x89PNG\r\n\x1a\n"
@@ -159,7 +159,7 @@ def test_report_model_response_table(identified, capture):
     nrmse = fit["nrmse"].to_dict()
     assert set(nrmse) == {"x1", "x2"}
     for v in nrmse.values():
-        assert f"<td>{v:.10g}</td>" in section, (v, section[:2000])
+        assert f"<td>{v:.4g}</td>" in section, (v, section[:2000])  # 4 significant digits
     # auto keeps the output-error estimate on this capture (test_output_error.py), whose
     # damper is 6.5e-4 low (the fit's inputs are linear between samples, the multisine is
     # not: docs/python.md); near a resonance the response changes by about that relative
@@ -275,19 +275,19 @@ def test_check_unseparable_stand_exits_1(tmp_path):
     assert "Traceback" not in proc.stderr
 
 
-def test_bad_capture_path_exits_1(tmp_path):
+def test_bad_capture_path_exits_2(tmp_path):
     missing = tmp_path / "nope.csv"
     proc = run("identify", EXAMPLE1, missing)
-    assert proc.returncode == 1
+    assert proc.returncode == 2
     assert str(missing) in proc.stderr and "no such file" in proc.stderr, proc.stderr
     assert "Traceback" not in proc.stderr
 
 
-def test_capture_that_does_not_fit_the_stand_exits_1(tmp_path):
+def test_capture_that_does_not_fit_the_stand_exits_2(tmp_path):
     cap = tmp_path / "wrong.csv"
     pd.DataFrame({"x1": [0.0] * 10, "x3": [0.0] * 10, "s": [0.0] * 10}).to_csv(cap, index=False)
     proc = run("identify", EXAMPLE1, cap)
-    assert proc.returncode == 1
+    assert proc.returncode == 2
     assert "x2" in proc.stderr and "Traceback" not in proc.stderr, proc.stderr
 
 
@@ -298,10 +298,53 @@ def test_usage_errors_exit_2():
     assert run().returncode == 2  # no command
 
 
-def test_simulate_without_vibid_sim_exits_1(tmp_path):
+def test_simulate_without_vibid_sim_exits_2(tmp_path):
     env = dict(os.environ, VIBID_SIM=str(tmp_path / "no-such-sim"))
     proc = run("simulate", EXAMPLE1, tmp_path / "out.csv", env=env)
-    assert proc.returncode == 1 and "VIBID_SIM" in proc.stderr, proc.stderr
+    assert proc.returncode == 2 and "VIBID_SIM" in proc.stderr, proc.stderr
+
+
+def test_simulate_finds_the_packaged_vibid_sim(tmp_path):
+    # Neither VIBID_SIM nor a vibid-sim on PATH: the package's own (built or copied with it,
+    # python/CMakeLists.txt) runs.
+    assert os.access(_cli.PACKAGED_SIM, os.X_OK), _cli.PACKAGED_SIM
+    env = {k: v for k, v in os.environ.items() if k != "VIBID_SIM"}
+    env["PATH"] = "/usr/bin:/bin"
+    out = tmp_path / "sim.csv"
+    proc = run("simulate", EXAMPLE1, out, "--sim", REPO / "sim" / "examples" / "paper_example1_sim.cfg",
+               "--duration", "0.5", env=env)
+    assert proc.returncode == 0, proc.stderr
+    df = pd.read_csv(out)
+    assert list(df.columns) == ["t", "s", "x1", "x2"] and len(df) == 1000, df.head()
+
+
+def test_unwritable_output_exits_1(tmp_path):
+    # Good inputs, an output that cannot be written: a run-time failure (1), not bad input (2).
+    data, t = example1_capture(n=4000, noise=0.005, seed=3)
+    cap = tmp_path / "cap.csv"
+    pd.DataFrame(data).to_csv(cap, index=False)
+    proc = run("identify", EXAMPLE1, cap, "--tracks", tmp_path / "no-such-dir" / "tracks.csv")
+    assert proc.returncode == 1, proc.stderr
+    assert "cannot write the output" in proc.stderr and "no-such-dir" in proc.stderr, proc.stderr
+    assert "Traceback" not in proc.stderr
+
+
+def test_version_of_every_program():
+    # One convention for the three programs: `--version` prints the program and the library.
+    proc = run("--version")
+    assert proc.returncode == 0 and re.fullmatch(r"vibid \d+\.\d+\.\d+\n", proc.stdout), proc.stdout
+    for prog in (vibidd_path(), sim_path()):
+        if not prog.exists():
+            pytest.skip(f"{prog} not built (build the C suite)")
+        out = subprocess.run([str(prog), "--version"], capture_output=True, text=True, timeout=10)
+        assert out.returncode == 0 and re.fullmatch(rf"{prog.name} \d+\.\d+\.\d+ \(libvibid \d+\.\d+\.\d+\)\n",
+                                                    out.stdout), out.stdout
+        bad = subprocess.run([str(prog), "--no-such-option"], capture_output=True, text=True, timeout=10)
+        assert bad.returncode == 2 and "unknown option '--no-such-option'" in bad.stderr, bad.stderr
+        # getopt_long's --opt=value form: the value is taken as the file (and refused, exit 2)
+        eq = subprocess.run([str(prog), "--config=/no/such/stand.cfg", *(["--csv=/dev/null"] if prog.name == "vibid-sim" else [])],
+                            capture_output=True, text=True, timeout=10)
+        assert eq.returncode == 2 and "/no/such/stand.cfg" in eq.stderr, eq.stderr
 
 
 def test_simulate_with_vibid_sim(tmp_path):
@@ -397,11 +440,19 @@ def test_report_of_a_state_space_estimate(tmp_path):
     assert proc.returncode == 0, proc.stderr
     assert "method auto(ekf)" in proc.stdout
     doc = report.read_text()
+    # no regression and no innovations from the binding: the output residuals of the model's
+    # simulation, said so
     res = doc[doc.index('<section id="residuals">'):doc.index('<section id="excitation">')]
-    assert "Not available" in res and "state-space estimator auto(ekf)" in res, res
+    assert "Not available" not in res and "state-space estimator auto(ekf)" in res, res[:1500]
+    assert "does not expose its filter's innovations" in res and "measured - model" in res, res[:1500]
     held = doc[doc.index('<section id="holdout">'):]
     assert "Not available: holdout = 0" in held, held[:300]
-    assert len(re.findall(r'src="data:image/png;base64,', doc)) == 3  # tracks, spectrum, response
+    # tracks, output residuals, spectrum, response, FRF
+    assert len(re.findall(r'src="data:image/png;base64,', doc)) == 5
+    # U, where flagged, is explained as the EKF's, not as LS/IV's block check
+    flags = doc[doc.index('<section id="flags">'):doc.index('<section id="estimator">')]
+    if "U" in flags.split("</h2>")[0]:
+        assert "sandwich variance" in flags and "older and newer halves" not in flags, flags
 
 
 def test_simulate_passes_the_options_to_vibid_sim(tmp_path):

@@ -168,3 +168,83 @@ def test_binding_reports_push_status(example1_stand):
         ident.push(np.asfortranarray(block), 0, 50)  # the whole column-major block
     with pytest.raises(ValueError, match="2 columns for 3 channels"):
         ident.push(np.ones((5, 2)), 0, 5)
+
+
+# ---- damaged and odd capture files (issue 33 item 3): one line naming the file, where in it
+# and the cause; vibid.CaptureError (a VibidError and a ValueError); the command exits 2 with
+# that line and no traceback
+
+def _bad_captures(d):
+    """{name: (path, expected message regex)} of files as analysts meet them."""
+    from test_captures import write_mdf
+
+    data, t = example1_capture(n=4000, noise=0.001, seed=5)
+    good = d / "good.csv"
+    pd.DataFrame({"t": t, **data}).to_csv(good, index=False)
+    lines = good.read_text().splitlines()
+
+    def csv_with(name, lineno, cell):  # line `lineno` (1-based) with x1 replaced by cell
+        out = list(lines)
+        f = out[lineno - 1].split(",")
+        f[1] = cell
+        out[lineno - 1] = ",".join(f)
+        p = d / name
+        p.write_text("\n".join(out) + "\n")
+        return p
+
+    mdf = write_mdf(d / "good.mf4", [(t, {c: (data[c], "m") for c in ("x1", "x2", "s")})])
+    half = d / "half.mf4"
+    half.write_bytes(mdf.read_bytes()[: mdf.stat().st_size // 2])
+    (d / "empty.csv").write_text("")
+    (d / "empty.mf4").write_bytes(b"")
+    (d / "comments.csv").write_text("# a comment only\n")
+    (d / "header.csv").write_text("t,x1,x2,s\n")
+    pd.DataFrame({"t": 2 * t, **data}).to_csv(d / "rate.csv", index=False)
+    return {
+        "half": (half, r"half\.mf4: cannot be read as ASAM MDF4 \(\d+ bytes; damaged or cut short\?\): "),
+        "empty_csv": (d / "empty.csv", r"empty\.csv: empty file \(0 bytes\)"),
+        "empty_mdf": (d / "empty.mf4", r"empty\.mf4: empty file \(0 bytes\)"),
+        "comments": (d / "comments.csv", r"comments\.csv: no header line: the file is empty or holds only '#'"),
+        "header": (d / "header.csv", r"header\.csv: a header and no data rows"),
+        # line 6 of the file is data row 4 (the header is line 1)
+        "cell": (csv_with("cell.csv", 6, "1.2.3"), r"cell\.csv:6: channel 'x1': '1\.2\.3' is not a number"),
+        "nan": (csv_with("nan.csv", 9, "nan"), r"nan\.csv:9: channel 'x1': non-finite value nan at row 7"),
+        "rate": (d / "rate.csv", r"rate\.csv: the capture's time column gives 1000 Hz, the stand 'paper_example1' "
+                                 r"says 2000 Hz"),
+        "missing": (d / "nope.csv", r"nope\.csv: no such file"),
+    }
+
+
+@pytest.fixture(scope="module")
+def bad_captures(tmp_path_factory):
+    return _bad_captures(tmp_path_factory.mktemp("bad_captures"))
+
+
+@pytest.mark.parametrize("case", ["half", "empty_csv", "empty_mdf", "comments", "header", "cell", "nan", "rate",
+                                  "missing"])
+def test_bad_capture_files_name_file_and_line(bad_captures, example1_stand, case, capfd):
+    path, pattern = bad_captures[case]
+    with pytest.raises(vibid.CaptureError, match=pattern) as info:
+        vibid.identify(example1_stand, path)
+    assert isinstance(info.value, vibid.VibidError) and isinstance(info.value, ValueError)
+    assert "\n" not in str(info.value)
+    assert str(path) in str(info.value)
+    # nothing else printed (asammdf's destructor traceback after a damaged file is not)
+    err = capfd.readouterr().err
+    assert "Traceback" not in err and "Exception ignored" not in err, err
+
+
+@pytest.mark.parametrize("case", ["half", "empty_mdf", "cell", "nan"])
+def test_bad_capture_files_in_the_command(bad_captures, case):
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from conftest import EXAMPLE1
+
+    path, pattern = bad_captures[case]
+    vibid_cmd = Path(sys.executable).with_name("vibid")
+    proc = subprocess.run([str(vibid_cmd), "identify", str(EXAMPLE1), str(path)], capture_output=True, text=True,
+                          timeout=120)
+    assert proc.returncode == 2, proc.stderr
+    assert re.fullmatch(r"vibid identify: error: /\S*" + pattern + r".*\n", proc.stderr), proc.stderr

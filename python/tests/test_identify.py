@@ -234,3 +234,15 @@ def test_dataframe_block_is_not_copied(example1_stand, ex1_clean):
     block2, _ = _columns(example1_stand, data)
     assert block2.flags.f_contiguous and not np.shares_memory(block2, data["x1"])
     np.testing.assert_array_equal(block, block2)
+
+
+def test_methods_are_the_librarys_names():
+    """vibid.METHODS is the library's name table (identify.h, vibid_estimator_name), "auto"
+    first: each name maps to the code the library gives it, and no name is spelled here."""
+    from vibid import _core
+    names = _core.estimator_names()
+    assert names == ["ls", "iv", "rls", "auto", "ekf", "kf_rls", "oe"]
+    assert list(vibid.METHODS)[0] == "auto"
+    assert sorted(vibid.METHODS) == sorted(names)
+    assert all(names[code] == name for name, code in vibid.METHODS.items())
+    assert vibid.METHODS["kf_rls"] == _core.ESTIMATOR_KF_RLS

@@ -181,9 +181,11 @@ def check_failures(table, bad, serial):
     errors = table[table["status"] == "error"]
     assert list(errors.index) == [3, 8, 15], table[["capture", "status", "error"]]
     msg = dict(zip(errors.index, errors["error"]))
-    assert msg[3].startswith("FileNotFoundError: ") and "not_there.csv" in msg[3], msg[3]
-    assert msg[8].startswith("ValueError: ") and "'x2'" in msg[8] and "row 1234" in msg[8], msg[8]
-    assert msg[15].startswith("ValueError: ") and "'s'" in msg[15] and "no_s.csv" in msg[15], msg[15]
+    # a capture file's errors are CaptureErrors naming the file (and the line of a bad sample)
+    assert msg[3].startswith("CaptureError: ") and "not_there.csv: no such file" in msg[3], msg[3]
+    assert msg[8].startswith("CaptureError: ") and "with_nan.csv:1236: channel 'x2'" in msg[8] \
+        and "row 1234" in msg[8], msg[8]
+    assert msg[15].startswith("CaptureError: ") and "'s'" in msg[15] and "no_s.csv" in msg[15], msg[15]
     # no estimate in those rows: NaN values, flags E, no method
     assert errors[["c1", "c1_se", "f1_hz"]].isna().all().all()
     assert (errors["estimate_flags"] == "E").all() and (errors["c2_flags"] == "E").all() and (errors["method"] == "").all()

@@ -6,6 +6,8 @@ the Python tests; or VIBID_VIBIDD). Without it this test is skipped, and says wh
 from __future__ import annotations
 
 import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -63,3 +65,44 @@ def test_tracks_equal_vibidd_replay(tmp_path, ex1_clean, method):
     assert list(theirs["flags"].fillna("")) == list(ours["flags"])
     # time_s: the capture's t of the row's last sample in both (vibidd: microseconds)
     np.testing.assert_allclose(theirs["time_s"], ours["time_s"], rtol=0, atol=1e-6)
+
+
+def test_mdf4_refused_then_converted(tmp_path, ex1_clean):
+    """vibidd given an MDF4 capture refuses it (exit 2) naming the format, what it replays and
+    `vibid convert`; the converted file replays without a channel map (vibidd's recording
+    layout) and gives the tracks identify gives on the MDF4 file itself."""
+    from test_captures import write_mdf
+
+    vibidd = vibidd_path()
+    if not vibidd.exists():
+        pytest.skip(f"no vibidd at {vibidd} (build the C suite first, or set VIBID_VIBIDD)")
+    data, t = ex1_clean
+    mdf = write_mdf(tmp_path / "run.mf4", [(t, {c: (data[c], "m") for c in ("x1", "x2", "s")})])
+    tracks = tmp_path / "tracks.csv"
+    cfg = tmp_path / "vibidd.cfg"
+    cfg.write_text(CONFIG.format(stand=EXAMPLE1, capture=tmp_path / "none.csv", method="auto", tracks=tracks))
+    refused = subprocess.run([str(vibidd), "-c", str(cfg), "--replay", str(mdf)], cwd=tmp_path,
+                             capture_output=True, text=True, timeout=60)
+    assert refused.returncode == 2, refused.stderr
+    assert f"{mdf}: an ASAM MDF4 capture, which vibidd does not replay (it replays candump (.log), csv (.csv))" \
+        in refused.stderr and "vibid convert" in refused.stderr, refused.stderr
+    assert not tracks.exists()
+
+    out = tmp_path / "run.csv"
+    conv = subprocess.run([str(Path(sys.executable).with_name("vibid")), "convert", str(EXAMPLE1), str(mdf), str(out)],
+                          capture_output=True, text=True, timeout=120)
+    assert conv.returncode == 0, conv.stderr
+    assert f"{len(t)} samples of 3 channels" in conv.stdout, conv.stdout
+    assert out.read_text().startswith("# vibidd raw recording of stand 'paper_example1' at 2000.0 Hz; converted by "
+                                      "vibid convert from run.mf4 (mdf)")
+    # the values read back bit for bit (shortest round-trip text)
+    back = vibid.read_capture(out, EXAMPLE1, channels={"time_s": "t"})
+    for c in ("x1", "x2", "s"):
+        assert np.array_equal(back[c].to_numpy(), data[c]), c
+    subprocess.run([str(vibidd), "-c", str(cfg), "--replay", str(out)], check=True, cwd=tmp_path,
+                   capture_output=True, timeout=120)
+    theirs = pd.read_csv(tracks, comment="#")
+    ours = vibid.identify(EXAMPLE1, mdf, track_every=500).tracks
+    assert list(theirs["index"]) == list(ours["index"])
+    value_cols = [c for c in ours.columns if c not in ("time_s", "index", "flags")]
+    np.testing.assert_allclose(theirs[value_cols].to_numpy(float), ours[value_cols].to_numpy(float), rtol=1e-9, atol=0)

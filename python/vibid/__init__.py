@@ -11,13 +11,14 @@ Documentation: docs/python.md in the repository.
 
 from ._core import VibidError
 from ._core import version as _lib_version
-from ._captures import read_capture
+from ._captures import CaptureError, read_capture
 from ._identify import METHODS, Result, identify
 from ._many import identify_many
 from ._stand import Stand
 
 __version__ = _lib_version()
-__all__ = ["Stand", "identify", "identify_many", "read_capture", "Result", "VibidError", "METHODS", "__version__"]
+__all__ = ["Stand", "identify", "identify_many", "read_capture", "Result", "VibidError", "CaptureError", "METHODS",
+           "__version__"]
 
 # The estimators as classes (issue 13; docs/python.md "Estimator classes").
 from ._estimators import EKF, IV, KFRLS, RLS, Estimate, LeastSquares, RecursiveIV  # noqa: E402

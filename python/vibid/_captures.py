@@ -11,8 +11,12 @@ real one and be wrong. MDF4 needs the extra ``mdf`` (asammdf), TDMS the extra ``
 
 from __future__ import annotations
 
+import contextlib
+import gc
 import math
 import os
+import sys
+import traceback
 from typing import Any, Mapping, Optional
 
 import numpy as np
@@ -21,11 +25,13 @@ import pandas as pd
 from . import _core
 from ._stand import Stand
 
-# Extension -> format. ".mdf" is also MDF version 3, which asammdf reads as well.
-_EXTENSIONS = {".csv": "csv", ".mf4": "mdf", ".mdf": "mdf", ".tdms": "tdms", ".log": "candump"}
-_FORMATS = {"csv": "csv", "mdf": "mdf", "mf4": "mdf", "mdf4": "mdf", "tdms": "tdms", "candump": "candump"}
-_ACCEPTED = (".csv (format='csv'), .mf4 or .mdf (ASAM MDF4, format='mdf'), .tdms (NI TDMS, format='tdms'), "
-             ".log with dbc= (candump, format='candump')")
+# The capture formats: the drivers' registry (vibid_drivers/capture_format.h), which vibidd
+# reads too: names, aliases, extensions, recognition by content. ".mdf" is also MDF version 3,
+# which asammdf reads as well.
+FORMATS = _core.capture_formats()  # [(name, aliases, extensions, title, vibidd_replays, needs_dbc)]
+_FORMATS = {alias: name for name, aliases, *_ in FORMATS for alias in [name, *aliases.split()]}
+_ACCEPTED = ", ".join(f"{' or '.join(ext.split())} ({title}, format={name!r}{', with dbc=' if dbc else ''})"
+                      for name, _, ext, title, _, dbc in FORMATS)
 # Time columns/channels looked for when the file has no time base of its own (CSV: the
 # columns identify has always accepted; TDMS: also the names NI's loggers use).
 _CSV_TIME = ("time_s", "t")
@@ -41,6 +47,73 @@ _DIMENSION = {"displacement": "length", "velocity": "velocity", "acceleration": 
 _SAME_TIME = 1e-9
 
 
+class CaptureError(_core.VibidError, ValueError):
+    """A capture that cannot be read as asked: the message names the file, where in it (the
+    line of a CSV, the sample of other formats) and the cause, in one line. A VibidError (the
+    package's own type) and a ValueError (what bad input raised before)."""
+
+
+def csv_line(path: str, row: int) -> int:
+    """The 1-based line of the file holding data row `row` (0-based) of a CSV read as
+    read_capture reads it: '#' comment lines and blank lines skipped, the header first.
+    Scans the file; called only to name where an error is."""
+    seen = -1  # the header is row -1
+    with open(path, "rb") as f:
+        for number, line in enumerate(f, start=1):
+            s = line.strip()
+            if not s or s.startswith(b"#"):
+                continue
+            if seen == row:
+                return number
+            seen += 1
+    return 0
+
+
+def location(path: str, fmt: str, row: int) -> str:
+    """Where data row `row` of a capture is, for a message: "file.csv:123" or "file.mf4,
+    sample 122"."""
+    if fmt == "csv":
+        line = csv_line(path, row)
+        if line:
+            return f"{path}:{line}"
+    return f"{path}, sample {row}"
+
+
+@contextlib.contextmanager
+def _reading(path: str, fmt: str):
+    """Errors while a reader runs become one-line CaptureErrors naming the file: ours keep
+    their message (they name the file and where already); a library's (asammdf, npTDMS,
+    pandas on a damaged file: "seek out of range") get the file, its format and size, and the
+    library's words. A missing extra (ImportError) passes as it is. While the reader runs, a
+    destructor's error of a half-built library object (asammdf's MDF4.__del__ after a failed
+    open prints a second traceback) is not printed: the error reported is the first."""
+    old_hook = sys.unraisablehook
+    sys.unraisablehook = lambda unraisable: None
+    try:
+        yield
+    except (CaptureError, ImportError):
+        raise
+    except Exception as e:
+        tb = e.__traceback__
+        while tb is not None and tb.tb_next is not None:
+            tb = tb.tb_next
+        ours = tb is not None and os.path.samefile(tb.tb_frame.f_code.co_filename, __file__)
+        if ours and isinstance(e, ValueError):
+            message = str(e)
+        else:
+            title = next((t for n, _, _, t, _, _ in FORMATS if n == fmt), fmt)
+            message = (f"{path}: cannot be read as {title} ({os.path.getsize(path)} bytes; damaged or cut short?): "
+                       f"{type(e).__name__}: {str(e).strip() or 'no message'}")
+        # The failed reader's objects die now, under the quiet hook: the finished frames of
+        # the traceback hold them (a half-built asammdf MDF4 whose __del__ fails), and the
+        # traceback itself lives on in the with statement until after this hook is restored.
+        traceback.clear_frames(e.__traceback__)
+        gc.collect()
+        raise CaptureError(message) from None
+    finally:
+        sys.unraisablehook = old_hook
+
+
 def _require(module: str, extra: str, path: str):
     try:
         return __import__(module)
@@ -53,13 +126,15 @@ def _format_of(path: str, format: Optional[str]) -> str:
     if format is not None:
         f = _FORMATS.get(str(format).lower())
         if f is None:
-            raise ValueError(f"format {format!r} for {path}: one of 'csv', 'mdf', 'tdms', 'candump'")
+            raise ValueError(f"format {format!r} for {path}: one of {', '.join(repr(n) for n, *_ in FORMATS)}")
         return f
-    ext = os.path.splitext(path)[1].lower()
-    f = _EXTENSIONS.get(ext)
-    if f is None:
-        raise ValueError(f"{path}: unknown capture format {ext or '(no extension)'!r}; accepted: {_ACCEPTED}; "
-                         "or give format=")
+    # the file's content first (MDF4, TDMS, candump and CSV are told apart by their first
+    # bytes), its extension when the content says nothing
+    f = _core.capture_format_of_file(str(path))
+    if not f:
+        ext = os.path.splitext(path)[1].lower()
+        raise ValueError(f"{path}: unknown capture format (extension {ext or '(none)'!r}, content not "
+                         f"recognised); accepted: {_ACCEPTED}; or give format=")
     return f
 
 
@@ -83,10 +158,18 @@ def _missing(stand_name: str, file_name: str, where: str, have: list[str]) -> Va
     return ValueError(f"channel {called} missing: {where} has channels {have}")
 
 
-def _numeric(values: Any, what: str) -> np.ndarray:
+def _numeric(values: Any, what: str, csv_path: Optional[str] = None) -> np.ndarray:
     a = np.asarray(values)
+    if a.ndim == 1 and a.dtype.kind == "O" and csv_path is not None:
+        # A CSV column pandas could not read as numbers: name the first cell that is not one.
+        for row, v in enumerate(a):
+            try:
+                float(v)
+            except (TypeError, ValueError):
+                raise CaptureError(f"{csv_path}:{csv_line(csv_path, row)}: {what.split(' in ')[0]}: {str(v)!r} is "
+                                   "not a number") from None
     if a.ndim != 1 or a.dtype.kind not in "biuf":
-        raise ValueError(f"{what}: holds {a.dtype} values of shape {a.shape}, not one number per sample")
+        raise CaptureError(f"{what}: holds {a.dtype} values of shape {a.shape}, not one number per sample")
     return a.astype(np.float64, copy=False)
 
 
@@ -106,20 +189,27 @@ def _read_csv(path: str, stand: Stand, names: dict[str, str], group: Any):
     if group is not None:
         raise ValueError(f"{path}: group= is for MDF4 and TDMS files, a CSV file has no groups")
     # The daemon's tracks and vibid-sim's captures head their files with '#' lines.
-    df = pd.read_csv(path, comment="#", skipinitialspace=True)
+    try:
+        df = pd.read_csv(path, comment="#", skipinitialspace=True)
+    except pd.errors.EmptyDataError:
+        raise CaptureError(f"{path}: no header line: the file is empty or holds only '#' comments") from None
+    except (pd.errors.ParserError, UnicodeDecodeError) as e:
+        raise CaptureError(f"{path}: not a CSV file vibid can read: {str(e).strip()}") from None
+    if len(df) == 0:
+        raise CaptureError(f"{path}: a header and no data rows")
     have = [str(c) for c in df.columns]
     cols = {}
     for c in stand.channels:
         if names[c] not in have:
             raise _missing(c, names[c], path, have)
-        cols[c] = _numeric(df[names[c]].to_numpy(), f"channel {c!r} in {path}")
+        cols[c] = _numeric(df[names[c]].to_numpy(), f"channel {c!r} in {path}", csv_path=path)
     if "time_s" in names:
         if names["time_s"] not in have:
             raise _missing("time_s", names["time_s"], path, have)
         tname = names["time_s"]
     else:
         tname = next((c for c in _CSV_TIME if c in have), None)
-    t = _numeric(df[tname].to_numpy(), f"time column {tname!r} in {path}") if tname is not None else None
+    t = _numeric(df[tname].to_numpy(), f"time column {tname!r} in {path}", csv_path=path) if tname is not None else None
     # A CSV file has no units: its values are in the stand's units.
     return cols, {}, t
 
@@ -317,9 +407,14 @@ def read_capture(path: str | os.PathLike, stand: Stand | str | os.PathLike, *, f
     if not isinstance(stand, Stand):
         stand = Stand.load(stand)
     path = os.fspath(path)
-    ext = os.path.splitext(path)[1].lower()
-    # With a DBC, a log of any name is candump, as for vibidd's replay (source_replay.h).
-    fmt = "candump" if format is None and dbc is not None and ext not in _EXTENSIONS else _format_of(path, format)
+    if not os.path.isfile(path):
+        raise CaptureError(f"{path}: no such file" if not os.path.exists(path) else f"{path}: not a file")
+    if os.path.getsize(path) == 0:
+        raise CaptureError(f"{path}: empty file (0 bytes)")
+    # With a DBC, a file that neither content nor name place is candump, as for vibidd's
+    # replay (source_replay.h).
+    unplaced = format is None and dbc is not None and not _core.capture_format_of_file(path)
+    fmt = "candump" if unplaced else _format_of(path, format)
     names = _mapping(stand, channels)
     attrs = {}
     if fmt == "candump":
@@ -330,7 +425,8 @@ def read_capture(path: str | os.PathLike, stand: Stand | str | os.PathLike, *, f
         if dbc is not None or channel_map is not None:
             raise ValueError(f"{path}: dbc= and channel_map= are for candump logs, not {fmt} files")
         reader = {"csv": _read_csv, "mdf": _read_mdf, "tdms": _read_tdms}[fmt]
-        cols, units, t = reader(path, stand, names, group)
+        with _reading(path, fmt):
+            cols, units, t = reader(path, stand, names, group)
     _same_length(cols, path)
     n = len(cols[stand.channels[0]]) if stand.channels else 0
     out = {}
@@ -346,4 +442,6 @@ def read_capture(path: str | os.PathLike, stand: Stand | str | os.PathLike, *, f
     out["time_s"] = t if t is not None else np.arange(n) / stand.sample_rate
     df = pd.DataFrame(out, columns=[*stand.channels, "time_s"])
     df.attrs.update(attrs)
+    # where the samples came from, so that identify can name the file and line of a bad one
+    df.attrs["source"] = {"path": path, "format": fmt}
     return df

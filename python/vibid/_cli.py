@@ -46,8 +46,98 @@ FLAG_MEANING = {
 }
 
 
+# What U means for each estimator (lib/include/vibid/identify.h, VIBID_QUALITY_SE_INVALID and
+# the package's own U of _identify.py): the letter is one, its cause is the estimator's.
+U_MEANING = {
+    "ls": "the standard errors do not hold: LS's textbook covariance assumes white equation errors, which "
+          "differences and the pre-filter never give (always flagged)",
+    "rls": "the standard errors do not hold: RLS's textbook covariance assumes white equation errors "
+           "(always flagged)",
+    "iv": "the standard errors do not hold: the older and newer halves of the blocks disagree (|z| > 4) or "
+          "there are too few blocks, or the instruments are weak",
+    "ekf": "the standard errors do not hold: the EKF's sandwich variance exceeds 3 times the filter's for some "
+           "parameter (a model error), fewer than 16 blocks of scores, the averaged normalised innovation "
+           "square exceeds 2, or the drift check (estimate against a snapshot a quarter to half of the run "
+           "ago) exceeds |z| = 4 or has not run yet",
+    "kf_rls": "the standard errors do not hold: KF-RLS's are the regression's on filtered, coloured regressors "
+              "(always flagged)",
+    "oe": "the standard errors do not hold: the output-error estimate disagrees with the IV one beyond both "
+          "error bars, or the equation-error estimate it started from is flagged",
+}
+
+
+def flag_meaning(letter: str, method: str) -> str:
+    """FLAG_MEANING, with U's cause for this estimator (method as Result.method:
+    'auto(ekf)' is the EKF's)."""
+    if letter == "U":
+        m = method[5:-1] if method.startswith("auto(") else method
+        return U_MEANING.get(m, FLAG_MEANING["U"])
+    return FLAG_MEANING[letter]
+
+
+def flag_counts(result: Result) -> dict:
+    """Per letter: 'estimate' (1 where the whole estimate carries it), 'parameters' and
+    'modes' (how many carry it) and 'tracks' (how many track rows carry it), and 'rows'
+    (the number of track rows)."""
+    out = {}
+    fl = result.tracks["flags"].astype(str) if len(result.tracks) else pd.Series([], dtype=str)
+    for letter in "EPUIRM":
+        out[letter] = {"estimate": int(letter in result.flags),
+                       "parameters": int(sum(letter in f for f in result.parameters["flags"])),
+                       "modes": int(sum(letter in f for f in result.modes["flags"])),
+                       "tracks": int(fl.str.contains(letter, regex=False).sum())}
+    out["rows"] = len(fl)
+    return out
+
+
+def flag_summary(result: Result) -> str:
+    """One line: the whole estimate's letters, then per letter the track rows carrying it
+    ('none' only where neither the estimate, a parameter, a mode nor a track row is flagged)."""
+    c = flag_counts(result)
+    est = sorted({k for k in "EPUIRM" if c[k]["estimate"] or c[k]["parameters"] or c[k]["modes"]},
+                 key="EPUIRM".index)
+    parts = []
+    if est:
+        parts.append("estimate " + "".join(est))
+    rows = [f"{c[k]['tracks']} {k}" for k in "EPUIRM" if c[k]["tracks"]]
+    if rows:
+        parts.append(f"track rows of {c['rows']}: " + ", ".join(rows))
+    return "; ".join(parts) if parts else "none"
+
+
+def verdict(result: Result) -> tuple[bool, str]:
+    """(trusted, why) of the final estimate, from its flags: trusted where neither the
+    estimate nor a parameter or mode carries a letter; flagged track rows alone (a start
+    transient) leave it trusted, and the reason says so."""
+    c = flag_counts(result)
+    bad = [k for k in "EPUIRM" if c[k]["estimate"] or c[k]["parameters"] or c[k]["modes"]]
+    if bad:
+        why = "; ".join(f"{k}: {flag_meaning(k, result.method)}" for k in bad)
+        return False, f"not trusted: the final estimate is flagged {''.join(bad)} ({why})"
+    rows = [f"{c[k]['tracks']} {k}" for k in "EPUIRM" if c[k]["tracks"]]
+    extra = (f"; {', '.join(rows)} of the {c['rows']} track rows are flagged (the estimate on the way, "
+             "not the final one)") if rows else ""
+    return True, ("trusted: the final estimate carries no flag (plausible, its standard errors hold, "
+                  "the model explains the held-out data where checked)" + extra)
+
+
+# Exit status, as vibidd's and vibid-sim's: 0 success; 1 a failure while running on good input
+# (an output that cannot be written; `check`'s "cannot be identified"); 2 a bad command line,
+# input or configuration (a stand or capture that is missing, unreadable or refused, vibid-sim
+# not found, an extra not installed). The message on stderr, no traceback.
+EXIT_RUN_FAILURE = 1
+EXIT_BAD_INPUT = 2
+
+
 class CliError(Exception):
-    """A refusal to report on stderr with exit status 1 (no traceback)."""
+    """A refusal of the command line, an input or the configuration: its message on stderr,
+    no traceback, exit status 2."""
+    status = EXIT_BAD_INPUT
+
+
+class RunFailure(CliError):
+    """A failure while running on good input (an output that cannot be written): exit status 1."""
+    status = EXIT_RUN_FAILURE
 
 
 def _fmt(v: float, digits: int = 10) -> str:
@@ -99,10 +189,10 @@ def warnings_of(result: Result) -> list[str]:
     state-space estimators' restarts and the track rows without estimate."""
     out = []
     for letter in result.flags:
-        out.append(f"estimate flagged {letter}: {FLAG_MEANING[letter]}")
+        out.append(f"estimate flagged {letter}: {flag_meaning(letter, result.method)}")
     for name, f in result.parameters["flags"].items():
         for letter in f:
-            out.append(f"parameter {name} flagged {letter}: {FLAG_MEANING[letter]}")
+            out.append(f"parameter {name} flagged {letter}: {flag_meaning(letter, result.method)}")
     for i, f in result.modes["flags"].items():
         if f:
             out.append(f"mode {i} flagged P: {FLAG_MEANING['P']}")
@@ -117,14 +207,19 @@ def warnings_of(result: Result) -> list[str]:
         out.append(f"the instruments of the IV are weak: first-stage F {ins['f_stat']:.3g} < {_adequacy.WEAK_F:g} "
                    f"(smallest canonical correlation {ins['rho_min']:.3g}): its estimate and error bars are unreliable")
     if math.isfinite(result.z_consistency):
-        out.append(f"consistency of the older and newer halves of the blocks: largest |z| = "
-                   f"{result.z_consistency:.3g} (U above 4)")
+        if result.method in ("ekf", "auto(ekf)"):
+            # the EKF's figure is its drift check (identify.h), not LS/IV's block halves
+            out.append(f"drift check of the EKF (the estimate against a snapshot a quarter to half of the run "
+                       f"ago): largest |change| / sqrt(var(t0) - var(t)) = {result.z_consistency:.3g} (U above 4)")
+        else:
+            out.append(f"consistency of the older and newer halves of the blocks: largest |z| = "
+                       f"{result.z_consistency:.3g} (U above 4)")
     if result.diverged_samples:
         out.append(f"the state-space filter diverged at {result.diverged_samples} samples and restarted")
     if len(result.tracks):
         fl = result.tracks["flags"].astype(str)
-        for letter in "EPUIR":
-            k = int(fl.str.contains(letter).sum())
+        for letter in "EPUIRM":
+            k = int(fl.str.contains(letter, regex=False).sum())
             if k:
                 out.append(f"{k} of {len(fl)} track rows flagged {letter}")
     return out
@@ -150,8 +245,59 @@ def write_tracks(result: Result, path: str) -> None:
 
 # ---- the report ----
 
-def _html_table(df: pd.DataFrame) -> str:
-    return df.to_html(float_format=lambda v: f"{v:.10g}", na_rep="nan", border=0, classes="t")
+SE_DIGITS = 2  # significant digits of a standard error in the report; the value to the same place
+
+
+def fmt_with_se(v: float, se: float) -> tuple[str, str]:
+    """(value, se) as text: the se to SE_DIGITS significant digits and the value to the
+    same decimal place (1234.5678 +- 0.01234 -> '1234.568', '0.012'); outside 1e-4..1e9 (or
+    beyond 8 decimals) scientific, the value's mantissa to that place and the se with its
+    own exponent (3.2e-07 +- 1.1e-09 -> '3.200e-07', '1.1e-09'). Where se is not finite or
+    not positive the value gets 4 significant digits and the se its own text ('inf', 'nan')."""
+    if v is None or not math.isfinite(v):
+        return _fmt(v), _fmt(se, SE_DIGITS)
+    if se is None or not math.isfinite(se) or se <= 0:
+        return f"{v:.4g}", ("nan" if se is None or math.isnan(se) else f"{se:.{SE_DIGITS}g}")
+    se = float(f"{se:.{SE_DIGITS - 1}e}")  # rounded first: 0.0999 is 0.10, not 0.100
+    place = math.floor(math.log10(se)) - (SE_DIGITS - 1)  # the last printed decimal: 10**place
+    big = max(abs(v), se)
+    if 1e-4 <= big < 1e9 and place >= -8:
+        dec = max(0, -place)
+        return f"{round(v, -place):.{dec}f}", f"{round(se, -place):.{dec}f}"
+    # scientific: the value's mantissa to the se's place, the se with its own exponent
+    e = math.floor(math.log10(abs(v))) if v != 0 else place
+    return f"{v:.{max(0, e - place)}e}", f"{se:.{SE_DIGITS - 1}e}"
+
+
+def _cell(v) -> str:
+    if isinstance(v, (float, np.floating)):
+        return _fmt(float(v), 4)
+    return html.escape(str(v))
+
+
+def _html_table(df: pd.DataFrame, pairs: Optional[dict] = None) -> str:
+    """df as an HTML table: columns with no information (every value NaN or empty) left
+    out; each column named in `pairs` (value column -> its se column) printed with its se's
+    significant digits (fmt_with_se), other numbers with 4 significant digits; every text
+    escaped."""
+    pairs = pairs or {}
+    cols = [c for c in df.columns if not (df[c].isna().all() or (df[c].astype(str) == "").all())]
+    head = "<tr><th>" + html.escape(str(df.index.name or "")) + "</th>" + "".join(
+        f"<th>{html.escape(str(c))}</th>" for c in cols) + "</tr>"
+    body = []
+    for idx, r in df.iterrows():
+        cells = []
+        for c in cols:
+            if c in pairs and pairs[c] in df.columns:
+                txt = fmt_with_se(float(r[c]), float(r[pairs[c]]))[0]
+            elif c in pairs.values():
+                val = next(k for k, s in pairs.items() if s == c)
+                txt = fmt_with_se(float(r[val]), float(r[c]))[1]
+            else:
+                txt = _cell(r[c])
+            cells.append(f"<td>{html.escape(txt) if c in pairs or c in pairs.values() else txt}</td>")
+        body.append(f"<tr><th>{html.escape(str(idx))}</th>" + "".join(cells) + "</tr>")
+    return '<table class="t">' + head + "".join(body) + "</table>"
 
 
 def channel_roles(stand: Stand) -> list[tuple[str, str, int, str]]:
@@ -210,8 +356,58 @@ def residuals(result: Result, block: np.ndarray) -> tuple[np.ndarray, np.ndarray
                                      float(c["prefilter_hz"]), int(c["difference_order"]))
 
 
+def channel_unit(stand: Stand, ch: str) -> str:
+    """The unit of a channel in the stand's units: the length unit per s^k for a
+    displacement, velocity or acceleration (of a node or the base); a force input's own
+    unit ('input unit': N where its gain is 1, the default)."""
+    lu = stand.length_unit
+    kind = dict((c, k) for c, k, _, _ in channel_roles(stand))[ch]
+    return {"displacement": lu, "velocity": f"{lu}/s", "acceleration": f"{lu}/s\u00b2"}.get(kind, "input unit")
+
+
+ACF_LAGS = 50  # lags of the residuals' autocorrelation shown (the whiteness tests use 20)
+
+
+def _residual_panels(fig, series, fs: float, unit: str, titles: Sequence[str]):
+    """Per column of series: its Welch PSD [unit^2/Hz] and the autocorrelation of its first
+    ACF_LAGS lags with the +-1.96/sqrt(N) band. Returns (band, share of lags outside)."""
+    from ._plot import autocorrelation, welch_psd
+
+    n = series.shape[0]
+    max_lag = int(min(n - 1, ACF_LAGS))
+    axes = fig.subplots(series.shape[1], 2, squeeze=False)
+    band = 1.96 / math.sqrt(n)
+    outside = []
+    for j in range(series.shape[1]):
+        ax = axes[j, 0]
+        f, pe = welch_psd(series[:, j], fs)
+        ax.semilogy(f[1:], pe[1:], linewidth=0.8)
+        ax.set_ylabel(f"PSD [{unit}\u00b2/Hz]")
+        ax.set_title(titles[j], fontsize="small")
+        ax.set_xlim(0, fs / 2)
+        ax.grid(True, alpha=0.3, which="both")
+        r = autocorrelation(series[:, j], max_lag)
+        ax = axes[j, 1]
+        lags = np.arange(max_lag + 1)
+        ax.vlines(lags, 0, r, linewidth=1.0)
+        ax.plot(lags, r, "o", markersize=2.5, color="C0")
+        ax.axhline(band, color="C3", linestyle="--", linewidth=0.8, label="\u00b11.96/\u221aN")
+        ax.axhline(-band, color="C3", linestyle="--", linewidth=0.8)
+        ax.set_xlim(-0.5, max_lag + 0.5)
+        ax.set_ylabel("autocorrelation [-]")
+        ax.set_title(f"autocorrelation, lags 0..{max_lag}", fontsize="small")
+        ax.legend(fontsize="small")
+        ax.grid(True, alpha=0.3)
+        outside.append(float(np.mean(np.abs(r[1:]) > band)))
+    axes[-1, 0].set_xlabel("frequency [Hz]")
+    axes[-1, 1].set_xlabel("lag [samples]")
+    return band, outside, max_lag
+
+
 def _residual_figure(result: Result, block: np.ndarray):
-    from ._plot import _figure, autocorrelation
+    """The regression's equation errors (forces in N, docs/stand-file.md) per node: their
+    spectrum and the first ACF_LAGS lags of their autocorrelation."""
+    from ._plot import _figure
 
     idx, e = residuals(result, block)
     fs = result.stand.sample_rate
@@ -221,32 +417,110 @@ def _residual_figure(result: Result, block: np.ndarray):
     skip = int(math.ceil(2.0 / f_c * fs)) if f_c > 0 else 0
     skip = min(skip, len(idx) // 4)
     idx, e = idx[skip:], e[skip:]
-    n = len(idx)
-    max_lag = int(min(n - 1, max(50, round(fs / 10))))
     fig = _figure(figsize=(8.0, 2.2 * e.shape[1] + 0.5), layout="constrained")
-    axes = fig.subplots(e.shape[1], 2, squeeze=False)
     nodes = _node_names(result.stand)
-    band = 1.96 / math.sqrt(n)
-    outside = []
-    for j in range(e.shape[1]):
-        ax = axes[j, 0]
-        ax.plot(idx / fs, e[:, j], linewidth=0.6)
-        # a force balance in the stand's units (N for SI stands, docs/stand-file.md)
-        ax.set_ylabel("equation error")
-        ax.set_title(f"equation error of {nodes[j] if j < len(nodes) else j}", fontsize="small")
-        ax.grid(True, alpha=0.3)
-        r = autocorrelation(e[:, j], max_lag)
-        ax = axes[j, 1]
-        lags = np.arange(max_lag + 1)
-        ax.vlines(lags, 0, r, linewidth=0.8)
-        ax.axhline(band, color="C3", linestyle="--", linewidth=0.8, label="\u00b11.96/\u221aN")
-        ax.axhline(-band, color="C3", linestyle="--", linewidth=0.8)
-        ax.set_title("autocorrelation", fontsize="small")
-        ax.legend(fontsize="small")
-        outside.append(float(np.mean(np.abs(r[1:]) > band)))
-    axes[-1, 0].set_xlabel("time [s]")
-    axes[-1, 1].set_xlabel("lag [samples]")
-    return fig, n, band, outside, max_lag
+    titles = [f"equation error of {nodes[j] if j < len(nodes) else j} (force)" for j in range(e.shape[1])]
+    band, outside, max_lag = _residual_panels(fig, e, fs, "N", titles)
+    return fig, len(idx), band, outside, max_lag
+
+
+def _output_residual_figure(result: Result, block: np.ndarray, sim: np.ndarray, start: int):
+    """For the state-space estimators: measured - model of each response channel from
+    `start` on (the identified model's simulation driven by the measured inputs; not the
+    filter's one-step innovations, which the binding does not expose)."""
+    from ._plot import _figure
+
+    cols = [(i, ch) for i, (ch, kind, idx, _) in enumerate(channel_roles(result.stand))
+            if kind != "input" and idx != -2]
+    e = np.column_stack([block[start:, i] - sim[start:, i] for i, _ in cols])
+    fig = _figure(figsize=(8.0, 2.2 * e.shape[1] + 0.5), layout="constrained")
+    units = {channel_unit(result.stand, ch) for _, ch in cols}
+    unit = units.pop() if len(units) == 1 else "channel unit"
+    band, outside, max_lag = _residual_panels(fig, e, result.stand.sample_rate, unit,
+                                              [f"{ch}: measured - model [{channel_unit(result.stand, ch)}]"
+                                               for _, ch in cols])
+    return fig, e.shape[0], band, outside, max_lag, [ch for _, ch in cols]
+
+
+def frf_segment(n: int, nperseg: int = 4096) -> int:
+    """Welch segment length of the FRF: at most nperseg, and a power of two of at most n/4, so
+    that at least 7 segments (50 % overlap) are averaged: a coherence of one segment is 1 at
+    every frequency, whatever the noise."""
+    return int(max(16, min(nperseg, 1 << max(4, int(math.floor(math.log2(max(n, 64) / 4)))))))
+
+
+def frf_h1(x: np.ndarray, y: np.ndarray, fs: float, nperseg: int = 4096):
+    """H1 = Gyx Gxx^-1 per frequency of inputs x (n x i) to outputs y (n x o) by Welch's
+    method (Hann window, 50 % overlap, mean removed per segment), and the coherence of each
+    output with the inputs (the ordinary coherence |Gxy|^2 / (Gxx Gyy) for one input, the
+    multiple coherence for several). Returns (f, H (nf x o x i), coherence (nf x o))."""
+    x = np.asarray(x, float).reshape(len(x), -1)
+    y = np.asarray(y, float).reshape(len(y), -1)
+    nperseg = frf_segment(len(x), nperseg)
+    step = max(1, nperseg // 2)
+    w = np.hanning(nperseg)
+    nf = nperseg // 2 + 1
+    gxx = np.zeros((nf, x.shape[1], x.shape[1]), complex)
+    gyx = np.zeros((nf, y.shape[1], x.shape[1]), complex)
+    gyy = np.zeros((nf, y.shape[1]))
+    for s0 in range(0, len(x) - nperseg + 1, step):
+        X = np.fft.rfft((x[s0:s0 + nperseg] - x[s0:s0 + nperseg].mean(0)) * w[:, None], axis=0)
+        Y = np.fft.rfft((y[s0:s0 + nperseg] - y[s0:s0 + nperseg].mean(0)) * w[:, None], axis=0)
+        gxx += X[:, :, None] * np.conj(X[:, None, :])
+        gyx += Y[:, :, None] * np.conj(X[:, None, :])
+        gyy += np.abs(Y) ** 2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = np.linalg.pinv(gxx)
+        h = gyx @ inv
+        # multiple coherence: (Gyx Gxx^-1 Gxy) / Gyy per output
+        num = np.einsum("foi,fij,foj->fo", gyx, inv, np.conj(gyx)).real
+        coh = np.clip(num / gyy, 0.0, 1.0)
+    return np.fft.rfftfreq(nperseg, 1.0 / fs), h, coh
+
+
+def _frf_figure(result: Result, block: np.ndarray, sim: np.ndarray, start: int):
+    """Measured H1 (input channels -> each response channel) with its coherence, against
+    the identified model's FRF, estimated the same way from the model's simulation driven by
+    the same measured inputs (noise-free, so its H1 is the model's FRF wherever the inputs
+    excite)."""
+    from ._plot import _figure
+
+    st = result.stand
+    fs = st.sample_rate
+    ins = [st.channels.index(ch) for ch in _excitation_channels(st)]
+    outs = [i for i, (ch, kind, idx, _) in enumerate(channel_roles(st)) if kind != "input" and idx != -2]
+    f, hm, coh = frf_h1(block[start:, ins], block[start:, outs], fs)
+    _, hs, _ = frf_h1(block[start:, ins], sim[start:, outs], fs)
+    pairs = [(o, i) for o in range(len(outs)) for i in range(len(ins))]
+    fig = _figure(figsize=(8.0, 3.6 * len(pairs) + 0.5), layout="constrained")
+    axes = fig.subplots(3 * len(pairs), 1, squeeze=False, sharex=True,
+                        gridspec_kw={"height_ratios": [3, 2, 1.2] * len(pairs)})[:, 0]
+    k = slice(1, None)
+    for n, (o, i) in enumerate(pairs):
+        oc, ic = st.channels[outs[o]], st.channels[ins[i]]
+        unit = f"{channel_unit(st, oc)}/{channel_unit(st, ic)}"
+        am, ap, ac = axes[3 * n], axes[3 * n + 1], axes[3 * n + 2]
+        am.semilogy(f[k], np.abs(hm[k, o, i]), color="k", linewidth=1.0, label="measured H1")
+        am.semilogy(f[k], np.abs(hs[k, o, i]), color="C1", linewidth=1.0, linestyle="--", label="identified model")
+        am.set_ylabel(f"|H| [{unit}]")
+        am.set_title(f"{ic} \u2192 {oc}", fontsize="small")
+        am.legend(fontsize="small")
+        ap.plot(f[k], np.degrees(np.angle(hm[k, o, i])), color="k", linewidth=0.8)
+        ap.plot(f[k], np.degrees(np.angle(hs[k, o, i])), color="C1", linewidth=0.8, linestyle="--")
+        ap.set_ylabel("phase [\u00b0]")
+        ap.set_ylim(-180, 180)
+        ap.set_yticks([-180, -90, 0, 90, 180])
+        ac.plot(f[k], coh[k, o], color="C2", linewidth=0.8)
+        ac.set_ylabel("coherence [-]")
+        ac.set_ylim(0, 1.05)
+        for ax in (am, ap, ac):
+            ax.grid(True, alpha=0.3, which="both")
+            for fm in result.modes["freq_hz"]:
+                if math.isfinite(fm):
+                    ax.axvline(fm, color="0.5", linestyle=":", linewidth=0.8)
+    axes[-1].set_xlabel("frequency [Hz]")
+    axes[-1].set_xlim(0, fs / 2)
+    return fig, f, hm, hs, coh, [(st.channels[ins[i]], st.channels[outs[o]]) for o, i in pairs]
 
 
 def _node_names(stand: Stand) -> list[str]:
@@ -272,7 +546,8 @@ def _spectrum_figure(result: Result, block: np.ndarray):
             ax.axvline(fm, color="k", linestyle=":", linewidth=0.8)
             ax.text(fm, 1.0, f" {i}", transform=ax.get_xaxis_transform(), fontsize="small", va="top")
     ax.set_xlabel("frequency [Hz]")
-    ax.set_ylabel("PSD [unit\u00b2/Hz]")
+    units = sorted({channel_unit(result.stand, ch) for ch in chans})
+    ax.set_ylabel(f"PSD [{units[0]}\u00b2/Hz]" if len(units) == 1 else "PSD [(channel unit)\u00b2/Hz]")
     ax.set_xlim(0, fs / 2)
     ax.grid(True, alpha=0.3, which="both")
     ax.legend(fontsize="small")
@@ -298,7 +573,7 @@ def _overlay_figure(result: Result, k: np.ndarray, rows, label: str):
     for ax, (ch, measured, model) in zip(axes, rows):
         ax.plot(t, measured, color="k", linewidth=1.0, label="measured")
         ax.plot(t, model, color="C1", linewidth=1.0, linestyle="--", label=label)
-        ax.set_ylabel(ch)
+        ax.set_ylabel(f"{ch} [{channel_unit(result.stand, ch)}]")
         ax.grid(True, alpha=0.3)
         ax.legend(fontsize="small", loc="upper right")
     axes[-1].set_xlabel("time [s]")
@@ -342,7 +617,7 @@ def _residual_spectrum_figure(result: Result, block: np.ndarray):
         for fm in result.modes["freq_hz"]:
             if math.isfinite(fm):
                 ax.axvline(fm, color="k", linestyle=":", linewidth=0.8)
-        ax.set_ylabel("PSD")
+        ax.set_ylabel(f"PSD [{channel_unit(result.stand, ch)}\u00b2/Hz]")
         ax.grid(True, alpha=0.3, which="both")
         ax.legend(fontsize="small")
     axes[-1].set_xlabel("frequency [Hz]")
@@ -366,36 +641,74 @@ def write_report(result: Result, block: np.ndarray, capture: str, path: str) -> 
     def section(id_, title, body):
         sec.append(f'<section id="{id_}"><h2>{esc(title)}</h2>\n{body}\n</section>')
 
+    memo = {}
+
+    def response():  # the model's simulation, once for the residual, response and FRF sections
+        if "sim" not in memo:
+            memo["sim"] = model_response(result, block)
+        return memo["sim"]
+
     st = result.stand
-    section("parameters", "Parameters", _html_table(result.parameters)
+    trusted, why = verdict(result)
+    section("parameters", "Parameters",
+            "<p>Values to the decimal place of the second significant digit of their standard error; columns "
+            "without information (no true value given by the stand) left out.</p>"
+            + _html_table(result.parameters, {"value": "se"})
             + ("<p>Sensor offsets of the output-error estimate (measured = true + offset):</p>"
-               + _html_table(result.offsets) if len(result.offsets) else ""))
-    section("modes", "Modes", _html_table(result.modes))
+               + _html_table(result.offsets, {"value": "se"}) if len(result.offsets) else ""))
+    section("modes", "Modes", _html_table(result.modes, {"freq_hz": "freq_hz_se", "zeta": "zeta_se"}))
     warns = warnings_of(result)
     body = ("<ul>" + "".join(f"<li>{esc(w)}</li>" for w in warns) + "</ul>") if warns else \
         "<p>No flag and no warning: the estimate is plausible and its standard errors hold.</p>"
-    body += ("<p>Flag letters (as in vibidd's tracks): "
-             + "; ".join(f"<b>{k}</b> {esc(v)}" for k, v in FLAG_MEANING.items()) + ".</p>")
-    section("flags", f"Flags and warnings: {result.flags or 'none'}", body)
-    section("estimator", "Estimator", f"<p>{esc(config_line(result))}</p><pre>{esc(result.description)}</pre>")
-    section("tracks", "Tracks (value \u00b1 2 se)",
-            figure(result.plot(), "parameter tracks") if len(result.tracks) else
-            "<p>No tracks (--track-every 0): the final estimate with its 2-se error bar per parameter.</p>"
-            + figure(result.plot(), "parameters with 2-se error bars"))
+    c = flag_counts(result)
+    rows = "".join(f"<tr><th>{k}</th><td>{'yes' if c[k]['estimate'] else '-'}</td><td>{c[k]['parameters']}</td>"
+                   f"<td>{c[k]['modes']}</td><td>{c[k]['tracks']} of {c['rows']}</td>"
+                   f"<td>{esc(flag_meaning(k, result.method))}</td></tr>" for k in "EPUIRM" if any(c[k].values()))
+    if rows:
+        body = ('<table class="t" id="flag-counts"><tr><th>flag</th><th>estimate</th><th>parameters</th><th>modes</th>'
+                f'<th>track rows</th><th>meaning ({esc(result.method)})</th></tr>{rows}</table>') + body
+    section("flags", f"Flags and warnings: {flag_summary(result)}", body)
+    section("estimator", "Estimator", f"<p>{esc(config_line(result))}</p><details><summary>what the estimator "
+            f"chose and why</summary><pre>{esc(result.description)}</pre></details>")
+    if len(result.tracks):
+        fig = result.plot()
+        clipped = [ax.get_ylabel().split(" [")[0] for ax in fig.axes
+                   if any(t.get_gid() and t.get_gid().startswith("clipped:") for t in ax.texts)]
+        note = (f"<p>The y axes of {esc(', '.join(clipped))} are scaled to the converged estimate: the range of "
+                "value &plusmn; 2 se over the second half of the rows (and the true value where the stand gives "
+                "one); the start transient before it runs off the axis. The other axes show the whole track.</p>"
+                if clipped else "<p>Each axis shows the whole track (no start transient beyond the final band).</p>")
+        section("tracks", "Tracks (value \u00b1 2 se)", note + figure(fig, "parameter tracks"))
+    else:
+        section("tracks", "Tracks (value \u00b1 2 se)",
+                "<p>No tracks (--track-every 0): the final estimate with its 2-se error bar per parameter.</p>"
+                + figure(result.plot(), "parameters with 2-se error bars"))
+    state_space = result.method in ("ekf", "kf_rls", "auto(ekf)")
     try:
-        if result.method in ("ekf", "kf_rls", "auto(ekf)"):
-            raise ValueError(f"the state-space estimator {result.method} fits the states' equations through a "
-                             "Kalman filter, not the regression whose equation errors are shown here")
-        fig, n, band, outside, max_lag = _residual_figure(result, block)
+        if state_space:
+            sim, start = response()
+            fig, n, band, outside, max_lag, names = _output_residual_figure(result, block, sim, start)
+            what = (f"<p>The state-space estimator {esc(result.method)} fits no regression, and the binding does "
+                    f"not expose its filter's innovations; shown instead: the output residuals measured - model of "
+                    f"each response channel, the identified model driven by the measured inputs (RK4, as in "
+                    f"\u201cMeasured against model response\u201d) from sample {start} on, N = {n}: their Welch "
+                    f"spectrum and the autocorrelation of lags 0..{max_lag} with &plusmn;1.96/&radic;N = "
+                    f"{band:.3g}. A simulation's residuals are not one-step prediction errors: they are coloured "
+                    f"by the model's dynamics, so peaks at the modes mean a model error, a flat spectrum a "
+                    f"model that explains the response.</p>")
+        else:
+            fig, n, band, outside, max_lag = _residual_figure(result, block)
+            names = _node_names(st)
+            what = (f"<p>Equation errors y - x<sup>T</sup>&theta; of the regression at the estimate (forces in N; the "
+                    f"estimator's differences and pre-filter), N = {n}: their Welch spectrum and the autocorrelation "
+                    f"of lags 0..{max_lag}; white residuals stay within &plusmn;1.96/&radic;N = {band:.3g} at 95 % of "
+                    f"the lags. Differences and the pre-filter colour them by design (which is why auto's error bars "
+                    f"come from block statistics), so lags outside the band are no fault by themselves; peaks in "
+                    f"the spectrum at the modes are.</p>")
         lines = "".join(f"<li>{esc(node)}: {100 * o:.1f} % of the lags 1..{max_lag} outside "
-                        "the band</li>" for node, o in zip(_node_names(st), outside))
-        section("residuals", "Residuals of the fit",
-                f"<p>Equation errors y - x<sup>T</sup>&theta; of the regression at the estimate (the estimator's "
-                f"differences and pre-filter), N = {n}; white residuals stay within &plusmn;1.96/&radic;N = "
-                f"{band:.3g} at 95 % of the lags. Differences and the pre-filter colour them by design (which "
-                f"is why auto's error bars come from block statistics), so lags outside the band are no fault "
-                f"by themselves; residuals large against the forces, or periodic, are.</p><ul>{lines}</ul>"
-                + figure(fig, "residuals and their autocorrelation"))
+                        "the band</li>" for node, o in zip(names, outside))
+        section("residuals", "Residuals of the fit" if not state_space else "Residuals of the model (output error)",
+                what + f"<ul>{lines}</ul>" + figure(fig, "residual spectra and autocorrelations"))
     except (_core.VibidError, ValueError) as e:
         section("residuals", "Residuals of the fit", f"<p>Not available for this stand or estimator: {esc(str(e))}</p>")
     chans = _excitation_channels(st)
@@ -408,7 +721,7 @@ def write_report(result: Result, block: np.ndarray, capture: str, path: str) -> 
     else:
         section("excitation", "Excitation spectrum", "<p>The stand has no measured input channel.</p>")
     try:
-        sim, start = model_response(result, block)
+        sim, start = response()
         fit = response_fit(result, block, sim, start)
         section("response", "Measured against model response",
                 f"<p>The identified model driven by the measured inputs (RK4 over the library's equations of "
@@ -418,6 +731,23 @@ def write_report(result: Result, block: np.ndarray, capture: str, path: str) -> 
                 + figure(_response_figure(result, block, sim, start), "measured against model response"))
     except (_core.VibidError, ValueError) as e:
         section("response", "Measured against model response", f"<p>Not available: {esc(str(e))}</p>")
+    try:
+        if not chans:
+            raise ValueError("the stand has no measured input channel")
+        sim, start = response()
+        fig, f, hm, hs, coh, pairs = _frf_figure(result, block, sim, start)
+        section("frf", "Frequency response and coherence",
+                f"<p>Measured H<sub>1</sub> = G<sub>yx</sub> G<sub>xx</sub><sup>-1</sup> (Welch, Hann, "
+                f"{frf_segment(block.shape[0] - start)}-sample segments, 50 % overlap, samples {start} on) from the "
+                f"input channels {esc(', '.join(_excitation_channels(st)))} to each response channel, with its "
+                f"coherence (multiple coherence where there are several inputs), against the identified model's "
+                f"FRF, estimated the same way from the model's noise-free simulation driven by the same measured "
+                f"inputs (so both are in the measured quantities' units: output channel unit per input channel "
+                f"unit; a force input's unit is N where its gain is 1). The identified natural frequencies "
+                f"dotted. Where the coherence is low the measured H<sub>1</sub> is noise, not a fault of the "
+                f"model.</p>" + figure(fig, "frequency response functions"))
+    except (_core.VibidError, ValueError) as e:
+        section("frf", "Frequency response and coherence", f"<p>Not available: {esc(str(e))}</p>")
     a = result.adequacy
     if a.get("unavailable"):
         section("holdout", "Held-out part: measured against simulated", f"<p>Not available: {esc(a['unavailable'])}</p>")
@@ -437,10 +767,13 @@ def write_report(result: Result, block: np.ndarray, capture: str, path: str) -> 
             f"<code>{esc(capture)}</code>, {result.n_samples} samples at {st.sample_rate:g} Hz "
             f"({result.n_samples / st.sample_rate:.6g} s), method {esc(result.method)}, flags "
             f"<b>{esc(result.flags or '-')}</b>; vibid {esc(_core.version())}, "
-            f"{datetime.datetime.now(datetime.timezone.utc).strftime('%Y-%m-%d %H:%M:%S UTC')}</p>")
+            f"{datetime.datetime.now(datetime.timezone.utc).strftime('%Y-%m-%d %H:%M:%S UTC')}</p>"
+            + f'<p id="verdict" class="{"ok" if trusted else "bad"}"><b>Verdict: {esc(why)}</b></p>')
     style = ("body{font-family:sans-serif;max-width:60em;margin:1em auto;padding:0 1em}"
              "table.t{border-collapse:collapse}table.t td,table.t th{padding:2px 8px;border-bottom:1px solid #ccc;"
-             "text-align:right}img{max-width:100%}pre{background:#f4f4f4;padding:.5em;white-space:pre-wrap}")
+             "text-align:right}img{max-width:100%}p.ok{background:#e6f4e6;padding:.4em}"
+             "#flag-counts td:last-child{text-align:left}p.bad{background:#fbe4e4;padding:.4em}"
+             "pre{background:#f4f4f4;padding:.5em;white-space:pre-wrap}")
     doc = (f"<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>vibid: {esc(st.name)}</title>"
            f"<style>{style}</style></head><body>\n{head}\n" + "\n".join(sec) + "\n</body></html>\n")
     with open(path, "w", encoding="utf-8") as f:
@@ -485,12 +818,15 @@ def cmd_identify(a: argparse.Namespace) -> int:
     out += ["warnings:"] + [f"  {w}" for w in warns] if warns else ["warnings: none"]
     out += ["", config_line(result), "estimator:"] + [f"  {line}" for line in result.description.splitlines()]
     print("\n".join(out), flush=True)
-    if a.tracks:
-        write_tracks(result, a.tracks)
-        print(f"tracks: {len(result.tracks)} rows written to {a.tracks}")
-    if a.report:
-        write_report(result, block, a.capture, a.report)
-        print(f"report: {a.report}")
+    try:
+        if a.tracks:
+            write_tracks(result, a.tracks)
+            print(f"tracks: {len(result.tracks)} rows written to {a.tracks}")
+        if a.report:
+            write_report(result, block, a.capture, a.report)
+            print(f"report: {a.report}")
+    except OSError as e:
+        raise RunFailure(f"cannot write the output: {e}") from None
     return 0
 
 
@@ -521,23 +857,69 @@ def cmd_check(a: argparse.Namespace) -> int:
     except _core.VibidError as e:
         print(f"  automatic estimator: refused: {e}")
         print(f"{PROG} check: {stand.source}: cannot be identified: {e}", file=sys.stderr)
-        return 1
+        return EXIT_RUN_FAILURE
     first = ident.describe().splitlines()
     print(f"  automatic estimator: accepted: {first[0] if first else ''}")
     print("identifiable")
     return 0
 
 
+# vibidd recognises its own raw recordings by this first line (daemon/src/writers.h,
+# VD_RECORDING_MAGIC) and then reads the columns by the stand's channel names, time in t.
+RECORDING_MAGIC = "# vibidd raw recording"
+
+
+def cmd_convert(a: argparse.Namespace) -> int:
+    from ._captures import read_capture
+
+    stand = _load_stand(a.stand)
+    if not os.path.exists(a.capture):
+        raise CliError(f"capture {a.capture!r}: no such file")
+    if os.path.exists(a.out) and os.path.samefile(a.capture, a.out):
+        raise CliError(f"{a.out!r} is the capture itself: give another output file")
+    df = read_capture(a.capture, stand, format=a.format, group=a.group, dbc=a.dbc, channel_map=a.channel_map)
+    fmt = df.attrs["source"]["format"]  # as read_capture resolved it
+    block = df[list(stand.channels)]
+    t = df["time_s"].to_numpy() if "time_s" in df else np.arange(len(df)) / stand.sample_rate
+    # A candump log's missing samples are NaN rows: left out, never written as numbers, so
+    # that vibidd's replay sees the gap in the time column (and counts it) as in the log.
+    keep = ~block.isna().any(axis=1).to_numpy()
+    out = pd.DataFrame({"t": t[keep], **{c: block[c].to_numpy()[keep] for c in stand.channels}})
+    try:
+        with open(a.out, "w", encoding="utf-8", newline="") as f:
+            f.write(f"{RECORDING_MAGIC} of stand '{stand.name}' at {stand.sample_rate!r} Hz; converted by "
+                    f"vibid convert from {os.path.basename(a.capture)} ({fmt}); replay: vibidd -c CONFIG "
+                    "--replay FILE\n")
+            # float_format None: each value's shortest round-trip text (repr), so the doubles
+            # read back bit for bit
+            out.to_csv(f, index=False, lineterminator="\n")
+    except OSError as e:
+        raise RunFailure(f"cannot write {a.out}: {e}") from None
+    dropped = int((~keep).sum())
+    print(f"{a.out}: {int(keep.sum())} samples of {len(stand.channels)} channels ({', '.join(stand.channels)}) "
+          f"in {stand.name}'s units, time column t"
+          + (f"; {dropped} missing samples left out (gaps in t)" if dropped else ""))
+    return 0
+
+
+# vibid-sim as the package's build installs it (python/CMakeLists.txt) where SUNDIALS is there
+PACKAGED_SIM = os.path.join(os.path.dirname(os.path.abspath(__file__)), "bin", "vibid-sim")
+
+
 def _vibid_sim() -> str:
+    """VIBID_SIM, else the package's own vibid-sim, else the one on PATH."""
     p = os.environ.get("VIBID_SIM")
     if p:
         if not (os.path.isfile(p) and os.access(p, os.X_OK)):
             raise CliError(f"VIBID_SIM={p!r} is not an executable file")
         return p
+    if os.access(PACKAGED_SIM, os.X_OK):
+        return PACKAGED_SIM
     p = shutil.which("vibid-sim")
     if not p:
-        raise CliError("vibid-sim not found: put it on PATH or set VIBID_SIM to its path "
-                       "(it is built with the C tree: <build>/sim/vibid-sim)")
+        raise CliError("vibid-sim not found: the package was built without it (it needs SUNDIALS: apt install "
+                       "libsundials-dev, then reinstall), none is on PATH and VIBID_SIM is not set (the C tree "
+                       "builds it: <build>/sim/vibid-sim)")
     return p
 
 
@@ -557,8 +939,12 @@ def cmd_simulate(a: argparse.Namespace) -> int:
 
 def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog=PROG, description="Identification of mechanical vibration systems "
-                                 "(masses, damping, stiffness) by least squares: docs/python.md.")
-    sub = ap.add_subparsers(dest="command", required=True, metavar="{identify,check,simulate}")
+                                 "(masses, damping, stiffness) by least squares: docs/python.md.",
+                                 epilog="Exit status: 0 success, 1 a failure while running (an output that "
+                                 "cannot be written; check: the stand cannot be identified), 2 a bad command "
+                                 "line, input or configuration.")
+    ap.add_argument("--version", action="version", version=f"{PROG} {_core.version()}")
+    sub = ap.add_subparsers(dest="command", required=True, metavar="{identify,convert,check,simulate}")
     p = sub.add_parser("identify", help="identify a stand's unknowns from a capture",
                        description="Prints the parameters and modes with standard errors and flags; "
                        "optionally writes the tracks and an HTML report.")
@@ -577,6 +963,21 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--tracks", metavar="OUT.csv", help="write the tracks here (overwritten)")
     p.add_argument("--report", metavar="OUT.html", help="write a self-contained HTML report here (needs matplotlib)")
     p.set_defaults(func=cmd_identify)
+    p = sub.add_parser("convert", help="write any capture the package reads as CSV that vibidd replays",
+                       description="Reads CAPTURE (CSV, candump with --dbc, MDF4, TDMS: the drivers' format "
+                       "registry) as identify does (the stand's channels, in its units) and writes OUT.csv: "
+                       "vibidd's raw-recording layout (a '# vibidd raw recording' line, then t and the stand's "
+                       "channels by name, every value in its shortest round-trip form), which `vibidd "
+                       "--replay OUT.csv` reads without a channel map. Missing samples are left out.")
+    p.add_argument("stand", metavar="STAND")
+    p.add_argument("capture", metavar="CAPTURE")
+    p.add_argument("out", metavar="OUT.csv")
+    p.add_argument("--format", help="the capture's format when neither its content nor its name tells "
+                   "(csv, candump, mdf, tdms)")
+    p.add_argument("--group", help="TDMS group or MDF4 data group")
+    p.add_argument("--dbc", help="DBC of a candump log")
+    p.add_argument("--channel-map", dest="channel_map", help="channel map of a candump log")
+    p.set_defaults(func=cmd_convert)
     p = sub.add_parser("check", help="channels, unknowns and identifiability of a stand",
                        description="Exit status 0 when the stand can be identified, 1 when not (the reason on "
                        "stdout and stderr).")
@@ -605,11 +1006,15 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         # of stdout from raising again.
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 141
-    except (CliError, _core.VibidError, ValueError, OSError, ImportError) as e:
-        # What the library or the data refuse: the message alone (it names the file, field,
-        # channel or parameter), no traceback.
+    except CliError as e:
         print(f"{PROG} {a.command}: error: {e}", file=sys.stderr)
-        return 1
+        return e.status
+    except (_core.VibidError, ValueError, OSError, ImportError) as e:
+        # What the library, the loaders or the data refuse (outputs are written inside a
+        # RunFailure guard, so these come from the inputs): the message alone (it names the
+        # file, field, channel or parameter), no traceback.
+        print(f"{PROG} {a.command}: error: {e}", file=sys.stderr)
+        return EXIT_BAD_INPUT
 
 
 if __name__ == "__main__":  # python -m vibid._cli

@@ -11,19 +11,15 @@ import numpy as np
 import pandas as pd
 
 from . import _adequacy, _core
+from ._captures import CaptureError, location
 from ._stand import Stand
 
 VibidError = _core.VibidError
 
-METHODS = {
-    "auto": _core.ESTIMATOR_AUTO,
-    "ls": _core.ESTIMATOR_LS,
-    "rls": _core.ESTIMATOR_RLS,
-    "iv": _core.ESTIMATOR_IV,
-    "ekf": _core.ESTIMATOR_EKF,
-    "kf_rls": _core.ESTIMATOR_KF_RLS,
-    "oe": _core.ESTIMATOR_OE,
-}
+# method name -> the library's estimator code: the library's own name table (identify.h,
+# vibid_estimator_name), "auto" (the default) first.
+_NAMES = _core.estimator_names()
+METHODS = {name: _NAMES.index(name) for name in ["auto"] + [n for n in _NAMES if n != "auto"]}
 # The held-out part of a capture (its last fraction): auto's choice and every result's
 # adequacy figures are computed on it (docs/python.md, "The automatic choice").
 HOLDOUT = 0.2
@@ -73,12 +69,14 @@ def _columns(stand: Stand, data: Any, dbc: Any = None,
     one column-major block (one copy, the C API takes one block)."""
     channels = stand.channels
     t = None
+    source = None  # {"path", "format"} of a capture file: bad samples are named by file and line
     if isinstance(data, (str, os.PathLike)):
         # A file (CSV, MDF4, TDMS by its extension): read_capture gives the stand's channels,
         # converted to the stand's units, and time_s (checked below as any time column).
         from ._captures import read_capture
         path = os.fspath(data)
         data = read_capture(path, stand, dbc=dbc, channel_map=channel_map)
+        source = data.attrs.get("source")
         gaps = data.attrs.get("gaps")
         if gaps:
             # A candump log's missing samples (NaN rows): refused, never bridged, naming
@@ -133,19 +131,23 @@ def _columns(stand: Stand, data: Any, dbc: Any = None,
     else:
         raise TypeError("data must be a pandas DataFrame, a dict of arrays keyed by channel name, "
                         f"a 2-D array or a CSV path, not {type(data).__name__}")
+    def at(row: int) -> str:  # "file.csv:123: " for a capture file, "" for data in memory
+        return f"{location(source['path'], source['format'], row)}: " if source else ""
+
+    bad_input = CaptureError if source else ValueError
     finite = np.isfinite(block)
     if not finite.all():
         col = int(np.argmin(finite.all(axis=0)))
         row = int(np.argmin(finite[:, col]))
-        raise ValueError(f"channel {channels[col]!r}: non-finite value {float(block[row, col])!r} at row {row} "
-                         "(the estimators would restart their difference windows there; remove or fill gaps first)")
+        raise bad_input(f"{at(row)}channel {channels[col]!r}: non-finite value {float(block[row, col])!r} at row {row} "
+                        "(the estimators would restart their difference windows there; remove or fill gaps first)")
     # One wild value (1.0 or 1e300 in millimetre motions) enters every sum of the estimators
     # and stays there. vibidd takes such single-sample glitches out (vibid/outlier.h, its
     # flag O); identify takes no gaps, so it names the first one instead of answering wrong.
     bad = _core.outliers(block)
     if bad:
         row, col = bad[0]
-        raise ValueError(f"channel {channels[col]!r}: value {float(block[row, col])!r} at row {row} is a "
+        raise bad_input(f"{at(row)}channel {channels[col]!r}: value {float(block[row, col])!r} at row {row} is a "
                          f"single-sample glitch ({len(bad)} in this capture; the outlier test of "
                          "vibid/outlier.h, as vibidd's): remove or repair it (vibid.replay takes such "
                          "glitches out as vibidd does)")
@@ -154,8 +156,8 @@ def _columns(stand: Stand, data: Any, dbc: Any = None,
         # naming both rates (the estimates would be off by that much without a word).
         rate = 1.0 / float(np.median(np.diff(t)))
         if not math.isfinite(rate) or abs(rate / stand.sample_rate - 1.0) > 0.01:
-            raise ValueError(f"the capture's time column gives {rate:.6g} Hz, the stand {stand.name!r} says "
-                             f"{stand.sample_rate:.6g} Hz (more than 1 % apart)")
+            raise bad_input(f"{source['path'] + ': ' if source else ''}the capture's time column gives {rate:.6g} Hz, "
+                            f"the stand {stand.name!r} says {stand.sample_rate:.6g} Hz (more than 1 % apart)")
     return block, t
 
 

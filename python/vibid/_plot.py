@@ -41,13 +41,50 @@ def _truth_lines(ax, truth: float, nominal: float) -> None:
         ax.axhline(nominal, color="0.4", linestyle="-.", linewidth=1.0, label="nominal (start value)")
 
 
+def track_ylim(v: np.ndarray, se: np.ndarray, truth: float = math.nan,
+               pad: float = 0.1) -> Optional[tuple[float, float]]:
+    """y limits of a parameter track scaled to the converged estimate: the range of
+    value +- BAND_SE se over the second half of the rows (the finite ones; the value alone
+    where se is not finite), the true value included where finite, padded by `pad` of the
+    range on each side. None where the second half holds no finite value, or where these
+    limits would not be narrower than the whole track's (no start transient to leave out):
+    then the axis keeps matplotlib's own limits."""
+    v = np.asarray(v, float)
+    se = np.asarray(se, float)
+    half = slice(len(v) // 2, None)
+    vh, sh = v[half], se[half]
+    lo = np.where(np.isfinite(sh), vh - BAND_SE * sh, vh)
+    hi = np.where(np.isfinite(sh), vh + BAND_SE * sh, vh)
+    keep = np.isfinite(lo) & np.isfinite(hi)
+    if not keep.any():
+        return None
+    a, b = float(lo[keep].min()), float(hi[keep].max())
+    if math.isfinite(truth):
+        a, b = min(a, truth), max(b, truth)
+    width = b - a if b > a else max(abs(a), 1e-300) * 1e-3
+    a, b = a - pad * width, b + pad * width
+    # the whole track: its values and the finite bands
+    flo = np.where(np.isfinite(se), v - BAND_SE * se, v)
+    fhi = np.where(np.isfinite(se), v + BAND_SE * se, v)
+    fk = np.isfinite(flo) & np.isfinite(fhi)
+    if float(flo[fk].min()) >= a and float(fhi[fk].max()) <= b:
+        return None
+    return a, b
+
+
 def plot_result(result: "Result", parameters: Optional[Sequence[str]] = None,
                 figsize: Optional[tuple[float, float]] = None) -> "Figure":
     """The parameter tracks with value +- 2 se bands, one axis per parameter (shared time
     axis); the stand's true value dashed (else its nominal value dash-dotted). Rows flagged E
     (no estimate) and bands whose se is not finite (flag I) leave gaps. A result without
     tracks (a batch estimate) gets the same layout with one point and its 2-se error bar per
-    axis."""
+    axis.
+
+    Each track's y axis is scaled to the converged estimate (:func:`track_ylim`): the
+    range of value +- 2 se over the second half of the rows, with the true value where the
+    stand gives one; the start transient (and a nominal start value far off) runs off the
+    axis, and the axis says so ("start transient clipped"). Where the whole track already
+    lies in that range the axis is matplotlib's own."""
     p = result.parameters
     names = list(p.index) if parameters is None else list(parameters)
     for name in names:
@@ -71,6 +108,12 @@ def plot_result(result: "Result", parameters: Optional[Sequence[str]] = None,
             ax.fill_between(t, lo, hi, where=ok, color="C0", alpha=0.25, linewidth=0,
                             label=f"value \u00b1 {BAND_SE:g} se", gid=f"band:{name}")
             ax.plot(t, v, color="C0", linewidth=1.2, label="estimate", gid=f"track:{name}")
+            lim = track_ylim(v, se, float(p.loc[name, "true_value"]))
+            if lim is not None:
+                ax.set_ylim(*lim)
+                ax.text(1.0, 1.01, "start transient clipped: y scaled to the second half of the rows",
+                        transform=ax.transAxes, ha="right", va="bottom", fontsize="x-small", color="0.35",
+                        gid=f"clipped:{name}")
             bad = tracks["flags"].astype(str).str.contains("[PU]", regex=True).to_numpy()
             if bad.any():
                 # Rows whose value is impossible (P) or whose band does not hold (U): marked,

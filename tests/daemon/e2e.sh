@@ -401,7 +401,13 @@ diagnostics)
     grep -m1 '^vibid_alarm,' alarms.influx | grep -q '^vibid_alarm,parameter=c2,stand=paper_example1 state="raised"' || fail "first alarm not c2"
     [ "$first" -ge 80000 ] || fail "alarm at sample $first, before the change at 80000 (false alarm)"
     [ "$first" -le 86000 ] || fail "alarm at sample $first: more than 3 s after the change"
+    # The last row (20 s after the crack, 40 memories of the RLS) has tracked the new c2:
+    # within 1 % of 1.35e6 (its standard error there is 0.3 %, so 1 % is about 3.3 of them;
+    # measured +0.08 %), far from the 1.5e6 before the crack.
+    [ "$(sed -n '/^time_s,/p' tracks.csv | cut -d, -f7,8)" = "c2,c2_se" ] || fail "tracks columns: $(grep -m1 '^time_s' tracks.csv)"
     c2_after=$(awk -F, 'END { print $7 }' tracks.csv)
+    awk -v c="$c2_after" 'BEGIN { exit !(c > 1.35e6 * 0.99 && c < 1.35e6 * 1.01) }' ||
+        fail "final c2 = $c2_after, not within 1 % of the changed 1.35e6"
     note "c2 alarm at sample $first (t = $(awk -v i="$first" 'BEGIN { print i / 2000 }') s, change at 40 s); final c2 = $c2_after (truth 1.35e6)"
     ;;
 torn_lines)

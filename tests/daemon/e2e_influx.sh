@@ -35,8 +35,9 @@
 GEN=$BUILD/tests/daemon/vd_gen_capture
 STAND=$SRC/examples/stands/paper_example1.cfg
 
+# Every case but v2 (a recorder stands in for an InfluxDB 2 server) needs influxd.
 INFLUXD=$(command -v influxd || true)
-if [ -z "$INFLUXD" ]; then
+if [ -z "$INFLUXD" ] && [ "$CASE" != v2 ]; then
     echo "SKIPPED [$CASE]: influxd is not installed (Debian package influxdb, scripts/install-deps.sh --test);"
     echo "SKIPPED [$CASE]: the InfluxDB test was NOT run"
     exit 77

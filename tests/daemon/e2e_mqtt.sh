@@ -371,9 +371,8 @@ will)
     curl -s --max-time 2 -o m.txt "http://$(status_val metrics_listen)/metrics" || fail "scrape: curl exit $?"
     grep -q '^vibid_mqtt_connected 1$' m.txt || fail "metrics: $(grep vibid_mqtt m.txt)"
     grep -q '^vibid_mqtt_published_total [1-9]' m.txt || fail "metrics: $(grep vibid_mqtt m.txt)"
-    if command -v promtool > /dev/null; then
-        promtool check metrics < m.txt > promtool.out 2>&1 || fail "promtool check metrics: $(cat promtool.out)"
-    fi
+    command -v promtool > /dev/null || fail "promtool not found (Debian package prometheus: scripts/install-deps.sh --test)"
+    promtool check metrics < m.txt > promtool.out 2>&1 || fail "promtool check metrics: $(cat promtool.out)"
     [ "$(retained_state -p "$PORT")" = running ] || fail "retained status while running: '$(retained_state -p "$PORT")'"
     kill -9 $pid
     wait $pid 2> /dev/null

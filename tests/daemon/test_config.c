@@ -132,11 +132,11 @@ static void test_prometheus(void **state)
     vd_config cfg;
     vd_config_error err;
     assert_int_equal(vd_config_load(write_cfg("p0.cfg", STAND SOURCE), &cfg, &err), 0);
-    assert_string_equal(cfg.prom_listen, "");
+    assert_string_equal(cfg.prometheus.listen, "");
     vd_config_free(&cfg);
     assert_int_equal(vd_config_load(write_cfg("p1.cfg", STAND SOURCE "outputs = { prometheus = { }; };\n"), &cfg, &err),
                      0);
-    assert_string_equal(cfg.prom_listen, "127.0.0.1:18813");
+    assert_string_equal(cfg.prometheus.listen, "127.0.0.1:18813");
     char *p = NULL;
     size_t n = 0;
     FILE *o = open_memstream(&p, &n);
@@ -149,7 +149,7 @@ static void test_prometheus(void **state)
                                               "outputs = { prometheus = { listen = \"[::1]:9999\"; }; };\n"),
                                     &cfg, &err),
                      0);
-    assert_string_equal(cfg.prom_listen, "[::1]:9999");
+    assert_string_equal(cfg.prometheus.listen, "[::1]:9999");
     vd_config_free(&cfg);
     expect_error("p3.cfg", STAND SOURCE "outputs = { prometheus = { listen = \"example.org:9100\"; }; };\n",
                  ":12: outputs.prometheus.listen:", "'example.org' is not an IPv4 address");

@@ -49,16 +49,16 @@ static void test_config(void **state) {
     vd_config_error err;
     /* no group: off; the group alone: database vibid on loopback, API v1 */
     assert_int_equal(load("off", "", &c, &err), 0);
-    assert_string_equal(c.influx_http_url, "");
+    assert_string_equal(c.influx_http.url, "");
     vd_config_free(&c);
     assert_int_equal(load("def", "outputs = { influx = { http = { }; }; };", &c, &err), 0);
-    assert_string_equal(c.influx_http_url, "http://127.0.0.1:8086");
-    assert_int_equal(c.influx_http_api, 1);
-    assert_string_equal(c.influx_http_database, "vibid");
-    assert_int_equal(c.influx_http_batch_lines, 5000);
-    assert_true(c.influx_http_batch_interval_s == 1.0);
-    assert_int_equal(c.influx_http_buffer_mib, 16);
-    assert_true(c.influx_http_timeout_s == 10.0 && c.influx_http_drain_timeout_s == 10.0);
+    assert_string_equal(c.influx_http.url, "http://127.0.0.1:8086");
+    assert_int_equal(c.influx_http.api, 1);
+    assert_string_equal(c.influx_http.database, "vibid");
+    assert_int_equal(c.influx_http.batch_lines, 5000);
+    assert_true(c.influx_http.batch_interval_s == 1.0);
+    assert_int_equal(c.influx_http.buffer_mib, 16);
+    assert_true(c.influx_http.timeout_s == 10.0 && c.influx_http.drain_timeout_s == 10.0);
     /* the printout is a configuration that reads back the same */
     char path[256];
     snprintf(path, sizeof path, "/tmp/vd_test_influx_http_%d_print.cfg", (int)getpid());
@@ -68,9 +68,9 @@ static void test_config(void **state) {
     vd_config c2;
     int rc = vd_config_load(path, &c2, &err);
     if (rc) fail_msg("printout does not read back: %s", err.text);
-    assert_string_equal(c2.influx_http_url, c.influx_http_url);
-    assert_string_equal(c2.influx_http_database, "vibid");
-    assert_int_equal(c2.influx_http_buffer_mib, 16);
+    assert_string_equal(c2.influx_http.url, c.influx_http.url);
+    assert_string_equal(c2.influx_http.database, "vibid");
+    assert_int_equal(c2.influx_http.buffer_mib, 16);
     vd_config_free(&c2);
     unlink(path);
     vd_config_free(&c);
@@ -81,9 +81,9 @@ static void test_config(void **state) {
                           "\"tok\"; batch_size = 10; buffer_size = 1; }; }; };",
                           &c, &err),
                      0);
-    assert_int_equal(c.influx_http_api, 2);
-    assert_string_equal(c.influx_http_url, "https://h.example/influx");
-    assert_string_equal(c.influx_http_token_file, "/tmp/tok");
+    assert_int_equal(c.influx_http.api, 2);
+    assert_string_equal(c.influx_http.url, "https://h.example/influx");
+    assert_string_equal(c.influx_http.token_file, "/tmp/tok");
     assert_string_equal(c.influx_site, "plant1");
     assert_string_equal(c.influx_stand, "rig-7.b");
     vd_config_free(&c);
@@ -131,21 +131,21 @@ static void test_write_url(void **state) {
     vd_config c;
     memset(&c, 0, sizeof c);
     char buf[512];
-    snprintf(c.influx_http_url, sizeof c.influx_http_url, "http://127.0.0.1:8086");
-    c.influx_http_api = 1;
-    snprintf(c.influx_http_database, sizeof c.influx_http_database, "vibid");
+    snprintf(c.influx_http.url, sizeof c.influx_http.url, "http://127.0.0.1:8086");
+    c.influx_http.api = 1;
+    snprintf(c.influx_http.database, sizeof c.influx_http.database, "vibid");
     int n = vd_influx_http_write_url(buf, sizeof buf, &c);
     assert_int_equal(n, (int)strlen(buf));
     assert_string_equal(buf, "http://127.0.0.1:8086/write?db=vibid&precision=ns");
     /* every reserved character percent-encoded (RFC 3986); the retention policy only when given */
-    snprintf(c.influx_http_database, sizeof c.influx_http_database, "my db&x=1/ü");
-    snprintf(c.influx_http_rp, sizeof c.influx_http_rp, "30d");
+    snprintf(c.influx_http.database, sizeof c.influx_http.database, "my db&x=1/ü");
+    snprintf(c.influx_http.rp, sizeof c.influx_http.rp, "30d");
     assert_true(vd_influx_http_write_url(buf, sizeof buf, &c) > 0);
     assert_string_equal(buf, "http://127.0.0.1:8086/write?db=my%20db%26x%3D1%2F%C3%BC&rp=30d&precision=ns");
-    c.influx_http_api = 2;
-    snprintf(c.influx_http_url, sizeof c.influx_http_url, "https://cloud.example/base");
-    snprintf(c.influx_http_org, sizeof c.influx_http_org, "plant 1");
-    snprintf(c.influx_http_bucket, sizeof c.influx_http_bucket, "vibid/raw");
+    c.influx_http.api = 2;
+    snprintf(c.influx_http.url, sizeof c.influx_http.url, "https://cloud.example/base");
+    snprintf(c.influx_http.org, sizeof c.influx_http.org, "plant 1");
+    snprintf(c.influx_http.bucket, sizeof c.influx_http.bucket, "vibid/raw");
     assert_true(vd_influx_http_write_url(buf, sizeof buf, &c) > 0);
     assert_string_equal(buf, "https://cloud.example/base/api/v2/write?org=plant%201&bucket=vibid%2Fraw&precision=ns");
     /* too small: -1, never a cut URL */
@@ -186,7 +186,8 @@ static void test_buffer_full(void **state) {
     vd_config_error err;
     assert_int_equal(load("buf", "outputs = { influx = { http = { buffer_size = 1; }; }; };", &c, &err), 0);
     char e[256];
-    vd_influx_http *h = vd_influx_http_curl.open(&c, "paper_example1", e, sizeof e);
+    const vd_output_ctx ctx = {.cfg = &c, .stand = "paper_example1"};
+    vd_influx_http *h = vd_influx_http_curl.open(&ctx, e, sizeof e);
     if (!h) fail_msg("open: %s", e);
     vd_row r = sample_row();
     char line[2048];

@@ -326,8 +326,8 @@ static double now_s(void)
 static void test_endpoint(void **state)
 {
     (void)state;
-    static vd_config cfg; /* only prom_listen is read */
-    snprintf(cfg.prom_listen, sizeof cfg.prom_listen, "127.0.0.1:0");
+    static vd_config cfg; /* only prometheus.listen is read */
+    snprintf(cfg.prometheus.listen, sizeof cfg.prometheus.listen, "127.0.0.1:0");
     static vd_metrics m;
     char err[300];
     assert_int_equal(vd_metrics_open(&m, &cfg, err, sizeof err), 0);
@@ -416,7 +416,7 @@ static void test_endpoint(void **state)
      * while it is open: the error names the address and the errno text */
     static vd_metrics m2, m3;
     assert_int_equal(vd_metrics_open(&m2, &cfg, err, sizeof err), 0);
-    snprintf(cfg.prom_listen, sizeof cfg.prom_listen, "%s", m2.where);
+    snprintf(cfg.prometheus.listen, sizeof cfg.prometheus.listen, "%s", m2.where);
     assert_int_equal(vd_metrics_open(&m3, &cfg, err, sizeof err), -1);
     char want[200];
     snprintf(want, sizeof want, "outputs.prometheus.listen %s: cannot listen: Address already in use", m2.where);

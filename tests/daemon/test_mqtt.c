@@ -39,7 +39,7 @@ static int setup(void **state) {
     if (rc) fprintf(stderr, "%s\n", err.text);
     /* a site with quotes: the configuration refuses it (names are of the safe set,
      * vibid/cfgread.h), the JSON writer escapes it all the same (defence in depth) */
-    snprintf(cfg.mqtt_site, sizeof cfg.mqtt_site, "plant \"1\"");
+    snprintf(cfg.mqtt.site, sizeof cfg.mqtt.site, "plant \"1\"");
     return rc;
 }
 
@@ -73,20 +73,20 @@ static vd_row sample_row(void) {
 static void test_config(void **state) {
     (void)state;
     /* the defaults of the group */
-    assert_string_equal(cfg.mqtt_url, "mqtt://127.0.0.1:1883");
-    assert_string_equal(cfg.mqtt_host, "127.0.0.1");
-    assert_int_equal(cfg.mqtt_port, 1883);
-    assert_false(cfg.mqtt_tls);
-    assert_string_equal(cfg.mqtt_prefix, "vibid/v1");
-    assert_int_equal(cfg.mqtt_qos, 1);
-    assert_int_equal(cfg.mqtt_keepalive, 30);
-    assert_int_equal(cfg.mqtt_protocol, 5);
-    assert_int_equal(cfg.mqtt_format, 0);
+    assert_string_equal(cfg.mqtt.url, "mqtt://127.0.0.1:1883");
+    assert_string_equal(cfg.mqtt.host, "127.0.0.1");
+    assert_int_equal(cfg.mqtt.port, 1883);
+    assert_false(cfg.mqtt.tls);
+    assert_string_equal(cfg.mqtt.prefix, "vibid/v1");
+    assert_int_equal(cfg.mqtt.qos, 1);
+    assert_int_equal(cfg.mqtt.keepalive, 30);
+    assert_int_equal(cfg.mqtt.protocol, 5);
+    assert_int_equal(cfg.mqtt.format, 0);
     vd_config c;
     vd_config_error err;
     /* no group: off */
     assert_int_equal(load("off", "", &c, &err), 0);
-    assert_string_equal(c.mqtt_url, "");
+    assert_string_equal(c.mqtt.url, "");
     vd_config_free(&c);
     /* mqtts with an IPv6 literal and a port; relative files next to the configuration */
     assert_int_equal(
@@ -95,18 +95,18 @@ static void test_config(void **state) {
              "password_file = \"pw\"; ca_file = \"ca.pem\"; protocol = \"3.1.1\"; format = \"line\"; }; };",
              &c, &err),
         0);
-    assert_true(c.mqtt_tls);
-    assert_string_equal(c.mqtt_host, "::1");
-    assert_int_equal(c.mqtt_port, 8884);
-    assert_int_equal(c.mqtt_protocol, 4);
-    assert_int_equal(c.mqtt_format, 1);
-    assert_string_equal(c.mqtt_password_file, "/tmp/pw");
+    assert_true(c.mqtt.tls);
+    assert_string_equal(c.mqtt.host, "::1");
+    assert_int_equal(c.mqtt.port, 8884);
+    assert_int_equal(c.mqtt.protocol, 4);
+    assert_int_equal(c.mqtt.format, 1);
+    assert_string_equal(c.mqtt.password_file, "/tmp/pw");
     vd_config_free(&c);
     assert_int_equal(
         load("tlsdef", "outputs = { mqtt = { url = \"mqtts://broker.plant\"; site = \"p\"; }; };", &c, &err),
         0);
-    assert_int_equal(c.mqtt_port, 8883);
-    assert_string_equal(c.mqtt_host, "broker.plant");
+    assert_int_equal(c.mqtt.port, 8883);
+    assert_string_equal(c.mqtt.host, "broker.plant");
     vd_config_free(&c);
     /* refusals name the field */
     static const struct {
@@ -152,7 +152,7 @@ static void test_config(void **state) {
     /* as loaded (setup gives the site a quote only after loading: a configuration cannot) */
     static vd_config loaded;
     loaded = cfg;
-    snprintf(loaded.mqtt_site, sizeof loaded.mqtt_site, "plant1");
+    snprintf(loaded.mqtt.site, sizeof loaded.mqtt.site, "plant1");
     vd_config_print(&loaded, o);
     fclose(o);
     assert_non_null(strstr(p, "    url = \"mqtt://127.0.0.1:1883\";\n"));
@@ -166,8 +166,8 @@ static void test_config(void **state) {
     int rc = vd_config_load(path, &c2, &err);
     unlink(path);
     if (rc) fail_msg("printout does not read back: %s\n%s", err.text, p);
-    assert_string_equal(c2.mqtt_site, "plant1");
-    assert_int_equal(c2.mqtt_queue_size, 5);
+    assert_string_equal(c2.mqtt.site, "plant1");
+    assert_int_equal(c2.mqtt.queue_size, 5);
     vd_config_free(&c2);
     free(p);
 }
@@ -241,7 +241,8 @@ static uint64_t dropped(vd_mqtt *m, vd_snapshot *s) {
 static void test_queue_drops(void **state) {
     (void)state;
     char err[512];
-    vd_mqtt *m = vd_mqtt_libmosquitto.open(&cfg, err, sizeof err);
+    const vd_output_ctx ctx = {.cfg = &cfg};
+    vd_mqtt *m = vd_mqtt_libmosquitto.open(&ctx, err, sizeof err);
     if (!m) fail_msg("open: %s", err);
     vd_row r = sample_row();
     vd_snapshot s;
@@ -249,9 +250,9 @@ static void test_queue_drops(void **state) {
     clock_gettime(CLOCK_MONOTONIC, &t0);
     for (int i = 0; i < 12; i++) {
         r.index = (uint64_t)i * 10;
-        vd_mqtt_libmosquitto.track(m, &r);
+        vd_mqtt_libmosquitto.row(m, &r);
     }
-    vd_mqtt_libmosquitto.alarm(m, "c2", 1, &r, 1.0, 2.0, 3.0);
+    vd_mqtt_libmosquitto.alarm(m, &(vd_output_alarm){"c2", 1, &r, 1.0, 2.0, 3.0});
     clock_gettime(CLOCK_MONOTONIC, &t1);
     double dt = (double)(t1.tv_sec - t0.tv_sec) + 1e-9 * (double)(t1.tv_nsec - t0.tv_nsec);
     assert_int_equal(dropped(m, &s), 8); /* 7 rows and the alarm */
@@ -260,7 +261,7 @@ static void test_queue_drops(void **state) {
     assert_int_equal(s.mqtt_queue_fill, 5);
     assert_int_equal(s.mqtt_queue_capacity, 5);
     assert_true(dt < 0.5);
-    assert_true(vd_mqtt_libmosquitto.status(m, "state=running\n", 14, false));
+    assert_true(vd_mqtt_libmosquitto.status(m, NULL, "state=running\n", 14, false));
     vd_mqtt_libmosquitto.close(m); /* never started: nothing to drain */
 }
 

@@ -40,19 +40,9 @@
 
 #include "support/drv_test_util.h"
 
-static const char regmap_text[] =
-    "registers = (\n"
-    "  { name = \"a\"; address = 0;  register = \"holding\"; type = \"FLOAT32\"; byte_order = \"ABCD\"; },\n"
-    "  { name = \"b\"; address = 2;  register = \"holding\"; type = \"INT16\";   scale = 0.001; },\n"
-    "  { name = \"c\"; address = 10; register = \"holding\"; type = \"FLOAT32\"; byte_order = \"CDAB\"; }\n"
-    ");\n";
-
-static int64_t mono(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (int64_t)ts.tv_sec * 1000000000 + ts.tv_nsec;
-}
+#define MODBUS_PEER_FAIL(...) fail_msg(__VA_ARGS__)
+#define MODBUS_PEER_NOTE(...) print_message(__VA_ARGS__)
+#include "support/modbus_peer.h" /* the server's register map and signal */
 
 typedef struct null_modem {
     int master[2], slave[2]; /* slaves stay open here so a closing peer never gives EIO */
@@ -140,56 +130,16 @@ static FILE *start_rtu_server(const char *dev, pid_t *pid)
     return p;
 }
 
-static vibid_regmap *load_regmap(void)
-{
-    char path[512];
-    assert_non_null(drv_write_tmp("rtu_regs.cfg", regmap_text, sizeof regmap_text - 1, path, sizeof path));
-    vibid_drv_error err = {0};
-    vibid_regmap *rm = vibid_regmap_load(path, &err);
-    if (!rm)
-        fail_msg("%s", err.text);
-    unlink(path);
-    return rm;
-}
-
 static vibid_source_modbus_config rtu_cfg(const vibid_regmap *rm, const char *dev)
 {
-    vibid_source_modbus_config c;
-    memset(&c, 0, sizeof c);
+    vibid_source_modbus_config c = peer_cfg(rm);
     c.transport = VIBID_MODBUS_RTU;
     c.device = dev;
     c.baud = 115200;
     c.parity = 'N'; /* pyserial cannot set even parity on a pty (tcsetattr EINVAL) */
     c.unit_id = 1;
-    c.regmap = rm;
-    c.chanmap.n = 3;
-    const char *names[] = {"a", "b", "c"};
-    for (int i = 0; i < 3; i++) {
-        strcpy(c.chanmap.ch[i].name, names[i]);
-        strcpy(c.chanmap.ch[i].ref, names[i]);
-        c.chanmap.ch[i].source = VIBID_CHAN_REGISTER;
-    }
     c.response_timeout_s = 0.5; /* Python answers within a few ms; 0.5 s only bounds a hang */
-    c.backoff_initial_s = 0.05;
-    c.backoff_max_s = 0.4;
     return c;
-}
-
-/* The server's signal (modbus_fifo_server.py): sample s has c = 0.5 s (exact in float32
- * below 2^24), a = sin(0.01 s) rounded to float32, b = ((s mod 1000) - 500) * 0.001.
- * Returns s, or fails. */
-static long check_values(const vibid_record *r)
-{
-    double s = r->values[2] * 2.0;
-    if (s < 0 || s != floor(s))
-        fail_msg("sample %llu: c = %.9g is not 0.5 * integer", (unsigned long long)r->index, r->values[2]);
-    long si = (long)s;
-    double a = (double)(float)sin(0.01 * s);
-    double b = (double)((si % 1000) - 500) * 0.001;
-    if (r->values[0] != a || r->values[1] != b)
-        fail_msg("sample %llu (s = %ld): a = %.9g (want %.9g), b = %.9g (want %.9g)", (unsigned long long)r->index,
-                 si, r->values[0], a, r->values[1], b);
-    return si;
 }
 
 static void test_rtu_fifo_and_snapshot(void **state)
@@ -214,8 +164,8 @@ static void test_rtu_fifo_and_snapshot(void **state)
     size_t n;
     uint64_t next_k = 0, samples = 0;
     long last_s = -1;
-    int64_t end = mono() + (int64_t)2.0e9;
-    while (mono() < end) {
+    int64_t end = mono_ns() + (int64_t)2.0e9;
+    while (mono_ns() < end) {
         vibid_drv_status st = vibid_source_read(s, r, 256, &n, 50, &err);
         if (st != VIBID_DRV_OK && st != VIBID_DRV_E_AGAIN)
             fail_msg("read: %s", err.text);
@@ -256,8 +206,8 @@ static void test_rtu_fifo_and_snapshot(void **state)
         fail_msg("RTU snapshot open: %s", err.text);
     uint64_t snaps = 0, missing = 0, k = 0;
     long last = -1;
-    end = mono() + (int64_t)1.0e9;
-    while (mono() < end) {
+    end = mono_ns() + (int64_t)1.0e9;
+    while (mono_ns() < end) {
         vibid_drv_status rs = vibid_source_read(s, r, 16, &n, 20, &err);
         if (rs != VIBID_DRV_OK && rs != VIBID_DRV_E_AGAIN)
             fail_msg("read: %s", err.text);

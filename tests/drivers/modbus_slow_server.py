@@ -10,7 +10,8 @@ hostile peers (issue 12). Only function 0x03 (read holding registers) is impleme
             minutes)
 --period-ns P  the FIFO's sample period (default 10 ms: its 500-record ring then holds 5 s,
             so that answers 0.45 s late can still be read before they are overwritten)
-Prints "READY <port>", serves until --max-time.
+Prints "READY <port>", serves until --max-time, or with --control until its stdin ends
+(the test decides when it has seen enough; --max-time 300 is then the last resort).
 """
 import argparse
 import asyncio
@@ -18,7 +19,7 @@ import struct
 import sys
 import time
 
-from modbus_fifo_server import BASE, DOFF, K, W, Fifo
+from modbus_fifo_server import BASE, DOFF, K, W, Fifo, stdin_lines
 
 
 class Block:
@@ -58,6 +59,8 @@ async def serve(reader, writer, fifo, block, delay, drip):
                 await writer.drain()
     except (asyncio.IncompleteReadError, ConnectionError):
         pass
+    except asyncio.CancelledError:  # the server exits while this answer is pending
+        pass
     finally:
         writer.close()
 
@@ -69,14 +72,18 @@ async def main():
     ap.add_argument("--drip", type=float, default=0.0)
     ap.add_argument("--max-time", type=float, default=10.0)
     ap.add_argument("--period-ns", type=int, default=10000000)
+    ap.add_argument("--control", action="store_true")
     args = ap.parse_args()
     block = Block(BASE + DOFF + K * W + 16)
     fifo = Fifo(block, args.period_ns)
     server = await asyncio.start_server(lambda r, w: serve(r, w, fifo, block, args.delay, args.drip),
                                         "127.0.0.1", args.port)
     print("READY", args.port, flush=True)
+    if args.control:
+        args.max_time = max(args.max_time, 300.0)
+        eof = asyncio.create_task((await stdin_lines()).read())
     end = time.monotonic() + args.max_time
-    while time.monotonic() < end:
+    while time.monotonic() < end and not (args.control and eof.done()):
         fifo.advance()
         await asyncio.sleep(0.002)
     server.close()

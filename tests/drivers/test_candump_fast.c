@@ -19,14 +19,10 @@
 
 #include "candump_internal.h"
 
+#include "support/drv_test_util.h"
+
 static uint64_t rng_state = 0x2545F4914F6CDD1Du;
-static uint64_t rnd(void)
-{
-    uint64_t z = (rng_state += 0x9E3779B97F4A7C15u);
-    z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9u;
-    z = (z ^ (z >> 27)) * 0x94D049BB133111EBu;
-    return z ^ (z >> 31);
-}
+static uint64_t rnd(void) { return drv_splitmix64(&rng_state); }
 
 static const char hexu[] = "0123456789ABCDEF", hexl[] = "0123456789abcdef";
 

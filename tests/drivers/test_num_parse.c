@@ -20,29 +20,10 @@
 
 #include "num_parse.h"
 
-/* splitmix64: reproducible across runs and platforms */
+#include "support/drv_test_util.h"
+
 static uint64_t rng_state = 0x9E3779B97F4A7C15u;
-static uint64_t rnd(void)
-{
-    uint64_t z = (rng_state += 0x9E3779B97F4A7C15u);
-    z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9u;
-    z = (z ^ (z >> 27)) * 0x94D049BB133111EBu;
-    return z ^ (z >> 31);
-}
-
-static uint64_t bits_of(double d)
-{
-    uint64_t b;
-    memcpy(&b, &d, sizeof b);
-    return b;
-}
-
-static double from_bits(uint64_t b)
-{
-    double d;
-    memcpy(&d, &b, sizeof d);
-    return d;
-}
+static uint64_t rnd(void) { return drv_splitmix64(&rng_state); }
 
 typedef struct tally {
     unsigned long checked, handled;
@@ -59,9 +40,9 @@ static void check(const char *s, tally *t)
     t->handled++;
     char *ep;
     double ref = strtod(s, &ep);
-    if (*ep != '\0' || bits_of(fast) != bits_of(ref)) {
+    if (*ep != '\0' || drv_bits_of(fast) != drv_bits_of(ref)) {
         fprintf(stderr, "'%s': fast %.17g (0x%016llx), strtod %.17g (0x%016llx), strtod stopped at '%s'\n", s, fast,
-                (unsigned long long)bits_of(fast), ref, (unsigned long long)bits_of(ref), ep);
+                (unsigned long long)drv_bits_of(fast), ref, (unsigned long long)drv_bits_of(ref), ep);
         fail();
     }
 }
@@ -69,7 +50,7 @@ static void check(const char *s, tally *t)
 static double random_finite(void)
 {
     for (;;) {
-        double d = from_bits(rnd());
+        double d = drv_from_bits(rnd());
         if (isfinite(d))
             return d;
     }
@@ -119,14 +100,14 @@ static void test_subnormals_and_extremes(void **state)
     char buf[512];
     for (int i = 0; i < 300000; i++) {
         /* subnormals: exponent field 0, random mantissa */
-        double d = from_bits(rnd() & ((UINT64_C(1) << 52) - 1u));
+        double d = drv_from_bits(rnd() & ((UINT64_C(1) << 52) - 1u));
         snprintf(buf, sizeof buf, "%.17g", d);
         check(buf, &t);
         snprintf(buf, sizeof buf, "%.6g", d);
         check(buf, &t);
         /* the top and bottom of the normal range */
         uint64_t e = (rnd() & 1) ? 0x7FE - (rnd() % 4) : 1 + (rnd() % 4);
-        d = from_bits((e << 52) | (rnd() & ((UINT64_C(1) << 52) - 1u)));
+        d = drv_from_bits((e << 52) | (rnd() & ((UINT64_C(1) << 52) - 1u)));
         snprintf(buf, sizeof buf, "%.17g", d);
         check(buf, &t);
         snprintf(buf, sizeof buf, "%.16e", -d);
@@ -147,9 +128,9 @@ static void test_subnormals_and_extremes(void **state)
     /* a few the fast path must answer itself (not hand to strtod) */
     double v;
     const char *s = "4.9406564584124654e-324";
-    assert_true(vibid_parse_decimal(s, s + strlen(s), &v) && bits_of(v) == 1u);
+    assert_true(vibid_parse_decimal(s, s + strlen(s), &v) && drv_bits_of(v) == 1u);
     s = "-0";
-    assert_true(vibid_parse_decimal(s, s + 2, &v) && bits_of(v) == UINT64_C(1) << 63);
+    assert_true(vibid_parse_decimal(s, s + 2, &v) && drv_bits_of(v) == UINT64_C(1) << 63);
 }
 
 /* Exact midpoints between neighbouring doubles, written exactly (they have few digits when

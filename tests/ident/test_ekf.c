@@ -122,14 +122,15 @@ static void check_within(const capture *c, const double *theta, const double *se
     }
 }
 
-/* 60,000 samples (60 s at 1 kHz) of the stand in `text`, 1 % sensor noise, identified with the defaults;
- * every unknown within its bound and within 3 standard errors. */
-static void identify_and_check(const char *name, const char *text, vibid_estimator est, double tol_stiff,
-                               double tol_damp)
+/* 60,000 samples (60 s at 1 kHz) of the stand in `text`, sensor noise of `noise` of each
+ * channel's RMS, identified with the defaults; every unknown within its bound and within 3
+ * standard errors. */
+static void identify_and_check(const char *name, const char *text, vibid_estimator est, double noise,
+                               double tol_stiff, double tol_damp)
 {
     capture c;
     simulate(&c, name, text, 60000);
-    add_noise(&c, 0.01);
+    add_noise(&c, noise);
     double theta[16], se[16];
     assert_true(c.p <= 16);
     identify_all(&c, est, 1.0, theta, se, 1);
@@ -142,7 +143,7 @@ static void test_base_partial(void **state)
     (void)state;
     char text[4096];
     snprintf(text, sizeof text, "%s%s", base_partial_stand, no_change);
-    identify_and_check("ekf_base2.cfg", text, VIBID_ESTIMATOR_AUTO, 0.01, 0.05);
+    identify_and_check("ekf_base2.cfg", text, VIBID_ESTIMATOR_AUTO, 0.01, 0.01, 0.05);
 }
 
 /* Tracking: c2 drops by 10 % at 30 s. Estimates every 0.5 s; before the drop (after a
@@ -209,7 +210,7 @@ static const char *chain3_parallel =
 static void test_chain3_end(void **state)
 {
     (void)state;
-    identify_and_check("ekf_chain3.cfg", chain3_stand, VIBID_ESTIMATOR_AUTO, 0.02, 0.02);
+    identify_and_check("ekf_chain3.cfg", chain3_stand, VIBID_ESTIMATOR_AUTO, 0.01, 0.02, 0.02);
     const char *path = write_tmp("ekf_chain3_parallel.cfg", chain3_parallel);
     vibid_stand_error serr;
     vibid_stand *st = vibid_stand_load(path, &serr);
@@ -378,7 +379,7 @@ static const char *cubic_partial_stand =
 static void test_cubic_partial(void **state)
 {
     (void)state;
-    identify_and_check("ekf_cubic.cfg", cubic_partial_stand, VIBID_ESTIMATOR_AUTO, 0.01, 0.05);
+    identify_and_check("ekf_cubic.cfg", cubic_partial_stand, VIBID_ESTIMATOR_AUTO, 0.01, 0.01, 0.05);
 }
 
 /* The drift check (VIBID_QUALITY_SE_INVALID with z_consistency > 4): a stiff, lightly
@@ -455,7 +456,11 @@ static void test_kf_rls(void **state)
     (void)state;
     ex3_check(VIBID_ESTIMATOR_KF_RLS, "KF+RLS");
 
-    identify_and_check("kfrls_base_upper.cfg", base_upper_stand, VIBID_ESTIMATOR_KF_RLS, 0.01, 0.05);
+    identify_and_check("kfrls_base_upper.cfg", base_upper_stand, VIBID_ESTIMATOR_KF_RLS, 0.01, 0.01, 0.05);
+    /* The same capture noise-free: the KF+RLS's own bias, which the noise above happens to
+     * hide (README, "Stands that are not fully measured"; measured c1 -2.4 %, d1 -2.3 %).
+     * Bounded at 4 % so that a change of that bias shows here, not only in the README. */
+    identify_and_check("kfrls_base_upper_clean.cfg", base_upper_stand, VIBID_ESTIMATOR_KF_RLS, 0.0, 0.04, 0.04);
 
     /* refused, naming what acts only on unmeasured nodes */
     static const struct {

@@ -89,11 +89,35 @@ static void test_config_enums(void **state)
     assert_named("vibid_kfrls_create");
 }
 
+/* The library's estimator names (identify.h): every kind has one, they read back to the
+ * same kind, out-of-range kinds have none, an unknown name is refused with the names. */
+static void test_estimator_names(void **state)
+{
+    (void)state;
+    int k = 0;
+    for (; vibid_estimator_name((vibid_estimator)k); k++) {
+        vibid_estimator back = (vibid_estimator)BAD;
+        assert_int_equal(vibid_estimator_from_name(vibid_estimator_name((vibid_estimator)k), &back), VIBID_OK);
+        assert_int_equal(back, k);
+    }
+    assert_int_equal(k, VIBID_ESTIMATOR_OE + 1);
+    assert_string_equal(vibid_estimator_name(VIBID_ESTIMATOR_KF_RLS), "kf_rls");
+    assert_null(vibid_estimator_name((vibid_estimator)BAD));
+    assert_null(vibid_estimator_name((vibid_estimator)-1));
+    vibid_estimator e = VIBID_ESTIMATOR_LS;
+    assert_int_equal(vibid_estimator_from_name("IV", &e), VIBID_E_OUT_OF_RANGE);
+    assert_int_equal(e, VIBID_ESTIMATOR_LS);
+    assert_non_null(strstr(vibid_last_error(), "\"IV\" unknown: one of ls, iv"));
+    assert_int_equal(vibid_estimator_from_name(NULL, &e), VIBID_E_NULL_ARGUMENT);
+    assert_int_equal(vibid_estimator_from_name("ls", NULL), VIBID_E_NULL_ARGUMENT);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_model_enums),
         cmocka_unit_test(test_config_enums),
+        cmocka_unit_test(test_estimator_names),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -23,28 +23,13 @@ extern "C" {
 #include <vibid/plausibility.h>
 
 #include "../support/rt_alloc_counter.hpp"
+#include "../support/example1_model.h"
 
 namespace {
 
-vibid_model *example1() {
-    vibid_model *m = vibid_model_create();
-    assert_non_null(m);
-    std::size_t n1 = 0, n2 = 0;
-    assert_int_equal(vibid_model_add_node(m, "m1", 10.0, 0, &n1), VIBID_OK);
-    assert_int_equal(vibid_model_add_node(m, "m2", 20.0, 0, &n2), VIBID_OK);
-    assert_int_equal(vibid_model_add_element(m, "c1", VIBID_ELEMENT_SPRING, n1, n2, 2.5e5, 1), VIBID_OK);
-    assert_int_equal(vibid_model_add_element(m, "d", VIBID_ELEMENT_DAMPER, n1, n2, 300.0, 1), VIBID_OK);
-    assert_int_equal(vibid_model_add_element(m, "c2", VIBID_ELEMENT_SPRING, n2, VIBID_BASE, 1.5e6, 1), VIBID_OK);
-    assert_int_equal(vibid_model_set_measured(m, n1, VIBID_MEASURE_DISPLACEMENT), VIBID_OK);
-    assert_int_equal(vibid_model_set_measured(m, n2, VIBID_MEASURE_DISPLACEMENT), VIBID_OK);
-    assert_int_equal(vibid_model_set_measured(m, VIBID_BASE, VIBID_MEASURE_DISPLACEMENT), VIBID_OK);
-    assert_int_equal(vibid_model_finalize(m), VIBID_OK);
-    return m;
-}
-
 void test_check_no_alloc(void **state) {
     (void)state;
-    vibid_model *m = example1();
+    vibid_model *m = example1_model(0);
     static vibid_plausibility_ref ref;
     assert_int_equal(vibid_plausibility_ref_init(m, nullptr, &ref), VIBID_OK);
     const double good[3] = {2.5e5, 300.0, 1.5e6}, bad[3] = {2.5e5, -3.0, -18981.0};

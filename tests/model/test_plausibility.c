@@ -16,6 +16,8 @@
 #include <string.h>
 #include <vibid/vibid.h>
 
+#include "../support/example1_model.h"
+
 #ifndef M_PI
 #define M_PI 3.14159265358979323846
 #endif
@@ -27,24 +29,6 @@
             fail();                                                                            \
         }                                                                                      \
     } while (0)
-
-/* The paper's example 1 as a lumped network: m1 = 10 kg, m2 = 20 kg known; c1 (m1-m2),
- * d (m1-m2), c2 (m2-base) unknown with nominal values given unless `no_nominal_c1`. */
-static vibid_model *example1(int no_nominal_c1) {
-    vibid_model *m = vibid_model_create();
-    size_t n1 = 0, n2 = 0;
-    assert_int_equal(vibid_model_add_node(m, "m1", 10.0, 0, &n1), VIBID_OK);
-    assert_int_equal(vibid_model_add_node(m, "m2", 20.0, 0, &n2), VIBID_OK);
-    assert_int_equal(vibid_model_add_element(m, "c1", VIBID_ELEMENT_SPRING, n1, n2, no_nominal_c1 ? 0.0 : 2.5e5, 1),
-                     VIBID_OK);
-    assert_int_equal(vibid_model_add_element(m, "d", VIBID_ELEMENT_DAMPER, n1, n2, 300.0, 1), VIBID_OK);
-    assert_int_equal(vibid_model_add_element(m, "c2", VIBID_ELEMENT_SPRING, n2, VIBID_BASE, 1.5e6, 1), VIBID_OK);
-    assert_int_equal(vibid_model_set_measured(m, n1, VIBID_MEASURE_DISPLACEMENT), VIBID_OK);
-    assert_int_equal(vibid_model_set_measured(m, n2, VIBID_MEASURE_DISPLACEMENT), VIBID_OK);
-    assert_int_equal(vibid_model_set_measured(m, VIBID_BASE, VIBID_MEASURE_DISPLACEMENT), VIBID_OK);
-    assert_int_equal(vibid_model_finalize(m), VIBID_OK);
-    return m;
-}
 
 /* One degree of freedom, everything unknown: mass m, damper d and spring k to ground, a
  * cubic spring eps and an input of gain b. */
@@ -77,7 +61,7 @@ static unsigned check_theta(const vibid_model *m, double h, const double *theta,
 
 static void test_truth_is_plausible(void **state) {
     (void)state;
-    vibid_model *m = example1(0);
+    vibid_model *m = example1_model(0);
     vibid_plausibility_ref ref;
     assert_int_equal(vibid_plausibility_ref_init(m, NULL, &ref), VIBID_OK);
     assert_int_equal(ref.zeta_rule, 1);
@@ -105,7 +89,7 @@ static void test_truth_is_plausible(void **state) {
 /* The row: a negative stiffness gives a mode at 0 Hz with zeta = 1 (modal.h). */
 static void test_negative_stiffness(void **state) {
     (void)state;
-    vibid_model *m = example1(0);
+    vibid_model *m = example1_model(0);
     vibid_plausibility_ref ref;
     assert_int_equal(vibid_plausibility_ref_init(m, NULL, &ref), VIBID_OK);
     const double theta[3] = {2.5e5, 300.0, -18981.0};
@@ -128,7 +112,7 @@ static void test_negative_stiffness(void **state) {
 /* Negative damping: the damper is flagged and both modes become unstable (zeta < 0). */
 static void test_negative_damping(void **state) {
     (void)state;
-    vibid_model *m = example1(0);
+    vibid_model *m = example1_model(0);
     const double theta[3] = {2.5e5, -50.0, 1.5e6};
     unsigned pf[3], mf[2];
     char why[512];
@@ -191,7 +175,7 @@ static void test_sdof_signs_and_reference(void **state) {
 /* Frequency and damping-ratio rules at their exact boundaries (given modes, no theta). */
 static void test_mode_boundaries(void **state) {
     (void)state;
-    vibid_model *m = example1(0);
+    vibid_model *m = example1_model(0);
     vibid_plausibility_ref ref;
     assert_int_equal(vibid_plausibility_ref_init(m, NULL, &ref), VIBID_OK);
     const double h = 1.0 / 64.0; /* Nyquist exactly 32 Hz */
@@ -228,7 +212,7 @@ static void test_mode_boundaries(void **state) {
  * nominally overdamped mode may stay overdamped. */
 static void test_reference_incomplete_or_overdamped(void **state) {
     (void)state;
-    vibid_model *m = example1(1); /* c1 nominal 0 = not given */
+    vibid_model *m = example1_model(1); /* c1 nominal 0 = not given */
     vibid_plausibility_ref ref;
     assert_int_equal(vibid_plausibility_ref_init(m, NULL, &ref), VIBID_OK);
     assert_int_equal(ref.zeta_rule, 0);
@@ -296,7 +280,7 @@ static void test_full_matrix_diagonal_only(void **state) {
 /* Bad arguments: status, the function and argument named, outputs untouched. */
 static void test_errors(void **state) {
     (void)state;
-    vibid_model *m = example1(0), *other = sdof(1.0, 1.0, 1.0), *open = vibid_model_create();
+    vibid_model *m = example1_model(0), *other = sdof(1.0, 1.0, 1.0), *open = vibid_model_create();
     vibid_plausibility_ref ref, zeroed;
     memset(&zeroed, 0, sizeof zeroed);
     assert_int_equal(vibid_plausibility_ref_init(m, NULL, &ref), VIBID_OK);
@@ -351,7 +335,7 @@ static void test_errors(void **state) {
 /* why is cut at why_cap - 1 and always terminated; NULL / 0 is allowed. */
 static void test_why_truncation(void **state) {
     (void)state;
-    vibid_model *m = example1(0);
+    vibid_model *m = example1_model(0);
     const double theta[3] = {-1.0, -2.0, -3.0};
     unsigned flags;
     char why[512];

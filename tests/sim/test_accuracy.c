@@ -18,22 +18,32 @@
 #include "sim_engine.h"
 #include "sim_test_util.h"
 
+/* Writes the stand file text (with its simulation group) to <tmp>/name, loads it and
+ * creates the engine under the test's integrator (apply_test_integrator); the caller frees
+ * all three. */
+static sim_engine *open_engine(const char *name, const char *text, vibid_stand **st, sim_config *cfg)
+{
+    const char *path = write_tmp(name, text);
+    assert_non_null(path);
+    vibid_stand_error serr;
+    *st = vibid_stand_load(path, &serr);
+    if (!*st) fail_msg("%s", serr.text);
+    char err[1024];
+    if (sim_config_load(path, *st, NULL, cfg, err, sizeof err)) fail_msg("%s", err);
+    apply_test_integrator(cfg);
+    sim_engine *e = sim_engine_create(*st, cfg, err, sizeof err);
+    if (!e) fail_msg("%s", err);
+    return e;
+}
+
 /* Simulates n_samples of the stand file text and compares every node displacement,
  * velocity and acceleration channel with the exact ZOH propagation. Returns the worst
  * relative error. */
 static double compare_with_zoh(const char *name, const char *text, size_t n_samples)
 {
-    const char *path = write_tmp(name, text);
-    assert_non_null(path);
-    vibid_stand_error serr;
-    vibid_stand *st = vibid_stand_load(path, &serr);
-    if (!st) fail_msg("%s", serr.text);
+    vibid_stand *st;
     sim_config cfg;
-    char err[1024];
-    if (sim_config_load(path, st, NULL, &cfg, err, sizeof err)) fail_msg("%s", err);
-    apply_test_integrator(&cfg);
-    sim_engine *e = sim_engine_create(st, &cfg, err, sizeof err);
-    if (!e) fail_msg("%s", err);
+    sim_engine *e = open_engine(name, text, &st, &cfg);
 
     const vibid_model *m = vibid_stand_model(st);
     vibid_model_dims d;
@@ -180,16 +190,9 @@ static void test_step_change(void **state)
         "  inputs = ( { name = \"f1\"; node = \"m1\"; gain = 1.0; channel = \"F\"; hold = \"zoh\"; } ); };\n"
         "simulation = { excitation = ( { target = \"f1\"; kind = \"sine\"; amplitude = 10.0; frequency = 23.0; } );\n"
         "  changes = ( { parameter = \"c\"; at = 0.5; factor = 0.9; } ); };\n";
-    const char *path = write_tmp("acc_step.cfg", text);
-    vibid_stand_error serr;
-    vibid_stand *st = vibid_stand_load(path, &serr);
-    if (!st) fail_msg("%s", serr.text);
+    vibid_stand *st;
     sim_config cfg;
-    char err[1024];
-    if (sim_config_load(path, st, NULL, &cfg, err, sizeof err)) fail_msg("%s", err);
-    apply_test_integrator(&cfg);
-    sim_engine *e = sim_engine_create(st, &cfg, err, sizeof err);
-    if (!e) fail_msg("%s", err);
+    sim_engine *e = open_engine("acc_step.cfg", text, &st, &cfg);
     double h = 1e-3, G[2][4], Gam[2][2];
     for (int p = 0; p < 2; p++) {
         double c = p ? 0.9 * 8.0e4 : 8.0e4;
@@ -245,15 +248,10 @@ static void test_cubic_retry(void **state)
         snprintf(text, sizeof text,
                  "%ssimulation = { %sexcitation = ( { target = \"f\"; kind = \"sine\"; amplitude = 40.0; frequency = 30.0; } ); };\n",
                  stand, integ[r]);
-        const char *path = write_tmp(r ? "duffing_ref.cfg" : "duffing.cfg", text);
-        vibid_stand_error serr;
-        vibid_stand *st = vibid_stand_load(path, &serr);
-        if (!st) fail_msg("%s", serr.text);
+        vibid_stand *st;
         sim_config cfg;
-        char err[1024];
-        if (sim_config_load(path, st, NULL, &cfg, err, sizeof err)) fail_msg("%s", err);
-        sim_engine *e = sim_engine_create(st, &cfg, err, sizeof err);
-        if (!e) fail_msg("%s", err);
+        /* a cubic stand: ARKODE on every interval under either test integrator */
+        sim_engine *e = open_engine(r ? "duffing_ref.cfg" : "duffing.cfg", text, &st, &cfg);
         x[r] = malloc(n * sizeof(double));
         assert_non_null(x[r]);
         for (size_t k = 0; k < n; k++) {

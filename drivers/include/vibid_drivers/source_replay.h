@@ -44,10 +44,17 @@ extern "C" {
 #define VIBID_REPLAY_MAX_TIME_STEP_S 10.0
 
 typedef enum vibid_replay_format {
-    VIBID_REPLAY_AUTO = 0,   /* ".csv" (any case) -> CSV, anything else -> candump */
+    VIBID_REPLAY_AUTO = 0,   /* the file's format (capture_format.h: content, then extension);
+                                one that says nothing is read as candump */
     VIBID_REPLAY_CANDUMP = 1,
     VIBID_REPLAY_CSV = 2
 } vibid_replay_format;
+
+/* The format a replay of `path` reads: f itself unless AUTO, else the file's format
+ * (vibid_capture_format_of_file). A capture in a format the replay does not read (MDF4,
+ * TDMS) gives VIBID_REPLAY_AUTO and err (cap bytes) naming the file, its format, the
+ * formats vibidd replays and `vibid convert`. */
+vibid_replay_format vibid_replay_format_resolve(vibid_replay_format f, const char *path, char *err, size_t cap);
 
 typedef struct vibid_source_replay_config {
     const char *path;            /* capture file (copied) */

@@ -15,4 +15,5 @@
 #include <vibid/io_form.h>
 #include <vibid/kf_rls.h>
 #include <vibid/plausibility.h>
+#include <vibid/report.h>
 #endif

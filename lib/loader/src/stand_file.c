@@ -391,212 +391,226 @@ out:
     return rc;
 }
 
-vibid_stand *vibid_stand_from_setting(const config_setting_t *g, const char *file, vibid_stand_error *err) {
-    vibid_stand_error local; /* err may be NULL: the reader always needs somewhere to write */
-    vibid_cfg_reader c = {file, err ? err : &local};
-    memset(c.err, 0, sizeof *c.err);
-    if (!g || !config_setting_is_group(g)) {
-        vibid_cfg_fail(&c, g, "stand", "must be a group { ... }");
-        return NULL;
-    }
+/* The stand's own settings: known keys, length_unit, name, sample_rate, discretization.
+ * Apart from the model's description (nodes ... or matrices), which they do not depend on.
+ * *name points into the configuration. 0, or -1 after an error. */
+static int read_stand_settings(const vibid_cfg_reader *c, const config_setting_t *g, vibid_stand *st,
+                               const char **name) {
     const char *path = "stand";
-    vibid_stand *st = calloc(1, sizeof *st);
-    pending *pd = calloc(1, sizeof *pd);
-    if (!st || !pd) {
-        vibid_cfg_fail(&c, g, path, "out of memory");
-        free(st);
-        free(pd);
-        return NULL;
-    }
-    vibid_model *m = st->model = vibid_model_create();
-    const char *name = "stand";
-    char f[200];
-    vibid_status s;
-    if (!m) goto fail_oom;
-    {
-        static const char *const known[] = {"name",   "sample_rate", "discretization", "length_unit",  "matrices",
-                                            "nodes",  "base",        "elements",       "inputs", "disturbances", NULL};
-        if (vibid_cfg_check_keys(&c, g, path, known)) goto fail;
-    }
-    {
-        const char *lu = "m";
-        if (vibid_cfg_string_ref(&c, g, path, "length_unit", &lu) < 0) goto fail;
-        if (vibid_unit_si_factor(VIBID_DIM_LENGTH, lu, &st->length_si) || strlen(lu) >= sizeof st->length_unit) {
-            vibid_cfg_fail(&c, config_setting_get_member(g, "length_unit"), "stand.length_unit",
-                           "'%s' is not a length unit (%s)", lu, vibid_unit_names(VIBID_DIM_LENGTH));
-            goto fail;
-        }
-        snprintf(st->length_unit, sizeof st->length_unit, "%s", lu);
-    }
-    if (vibid_cfg_name(&c, g, path, "name", &name) < 0) goto fail;
-    if (require_number(&c, g, path, "sample_rate", &st->sample_rate)) goto fail;
-    if (!(st->sample_rate > 0)) {
-        vibid_cfg_fail(&c, config_setting_get_member(g, "sample_rate"), "stand.sample_rate",
-                       "must be > 0 (Hz)");
-        goto fail;
-    }
-    {
-        static const char *const discs[] = {"central_difference", "zoh", NULL};
-        static const vibid_discretization disc_values[] = {VIBID_DISC_CENTRAL_DIFFERENCE, VIBID_DISC_ZOH};
-        int d;
-        int r = vibid_cfg_enum(&c, g, path, "discretization", discs, false, &d);
-        if (r < 0) goto fail;
-        if (r) vibid_model_set_discretization(m, disc_values[d]);
-    }
+    static const char *const known[] = {"name",   "sample_rate", "discretization", "length_unit",  "matrices",
+                                        "nodes",  "base",        "elements",       "inputs", "disturbances", NULL};
+    if (vibid_cfg_check_keys(c, g, path, known)) return -1;
+    const char *lu = "m";
+    if (vibid_cfg_string_ref(c, g, path, "length_unit", &lu) < 0) return -1;
+    if (vibid_unit_si_factor(VIBID_DIM_LENGTH, lu, &st->length_si) || strlen(lu) >= sizeof st->length_unit)
+        return vibid_cfg_fail(c, config_setting_get_member(g, "length_unit"), "stand.length_unit",
+                              "'%s' is not a length unit (%s)", lu, vibid_unit_names(VIBID_DIM_LENGTH));
+    snprintf(st->length_unit, sizeof st->length_unit, "%s", lu);
+    if (vibid_cfg_name(c, g, path, "name", name) < 0) return -1;
+    if (require_number(c, g, path, "sample_rate", &st->sample_rate)) return -1;
+    if (!(st->sample_rate > 0))
+        return vibid_cfg_fail(c, config_setting_get_member(g, "sample_rate"), "stand.sample_rate",
+                              "must be > 0 (Hz)");
+    static const char *const discs[] = {"central_difference", "zoh", NULL};
+    static const vibid_discretization disc_values[] = {VIBID_DISC_CENTRAL_DIFFERENCE, VIBID_DISC_ZOH};
+    int d;
+    int r = vibid_cfg_enum(c, g, path, "discretization", discs, false, &d);
+    if (r < 0) return -1;
+    if (r) vibid_model_set_discretization(st->model, disc_values[d]);
+    return 0;
+}
 
-    const config_setting_t *mats = config_setting_get_member(g, "matrices");
+/* What every entry of nodes and elements begins with: only known keys, a name, and the
+ * optional flag `unknown`. One check for both lists. */
+static int read_entry_head(const vibid_cfg_reader *c, const config_setting_t *e, const char *p,
+                           const char *const *keys, const char **nm, bool *unknown) {
+    return vibid_cfg_check_keys(c, e, p, keys) || require_name(c, e, p, "name", nm) ||
+                   vibid_cfg_bool(c, e, p, "unknown", unknown) < 0
+               ? -1
+               : 0;
+}
+
+/* One entry of stand.nodes: a mass (known, or unknown with its true value), what of it is
+ * measured under which channel names, the sensors' noise. */
+static int read_node(const vibid_cfg_reader *c, vibid_model *m, const config_setting_t *e, const char *p,
+                     pending *pd) {
+    static const char *const node_keys[] = {"name", "mass", "unknown", "true_value", "measure", "noise", NULL};
+    const char *nm;
+    double mass = 0;
+    bool unknown = false;
+    char f[200];
+    if (read_entry_head(c, e, p, node_keys, &nm, &unknown)) return -1;
+    int has_mass = get_number(c, e, p, "mass", &mass);
+    if (has_mass < 0) return -1;
+    if (!has_mass && !unknown) {
+        vibid_cfg_field(f, sizeof f, p, "mass");
+        return vibid_cfg_fail(c, e, f, "missing: a known mass needs its value in kg");
+    }
+    size_t idx;
+    vibid_status s = vibid_model_add_node(m, nm, mass, unknown, &idx);
+    if (s != VIBID_OK) {
+        vibid_cfg_field(f, sizeof f, p, "mass");
+        return lib_fail(c, config_setting_get_member(e, "mass") ? config_setting_get_member(e, "mass") : e,
+                        strstr(vibid_last_error(), "name") ? p : f, s);
+    }
+    if (unknown && note_true_value(c, e, p, mass, pd)) return -1;
+    unsigned mask;
+    if (read_measure(c, e, p, &mask, pd->node_names[idx])) return -1;
+    vibid_model_set_measured(m, idx, mask);
+    if (read_noise(c, m, e, p, idx, mask)) return -1;
+    pd->n_nodes = idx + 1;
+    return 0;
+}
+
+/* stand.base { measure, noise, hold }: the moving base's sensors and its hold. */
+static int read_base(const vibid_cfg_reader *c, vibid_model *m, const config_setting_t *base, pending *pd) {
+    static const char *const base_keys[] = {"measure", "noise", "hold", NULL};
+    const char *path = "stand.base";
+    unsigned mask;
+    if (vibid_cfg_check_keys(c, base, path, base_keys)) return -1;
+    if (read_measure(c, base, path, &mask, pd->base_names)) return -1;
+    vibid_model_set_measured(m, VIBID_BASE, mask);
+    if (read_noise(c, m, base, path, VIBID_BASE, mask)) return -1;
+    return read_hold(c, m, base, path, VIBID_BASE);
+}
+
+/* One entry of stand.elements: a spring, damper or cubic spring between a node and a node,
+ * the ground or the base (the node first), known or unknown. */
+static int read_element(const vibid_cfg_reader *c, vibid_model *m, const config_setting_t *e, const char *p,
+                        pending *pd) {
+    static const char *const element_keys[] = {"name", "kind", "between", "value", "unknown", "true_value", NULL};
+    static const char *const kinds[] = {"spring", "damper", "cubic_spring", NULL};
+    static const vibid_element_kind kind_values[] = {VIBID_ELEMENT_SPRING, VIBID_ELEMENT_DAMPER,
+                                                     VIBID_ELEMENT_CUBIC_SPRING};
+    const char *nm;
+    double value = 0;
+    bool unknown = false;
+    char f[200];
+    int ki;
+    if (read_entry_head(c, e, p, element_keys, &nm, &unknown)) return -1;
+    if (vibid_cfg_require(c, e, p, "kind", "a string is required: spring, damper, cubic_spring") ||
+        vibid_cfg_enum(c, e, p, "kind", kinds, false, &ki) < 0)
+        return -1;
+    int hv = get_number(c, e, p, "value", &value);
+    if (hv < 0) return -1;
+    if (!hv && !unknown) {
+        vibid_cfg_field(f, sizeof f, p, "value");
+        return vibid_cfg_fail(c, e, f, "missing: a known element needs its value");
+    }
+    const config_setting_t *btw = config_setting_get_member(e, "between");
+    vibid_cfg_field(f, sizeof f, p, "between");
+    if (!btw || config_setting_length(btw) != 2 || !config_setting_get_string_elem(btw, 0) ||
+        !config_setting_get_string_elem(btw, 1))
+        return vibid_cfg_fail(c, btw ? btw : e, f, "must be two names [\"node\", \"node|ground|base\"]");
+    size_t a, b;
+    if (resolve_end(c, m, btw, f, config_setting_get_string_elem(btw, 0), &a) ||
+        resolve_end(c, m, btw, f, config_setting_get_string_elem(btw, 1), &b))
+        return -1;
+    if (a == VIBID_GROUND || a == VIBID_BASE) { /* put the node first */
+        size_t t = a;
+        a = b;
+        b = t;
+    }
+    vibid_status s = vibid_model_add_element(m, nm, kind_values[ki], a, b, value, unknown);
+    if (s != VIBID_OK) return lib_fail(c, e, p, s);
+    return unknown ? note_true_value(c, e, p, value, pd) : 0;
+}
+
+/* One entry of stand.inputs: a force on a node with its gain (known or unknown), the
+ * channel that carries it, its hold. */
+static int read_input(const vibid_cfg_reader *c, vibid_model *m, const config_setting_t *e, const char *p,
+                      pending *pd) {
+    static const char *const input_keys[] = {"name", "node", "gain", "unknown", "true_value", "channel", "hold",
+                                             NULL};
+    const char *nm, *node, *chan;
+    double gain = 1.0;
+    bool unknown = false;
+    char f[200];
+    /* not read_entry_head: node is required before unknown is read, as the messages have always had it */
+    if (vibid_cfg_check_keys(c, e, p, input_keys) || require_name(c, e, p, "name", &nm) ||
+        require_name(c, e, p, "node", &node) || vibid_cfg_bool(c, e, p, "unknown", &unknown) < 0 ||
+        get_number(c, e, p, "gain", &gain) < 0)
+        return -1;
+    if (require_name(c, e, p, "channel", &chan)) return -1;
+    size_t idx;
+    vibid_cfg_field(f, sizeof f, p, "node");
+    if (vibid_model_find_node(m, node, &idx) != VIBID_OK)
+        return vibid_cfg_fail(c, config_setting_get_member(e, "node"), f, "'%s' is not a declared node", node);
+    size_t in_idx;
+    vibid_status s = vibid_model_add_input(m, nm, idx, gain, unknown, &in_idx);
+    if (s != VIBID_OK) return lib_fail(c, e, p, s);
+    if (unknown && note_true_value(c, e, p, gain, pd)) return -1;
+    if (read_hold(c, m, e, p, in_idx)) return -1;
+    pd->input_nodes[pd->n_inputs] = (long)idx;
+    pd->input_names[pd->n_inputs++] = chan;
+    return 0;
+}
+
+typedef int (*entry_reader)(const vibid_cfg_reader *c, vibid_model *m, const config_setting_t *e, const char *p,
+                            pending *pd);
+
+/* Each entry of the list `name` ("stand.<name>.[i]") through `read`; an absent list has
+ * none. The one loop of nodes, elements and inputs. */
+static int read_entries(const vibid_cfg_reader *c, vibid_model *m, const config_setting_t *list, const char *name,
+                        entry_reader read, pending *pd) {
+    for (int i = 0; list && i < config_setting_length(list); ++i) {
+        char p[64];
+        snprintf(p, sizeof p, "stand.%s.[%d]", name, i);
+        if (read(c, m, config_setting_get_elem(list, (unsigned)i), p, pd)) return -1;
+    }
+    return 0;
+}
+
+/* A stand described as a lumped network: nodes (required, non-empty), base, elements,
+ * inputs, disturbances, in the order in which the later refer to the earlier. */
+static int read_network(const vibid_cfg_reader *c, const config_setting_t *g, vibid_stand *st, pending *pd) {
+    vibid_model *m = st->model;
     const config_setting_t *nodes = config_setting_get_member(g, "nodes");
-    if (mats && nodes) {
-        vibid_cfg_fail(&c, mats, "stand.matrices", "give either nodes/elements or matrices, not both");
-        goto fail;
-    }
+    if (!nodes || !config_setting_is_list(nodes) || config_setting_length(nodes) == 0)
+        return vibid_cfg_fail(c, nodes ? nodes : g, "stand.nodes",
+                              "must be a non-empty list ( { name = ...; mass = ...; }, ... )");
+    if (read_entries(c, m, nodes, "nodes", read_node, pd)) return -1;
+    const config_setting_t *base = config_setting_get_member(g, "base");
+    if (base && read_base(c, m, base, pd)) return -1;
+    if (read_entries(c, m, config_setting_get_member(g, "elements"), "elements", read_element, pd) ||
+        read_entries(c, m, config_setting_get_member(g, "inputs"), "inputs", read_input, pd))
+        return -1;
     const config_setting_t *dist = config_setting_get_member(g, "disturbances");
-    if (mats && dist) {
+    return dist ? read_disturbances(c, m, dist, st) : 0;
+}
+
+/* The model's description: a network (nodes, elements, ...) or full matrices, not both;
+ * a full-matrix stand has no disturbances. *from_matrices says which. */
+static int read_model(const vibid_cfg_reader *c, const config_setting_t *g, vibid_stand *st, pending *pd,
+                      int *from_matrices) {
+    const config_setting_t *mats = config_setting_get_member(g, "matrices");
+    const config_setting_t *dist = config_setting_get_member(g, "disturbances");
+    *from_matrices = mats != NULL;
+    if (mats && config_setting_get_member(g, "nodes"))
+        return vibid_cfg_fail(c, mats, "stand.matrices", "give either nodes/elements or matrices, not both");
+    if (mats && dist)
         /* vibid_model_add_disturbance needs a node: a full-matrix model has only coordinates */
-        vibid_cfg_fail(&c, dist, "stand.disturbances",
-                       "a full-matrix stand (matrices) has no disturbances: describe it by "
-                       "nodes and elements to declare one");
-        goto fail;
-    }
-    if (mats) {
-        if (read_matrices(&c, m, mats, "stand.matrices", pd)) goto fail;
-    } else {
-        if (!nodes || !config_setting_is_list(nodes) || config_setting_length(nodes) == 0) {
-            vibid_cfg_fail(&c, nodes ? nodes : g, "stand.nodes",
-                           "must be a non-empty list ( { name = ...; mass = ...; }, ... )");
-            goto fail;
-        }
-        for (int i = 0; i < config_setting_length(nodes); ++i) {
-            const config_setting_t *e = config_setting_get_elem(nodes, (unsigned)i);
-            char p[64];
-            snprintf(p, sizeof p, "stand.nodes.[%d]", i);
-            const char *nm;
-            double mass = 0;
-            bool unknown = false;
-            static const char *const node_keys[] = {"name", "mass", "unknown", "true_value", "measure", "noise", NULL};
-            if (vibid_cfg_check_keys(&c, e, p, node_keys) || require_name(&c, e, p, "name", &nm) ||
-                vibid_cfg_bool(&c, e, p, "unknown", &unknown) < 0)
-                goto fail;
-            int has_mass = get_number(&c, e, p, "mass", &mass);
-            if (has_mass < 0) goto fail;
-            if (!has_mass && !unknown) {
-                vibid_cfg_field(f, sizeof f, p, "mass");
-                vibid_cfg_fail(&c, e, f, "missing: a known mass needs its value in kg");
-                goto fail;
-            }
-            size_t idx;
-            if ((s = vibid_model_add_node(m, nm, mass, unknown, &idx)) != VIBID_OK) {
-                vibid_cfg_field(f, sizeof f, p, "mass");
-                lib_fail(&c, config_setting_get_member(e, "mass") ? config_setting_get_member(e, "mass") : e,
-                         strstr(vibid_last_error(), "name") ? p : f, s);
-                goto fail;
-            }
-            if (unknown && note_true_value(&c, e, p, mass, pd)) goto fail;
-            unsigned mask;
-            if (read_measure(&c, e, p, &mask, pd->node_names[idx])) goto fail;
-            vibid_model_set_measured(m, idx, mask);
-            if (read_noise(&c, m, e, p, idx, mask)) goto fail;
-            pd->n_nodes = idx + 1;
-        }
-        const config_setting_t *base = config_setting_get_member(g, "base");
-        if (base) {
-            static const char *const base_keys[] = {"measure", "noise", "hold", NULL};
-            unsigned mask;
-            if (vibid_cfg_check_keys(&c, base, "stand.base", base_keys)) goto fail;
-            if (read_measure(&c, base, "stand.base", &mask, pd->base_names)) goto fail;
-            vibid_model_set_measured(m, VIBID_BASE, mask);
-            if (read_noise(&c, m, base, "stand.base", VIBID_BASE, mask)) goto fail;
-            if (read_hold(&c, m, base, "stand.base", VIBID_BASE)) goto fail;
-        }
-        const config_setting_t *els = config_setting_get_member(g, "elements");
-        for (int i = 0; els && i < config_setting_length(els); ++i) {
-            const config_setting_t *e = config_setting_get_elem(els, (unsigned)i);
-            char p[64];
-            snprintf(p, sizeof p, "stand.elements.[%d]", i);
-            const char *nm;
-            double value = 0;
-            bool unknown = false;
-            static const char *const element_keys[] = {"name", "kind", "between", "value", "unknown", "true_value",
-                                                       NULL};
-            if (vibid_cfg_check_keys(&c, e, p, element_keys) || require_name(&c, e, p, "name", &nm) ||
-                vibid_cfg_bool(&c, e, p, "unknown", &unknown) < 0)
-                goto fail;
-            static const char *const kinds[] = {"spring", "damper", "cubic_spring", NULL};
-            static const vibid_element_kind kind_values[] = {VIBID_ELEMENT_SPRING, VIBID_ELEMENT_DAMPER,
-                                                             VIBID_ELEMENT_CUBIC_SPRING};
-            int ki;
-            if (vibid_cfg_require(&c, e, p, "kind", "a string is required: spring, damper, cubic_spring") ||
-                vibid_cfg_enum(&c, e, p, "kind", kinds, false, &ki) < 0)
-                goto fail;
-            vibid_element_kind k = kind_values[ki];
-            int hv = get_number(&c, e, p, "value", &value);
-            if (hv < 0) goto fail;
-            if (!hv && !unknown) {
-                vibid_cfg_field(f, sizeof f, p, "value");
-                vibid_cfg_fail(&c, e, f, "missing: a known element needs its value");
-                goto fail;
-            }
-            const config_setting_t *btw = config_setting_get_member(e, "between");
-            vibid_cfg_field(f, sizeof f, p, "between");
-            if (!btw || config_setting_length(btw) != 2 || !config_setting_get_string_elem(btw, 0) ||
-                !config_setting_get_string_elem(btw, 1)) {
-                vibid_cfg_fail(&c, btw ? btw : e, f, "must be two names [\"node\", \"node|ground|base\"]");
-                goto fail;
-            }
-            size_t a, b;
-            if (resolve_end(&c, m, btw, f, config_setting_get_string_elem(btw, 0), &a) ||
-                resolve_end(&c, m, btw, f, config_setting_get_string_elem(btw, 1), &b))
-                goto fail;
-            if (a == VIBID_GROUND || a == VIBID_BASE) { /* put the node first */
-                size_t t = a;
-                a = b;
-                b = t;
-            }
-            if ((s = vibid_model_add_element(m, nm, k, a, b, value, unknown)) != VIBID_OK) {
-                lib_fail(&c, e, p, s);
-                goto fail;
-            }
-            if (unknown && note_true_value(&c, e, p, value, pd)) goto fail;
-        }
-        const config_setting_t *ins = config_setting_get_member(g, "inputs");
-        for (int i = 0; ins && i < config_setting_length(ins); ++i) {
-            const config_setting_t *e = config_setting_get_elem(ins, (unsigned)i);
-            char p[64];
-            snprintf(p, sizeof p, "stand.inputs.[%d]", i);
-            const char *nm, *node, *chan;
-            double gain = 1.0;
-            bool unknown = false;
-            static const char *const input_keys[] = {"name", "node", "gain", "unknown", "true_value", "channel",
-                                                     "hold", NULL};
-            if (vibid_cfg_check_keys(&c, e, p, input_keys) || require_name(&c, e, p, "name", &nm) ||
-                require_name(&c, e, p, "node", &node) ||
-                vibid_cfg_bool(&c, e, p, "unknown", &unknown) < 0 || get_number(&c, e, p, "gain", &gain) < 0)
-                goto fail;
-            if (require_name(&c, e, p, "channel", &chan)) goto fail;
-            size_t idx;
-            vibid_cfg_field(f, sizeof f, p, "node");
-            if (vibid_model_find_node(m, node, &idx) != VIBID_OK) {
-                vibid_cfg_fail(&c, config_setting_get_member(e, "node"), f, "'%s' is not a declared node",
-                               node);
-                goto fail;
-            }
-            size_t in_idx;
-            if ((s = vibid_model_add_input(m, nm, idx, gain, unknown, &in_idx)) != VIBID_OK) {
-                lib_fail(&c, e, p, s);
-                goto fail;
-            }
-            if (unknown && note_true_value(&c, e, p, gain, pd)) goto fail;
-            if (read_hold(&c, m, e, p, in_idx)) goto fail;
-            pd->input_nodes[pd->n_inputs] = (long)idx;
-            pd->input_names[pd->n_inputs++] = chan;
-        }
-        if (dist && read_disturbances(&c, m, dist, st)) goto fail;
-    }
-    /* Unknowns of a full-matrix model have no true_value fields: nominal = true. */
-    if ((s = vibid_model_finalize(m)) != VIBID_OK) {
-        lib_fail(&c, g, path, s);
-        goto fail;
-    }
+        return vibid_cfg_fail(c, dist, "stand.disturbances",
+                              "a full-matrix stand (matrices) has no disturbances: describe it by "
+                              "nodes and elements to declare one");
+    return mats ? read_matrices(c, st->model, mats, "stand.matrices", pd) : read_network(c, g, st, pd);
+}
+
+/* The acquisition name of model channel ci: the name the file gives it (measure, inputs'
+ * channel, matrices' channels), NULL if none (the model's name then serves). */
+static const char *acquisition_name(const pending *pd, const vibid_channel_info *ci) {
+    int q = ci->kind == VIBID_CHANNEL_DISPLACEMENT ? 0 : ci->kind == VIBID_CHANNEL_VELOCITY ? 1 : 2;
+    if (ci->kind == VIBID_CHANNEL_INPUT) return ci->index < pd->n_inputs ? pd->input_names[ci->index] : NULL;
+    if (ci->index == VIBID_BASE) return pd->base_names[q];
+    return ci->index < pd->n_nodes ? pd->node_names[ci->index][q] : NULL;
+}
+
+/* The tables the programs need beside the finalized model, from what reading collected:
+ * name, channel names, true values (a full-matrix stand: nominal = true), input nodes.
+ * Apart from reading: it needs the model's final dimensions. 0, or -1 when out of memory
+ * (no message: the caller reports it). */
+static int fill_stand_tables(vibid_stand *st, const pending *pd, const char *name, int from_matrices) {
+    const vibid_model *m = st->model;
     vibid_model_dims dims;
     vibid_model_get_dims(m, &dims);
     st->name = dup_string(name);
@@ -609,9 +623,9 @@ vibid_stand *vibid_stand_from_setting(const config_setting_t *g, const char *fil
     st->n_inputs = dims.n_inputs;
     st->input_nodes = calloc(dims.n_inputs ? dims.n_inputs : 1, sizeof(long));
     if (!st->name || !st->channel_names || !st->true_values || !st->true_given || !st->true_std || !st->input_nodes)
-        goto fail_oom;
-    for (size_t i = 0; i < dims.n_inputs; ++i) st->input_nodes[i] = mats ? -1 : pd->input_nodes[i];
-    if (mats) {
+        return -1;
+    for (size_t i = 0; i < dims.n_inputs; ++i) st->input_nodes[i] = from_matrices ? -1 : pd->input_nodes[i];
+    if (from_matrices) {
         vibid_model_nominal(m, st->true_values);
     } else {
         for (size_t i = 0; i < dims.n_params; ++i) {
@@ -622,25 +636,43 @@ vibid_stand *vibid_stand_from_setting(const config_setting_t *g, const char *fil
     for (size_t i = 0; i < dims.n_channels; ++i) {
         vibid_channel_info ci;
         vibid_model_channel_info(m, i, &ci);
-        const char *acq = NULL;
-        int q = ci.kind == VIBID_CHANNEL_DISPLACEMENT ? 0 : ci.kind == VIBID_CHANNEL_VELOCITY ? 1 : 2;
-        if (ci.kind == VIBID_CHANNEL_INPUT)
-            acq = ci.index < pd->n_inputs ? pd->input_names[ci.index] : NULL;
-        else if (ci.index == VIBID_BASE)
-            acq = pd->base_names[q];
-        else if (ci.index < pd->n_nodes)
-            acq = pd->node_names[ci.index][q];
+        const char *acq = acquisition_name(pd, &ci);
         st->channel_names[i] = dup_string(acq ? acq : ci.name);
-        if (!st->channel_names[i]) goto fail_oom;
+        if (!st->channel_names[i]) return -1;
+    }
+    return 0;
+}
+
+vibid_stand *vibid_stand_from_setting(const config_setting_t *g, const char *file, vibid_stand_error *err) {
+    vibid_stand_error local; /* err may be NULL: the reader always needs somewhere to write */
+    vibid_cfg_reader c = {file, err ? err : &local};
+    memset(c.err, 0, sizeof *c.err);
+    if (!g || !config_setting_is_group(g)) {
+        vibid_cfg_fail(&c, g, "stand", "must be a group { ... }");
+        return NULL;
+    }
+    vibid_stand *st = calloc(1, sizeof *st);
+    pending *pd = calloc(1, sizeof *pd); /* large: on the heap */
+    const char *name = "stand";
+    int from_matrices = 0, rc = -1;
+    vibid_status s;
+    if (!st || !pd || !(st->model = vibid_model_create())) {
+        vibid_cfg_fail(&c, g, "stand", "out of memory");
+    } else if (!read_stand_settings(&c, g, st, &name) && !read_model(&c, g, st, pd, &from_matrices)) {
+        /* Unknowns of a full-matrix model have no true_value fields: nominal = true. */
+        if ((s = vibid_model_finalize(st->model)) != VIBID_OK)
+            lib_fail(&c, g, "stand", s);
+        else if (fill_stand_tables(st, pd, name, from_matrices))
+            vibid_cfg_fail(&c, g, "stand", "out of memory");
+        else
+            rc = 0;
     }
     free(pd);
+    if (rc) {
+        vibid_stand_destroy(st);
+        return NULL;
+    }
     return st;
-fail_oom:
-    vibid_cfg_fail(&c, g, path, "out of memory");
-fail:
-    free(pd);
-    vibid_stand_destroy(st);
-    return NULL;
 }
 
 vibid_stand *vibid_stand_load(const char *path, vibid_stand_error *err) {

@@ -1,0 +1,125 @@
+/* output.h: vibidd's outputs behind one interface (collectd's write plugins; the sources'
+ * vibid_source_ops). The daemon (daemon.c) knows no output by name: it opens every output of
+ * the registry that is configured and selected, and loops over the open ones.
+ *
+ * What an output is: something that takes the run's results (samples, track rows, alarm
+ * events, the status snapshot) out of the process. The registry (output.c) lists them and
+ * says why each is one; the systemd notifications (notify.h) and the log are the service's
+ * own protocol, not outputs.
+ *
+ * Ownership: open allocates the output's state (the void * every other call takes) and
+ * close frees it; the configuration and the context passed to open outlive the output (the
+ * output keeps pointers into them). An output reads its settings from the one configuration
+ * (vd_config, read once by config.c); it never reads a file of its own settings.
+ *
+ * Call order (each call optional, NULL in the table when an output has nothing to do):
+ *   vibidd --check:          check (every output of the registry, configured or not), nothing else
+ *   main thread, start-up:   enabled -> open (all outputs, registry order) -> start
+ *   estimation thread:       sample, row, alarm (in the samples' order), flush (bounded
+ *                            interval and at the end), reopen (after SIGHUP), counters,
+ *                            status_lines and status (at its housekeeping: one snapshot
+ *                            for all)
+ *   main thread, the end:    after the estimation thread is joined: drain (reverse
+ *                            registry order), counters, status (VD_OUTPUT_STATUS_AFTER_DRAIN
+ *                            outputs: the counters after the drain), failed; close (reverse
+ *                            registry order, also after a failed start-up; NULL-safe)
+ * sample, row and alarm run on the estimation thread's hot path: they never wait (a full
+ * queue drops and counts, a failed write is counted), so that no output can hold up the
+ * estimates or another output. An output with a thread of its own starts it in start (the
+ * signals are blocked by then) and stops it in drain or close.
+ *
+ * Adding an output: one file with its ops (docs/vibidd.md, "Adding an output") and one line
+ * in the registry (output.c).
+ */
+#ifndef VIBIDD_OUTPUT_H
+#define VIBIDD_OUTPUT_H
+
+#include <stdbool.h>
+#include <stddef.h>
+#include <stdint.h>
+
+#include <vibid_drivers/channel_map.h>
+#include <vibid_drivers/source.h>
+
+#include "config.h"
+#include "estimator.h"
+#include "metrics.h"
+
+/* What open gets besides the configuration. */
+typedef struct vd_output_ctx {
+    const vd_config *cfg;
+    const vibid_chanmap *rec_chanmap; /* the source's channels in record order (raw recording) */
+    const char *tracks_preamble;      /* "# " lines before the tracks header (the estimator's choices), or NULL */
+    const char *stand;                /* the stand's name as a tag: outputs.influx.stand, else the stand's name */
+    const char *const *select;        /* names of the outputs (or their parts) to open, NULL-terminated;
+                                         NULL: every configured output */
+} vd_output_ctx;
+
+/* An alarm event (alarm.h), as every output gets it. */
+typedef struct vd_output_alarm {
+    const char *param; /* the parameter's name */
+    int raised;        /* 1 raised, 0 cleared */
+    const vd_row *row; /* the row that raised or cleared it */
+    double value, baseline, z;
+} vd_output_alarm;
+
+enum {
+    /* status at every status interval (outputs.status.interval; otherwise status_period) */
+    VD_OUTPUT_STATUS_TEXT = 1u << 0,       /* status wants the status file's text (key=value lines) */
+    VD_OUTPUT_STATUS_AFTER_DRAIN = 1u << 1 /* status once more after the drain, with its counters */
+};
+
+typedef struct vd_output_ops {
+    const char *name;          /* as the configuration names it: "mqtt" for outputs.mqtt */
+    const char *const *parts;  /* names of the parts that can be selected on their own (NULL-terminated), or NULL */
+    unsigned flags;            /* VD_OUTPUT_* */
+    /* Configured in cfg (its group is there and turns it on). */
+    bool (*enabled)(const vd_config *cfg);
+    /* vibidd --check: the start-up checks that create and connect nothing (directories,
+     * secret and TLS files, an address bound and released), configured or not. 0; 1 with a
+     * note (a warning, also printed after the configuration); -1 with err. */
+    int (*check)(const vd_config *cfg, char *note, size_t note_cap, char *err, size_t cap);
+    /* Opens (files, sockets, queues; a thread is not started yet). NULL with err on failure:
+     * a configuration error (exit 2). NULL with err empty: this program has no
+     * implementation of the output (open warned; the run goes on without it). */
+    void *(*open)(const vd_output_ctx *ctx, char *err, size_t cap);
+    int (*start)(void *o, char *err, size_t cap);
+    /* The raw samples (every record as received; the output picks the samples). */
+    void (*sample)(void *o, const vibid_record *rec);
+    void (*row)(void *o, const vd_row *row);
+    void (*alarm)(void *o, const vd_output_alarm *a);
+    /* The status: snapshot s and, with VD_OUTPUT_STATUS_TEXT, its text; final: the last one
+     * (the output may wait for its lock). false when the output was busy: offered again at
+     * the next housekeeping. */
+    bool (*status)(void *o, const vd_snapshot *s, const char *text, size_t len, bool final);
+    /* The output's own key=value lines of the status file, from s (its counters), into buf
+     * (snprintf's contract: the length of the whole text, written as far as cap allows). */
+    size_t (*status_lines)(const vd_snapshot *s, char *buf, size_t cap);
+    /* Seconds between status calls when not the status interval (0: the status interval). */
+    double (*status_period)(const vd_config *cfg);
+    void (*flush)(void *o, bool sync);
+    void (*reopen)(void *o);
+    /* The output's counters into s (which starts zeroed). */
+    void (*counters)(void *o, vd_snapshot *s);
+    /* Sends what is left (bounded by the output's drain_timeout), stops its thread. */
+    void (*drain)(void *o);
+    /* A write failed during the run: the exit status is 1. */
+    bool (*failed)(void *o);
+    void (*close)(void *o);
+} vd_output_ops;
+
+/* The registry: every output vibidd has, in the order they are opened (an entry changes
+ * only by vd_daemon_use_output, daemon.h, before vd_daemon_init). */
+extern const vd_output_ops *vd_outputs[];
+extern const size_t vd_n_outputs;
+
+/* name (an output's or one of its parts') is selected by ctx. */
+bool vd_output_selected(const vd_output_ctx *ctx, const char *name);
+/* The output or any of its parts is selected by ctx. */
+bool vd_output_wanted(const vd_output_ctx *ctx, const vd_output_ops *ops);
+
+/* The outputs of the registry (output.c), for the files that define them. */
+extern const vd_output_ops vd_output_files;      /* writers.c */
+extern const vd_output_ops vd_output_prometheus; /* metrics.c */
+
+#endif
