@@ -719,7 +719,7 @@ static void finish_row(vd_daemon *d)
     emit_row(d, row);
 }
 
-/* A refinement's result (refine.h): a row flagged R, or a failure counted and logged once
+/* A refinement's result (refine.h): a row flagged W, or a failure counted and logged once
  * per episode (the equation-error rows go on meanwhile; no row for the failed window). */
 static void take_refinement(vd_daemon *d)
 {
@@ -737,7 +737,7 @@ static void take_refinement(vd_daemon *d)
         r->last_duration_s = res->duration_s;
         if (!r->fail_episode)
             vd_warning("refinement of the window ending at sample %llu failed: %s (the equation-error estimate "
-                       "stands; no row flagged R until a refinement succeeds again)",
+                       "stands; no row flagged W until a refinement succeeds again)",
                        (unsigned long long)res->end_index, res->reason);
         r->fail_episode = true;
     } else {
@@ -747,7 +747,8 @@ static void take_refinement(vd_daemon *d)
             vd_notice("refinement succeeded again at sample %llu (%llu failed so far)",
                       (unsigned long long)res->end_index, (unsigned long long)r->failed);
         r->fail_episode = false;
-        vd_est_refined_row(&d->est, &d->refined_row, res->end_index, res->end_t_us, res->theta, res->se, res->cov);
+        vd_est_refined_row(&d->est, &d->refined_row, res->end_index, res->end_t_us, res->theta, res->se, res->cov,
+                           res->quality, res->n_samples);
         emit_row(d, &d->refined_row);
     }
     vd_refine_release(r);

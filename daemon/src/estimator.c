@@ -142,7 +142,7 @@ void vd_flag_letters(unsigned flags, char out[VD_FLAG_LETTERS_MAX])
         char letter;
     } order[] = {{VD_FLAG_GAP, 'G'},        {VD_FLAG_OUTLIER, 'O'},     {VD_FLAG_NOEST, 'E'}, {VD_FLAG_IMPLAUSIBLE, 'P'},
                  {VD_FLAG_SE_INVALID, 'U'}, {VD_FLAG_NOT_EXCITED, 'I'}, {VD_FLAG_ALARM, 'A'},
-                 {VD_FLAG_REFINED, 'R'}};
+                 {VD_FLAG_REFINED, 'W'}};
     int n = 0;
     for (size_t i = 0; i < sizeof order / sizeof order[0]; i++)
         if (flags & order[i].bit)
@@ -296,17 +296,23 @@ static void start_row(vd_est *e, const vibid_record *rec, uint64_t rel, vd_row *
     e->sync_status = e->twin ? vibid_ident_twin_sync(e->twin, e->ident) : VIBID_OK;
 }
 
+/* The library's row (vibid/report.h) written into the track row's arrays. */
+static vibid_report_row_out report_out(vd_row *row)
+{
+    return (vibid_report_row_out){.theta = row->theta,
+                                  .se = row->se,
+                                  .freq = row->freq,
+                                  .freq_se = row->freq_se,
+                                  .zeta = row->zeta,
+                                  .zeta_se = row->zeta_se};
+}
+
 void vd_est_finish_row(vd_est *e, vd_row *row)
 {
     note_new_choices(e);
     /* The library's row (vibid/report.h): estimate, covariance, modes, plausibility and
      * quality, the same checks as the Python binding's. */
-    vibid_report_row_out out = {.theta = row->theta,
-                                .se = row->se,
-                                .freq = row->freq,
-                                .freq_se = row->freq_se,
-                                .zeta = row->zeta,
-                                .zeta_se = row->zeta_se};
+    vibid_report_row_out out = report_out(row);
     if (e->sync_status != VIBID_OK)
         (void)vibid_report_no_estimate(e->report, e->sync_status, &out);
     else
@@ -328,30 +334,25 @@ void vd_est_finish_row(vd_est *e, vd_row *row)
 }
 
 void vd_est_refined_row(vd_est *e, vd_row *row, uint64_t index, int64_t t_us, const double *theta, const double *se,
-                        const double *cov)
+                        const double *cov, unsigned quality, uint64_t n_samples)
 {
     memset(row, 0, sizeof *row);
     row->t_us = t_us;
     row->index = index;
     row->run_s = (double)index / e->cfg->sample_rate;
     row->flags = VD_FLAG_REFINED;
+    /* the library's row checks (vibid/report.h), as for every recursive row */
+    vibid_report_row_out out = report_out(row);
     for (size_t k = 0; k < VD_MAX_PARAMS; k++)
         row->theta[k] = row->se[k] = row->freq[k] = row->freq_se[k] = row->zeta[k] = row->zeta_se[k] = NAN;
-    memcpy(row->theta, theta, e->p * sizeof *theta);
-    memcpy(row->se, se, e->p * sizeof *se);
-    row->est_status = (int)VIBID_OK;
-    vibid_status ms = vibid_model_modal(e->model, row->theta, cov, row->freq, row->freq_se, row->zeta, row->zeta_se,
-                                        NULL, NULL);
-    if (ms != VIBID_OK && ms != VIBID_E_UNSTABLE)
-        for (size_t k = 0; k < e->nmodes; k++)
-            row->freq[k] = row->freq_se[k] = row->zeta[k] = row->zeta_se[k] = NAN;
-    char unstable_why[256];
-    if (ms == VIBID_E_UNSTABLE)
-        snprintf(unstable_why, sizeof unstable_why, "%s", vibid_last_error());
-    check_plausible(e, row, ms == VIBID_E_UNSTABLE ? unstable_why : NULL);
-    for (size_t k = 0; k < e->p; k++)
-        if (!isfinite(row->se[k]))
-            row->flags |= VD_FLAG_NOT_EXCITED;
+    (void)vibid_report_estimate(e->report, theta, se, cov, quality, n_samples, &out); /* arguments checked at init */
+    row->est_status = (int)out.est_status;
+    row->implausible = out.implausible;
+    row->flags |= out.flags;
+    if (out.flags & VIBID_ROW_IMPLAUSIBLE) {
+        snprintf(e->why, sizeof e->why, "%s", out.why);
+        e->implausible_rows++;
+    }
     e->rows++;
     e->last = *row;
     e->have_last = true;

@@ -76,7 +76,7 @@ enum {
                                   row's sample (refine.h), not the recursive estimate */
 };
 
-/* The row's flags as letters, in the order G O E P U I A R (docs/vibidd.md): the one
+/* The row's flags as letters, in the order G O E P U I A W (docs/vibidd.md): the one
  * spelling of the tracks, InfluxDB, MQTT and the metrics. out holds at least
  * VD_FLAG_LETTERS_MAX bytes. */
 #define VD_FLAG_LETTERS_MAX 12
@@ -185,12 +185,13 @@ int vd_est_record(vd_est *e, const vibid_record *rec, vd_row *row);
  * modal analysis only (report.h): 30-100 us a row, at the decimated rate. */
 void vd_est_finish_row(vd_est *e, vd_row *row);
 
-/* A row of the output-error refinement (refine.h) over the window ending at sample index
- * (from the run's start) at time t_us: theta, se, cov (p x p) of the fit; flagged R, its
- * modes and plausibility as any row's. Counts it and keeps it as vd_est.last. Allocates
- * (the modal analysis). */
+/* A row of the output-error refinement (refine.h) over the window of n_samples ending at
+ * sample index (from the run's start) at time t_us: theta, se, cov (p x p) of the fit,
+ * quality (VIBID_QUALITY_* the refinement found); flagged W, its modes, plausibility and
+ * flags by vibid_report_estimate as any row's. Counts it and keeps it as vd_est.last.
+ * Allocates (the modal analysis). */
 void vd_est_refined_row(vd_est *e, vd_row *row, uint64_t index, int64_t t_us, const double *theta, const double *se,
-                        const double *cov);
+                        const double *cov, unsigned quality, uint64_t n_samples);
 
 /* 1 when rec may make a row due (or is not a sample): a pending row is finished before
  * such a record, so rows stay in order with everything else the record causes. */

@@ -189,7 +189,7 @@ int vd_metrics_render(char *buf, size_t cap, const vd_snapshot *s)
     counter(&o, "vibid_outlier_samples_total",
             "Samples with a single-sample glitch taken out before the estimator (flag O).", s->outlier_samples);
     if (s->refine_on) {
-        counter(&o, "vibid_refinements_total", "Output-error refinements written as rows flagged R.", s->refine_done);
+        counter(&o, "vibid_refinements_total", "Output-error refinements written as rows flagged W.", s->refine_done);
         counter(&o, "vibid_refinements_failed_total",
                 "Output-error refinements that failed (no convergence, a bound, singular, a non-finite input).",
                 s->refine_failed);
@@ -292,7 +292,7 @@ int vd_metrics_render(char *buf, size_t cap, const vd_snapshot *s)
             unsigned bit;
         } fl[] = {{"G", VD_FLAG_GAP},        {"O", VD_FLAG_OUTLIER},     {"E", VD_FLAG_NOEST},
                   {"P", VD_FLAG_IMPLAUSIBLE}, {"U", VD_FLAG_SE_INVALID}, {"I", VD_FLAG_NOT_EXCITED},
-                  {"A", VD_FLAG_ALARM},       {"R", VD_FLAG_REFINED}};
+                  {"A", VD_FLAG_ALARM},       {"W", VD_FLAG_REFINED}};
         for (size_t i = 0; i < sizeof fl / sizeof fl[0]; i++) {
             snprintf(a, sizeof a, "flag=\"%s\"", fl[i].letter);
             u64(&o, "vibid_row_flag", a, (s->last_flags & fl[i].bit) ? 1 : 0);

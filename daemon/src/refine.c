@@ -72,6 +72,8 @@ static void refine_once(vd_refine *r)
     res->end_index = r->req_end_index;
     res->end_t_us = r->req_end_t_us;
     res->duration_s = 0;
+    res->quality = 0;
+    res->n_samples = n;
     for (uint64_t k = 0; k < n; k++) {
         const double *slot = r->ring + ((start + k) % r->cap) * r->nch;
         for (size_t i = 0; i < r->nch; i++)
@@ -89,8 +91,15 @@ static void refine_once(vd_refine *r)
     }
     const double t0 = mono_s();
     vibid_status st = vibid_oe_fit(r->oe, (size_t)n, r->buf, 1, r->req_theta);
+    vibid_oe_fit_info info = {0};
     if (st == VIBID_OK)
-        st = vibid_oe_result(r->oe, res->theta, res->se, res->cov, NULL, NULL, NULL, NULL);
+        st = vibid_oe_result(r->oe, res->theta, res->se, res->cov, NULL, NULL, NULL, &info);
+    /* The standard errors cover the noise, not the inputs' unknown path between samples
+     * (output_error.h, "Input path"): where that moves the estimate by more than one of
+     * them, the row says U. */
+    res->interp_z = info.interp_z;
+    if (st == VIBID_OK && !(info.interp_z <= 1.0))
+        res->quality |= VIBID_QUALITY_SE_INVALID;
     res->duration_s = mono_s() - t0;
     if (st != VIBID_OK) {
         snprintf(res->reason, sizeof res->reason, "%s", vibid_last_error());

@@ -10,7 +10,7 @@
  * copies the range into its own column-major buffer, checks with the ring's sequence
  * counter that nothing it copied was overwritten meanwhile (else: an overrun, counted),
  * runs vibid_oe_fit and publishes the result; the estimation thread picks it up
- * (vd_refine_take) and writes a row flagged R.
+ * (vd_refine_take) and writes a row flagged W.
  *
  * Hand-over without a lock the estimation thread could wait on: one atomic state word
  * (IDLE -> REQUESTED by the estimation thread, REQUESTED -> DONE by the refine thread,
@@ -43,6 +43,9 @@ typedef struct vd_refine_result {
     bool overrun;                  /* the window was overwritten before it was copied */
     double theta[VD_MAX_PARAMS], se[VD_MAX_PARAMS];
     double *cov;                   /* p x p (owned by vd_refine) */
+    unsigned quality;              /* VIBID_QUALITY_*: SE_INVALID when interp_z > 1 */
+    double interp_z;               /* vibid_oe_fit_info.interp_z: the input path's shift in se */
+    uint64_t n_samples;            /* samples of the window */
     char reason[512];              /* why the fit failed (the library's message) */
     uint64_t end_index;            /* sample index (from the run's start) of the window's last sample */
     int64_t end_t_us;              /* its time */

@@ -129,7 +129,7 @@ int vd_format_influx_row(char *buf, size_t cap, const vd_config *cfg, const char
     vd_influx_escape_tag(tag, sizeof tag, stand);
     vd_influx_escape_tag(site, sizeof site, cfg->influx_site);
     /* tags in key order (InfluxDB's advice: the server sorts them otherwise). A refinement's
-     * row (flag R) is tagged estimate=refined: it may fall on the sample of a recursive row,
+     * row (flag W) is tagged estimate=refined: it may fall on the sample of a recursive row,
      * and a point of the same series and time would overwrite that row's fields */
     if (put(buf, cap, &off, "%s%s%s%s,stand=%s", cfg->influx_measurement,
             (row->flags & VD_FLAG_REFINED) ? ",estimate=refined" : "", site[0] ? ",site=" : "", site, tag))

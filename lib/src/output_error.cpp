@@ -177,7 +177,7 @@ public:
     }
 
     void result(double *theta, double *se, double *cov, double *off, double *off_se, double *x0,
-                vibid_oe_fit_info *info) const {
+                vibid_oe_fit_info *info, double *shift = nullptr) const {
         if (!have_) throw_error(VIBID_E_STATE, "no fit yet");
         const Fit &f = best_;
         if (theta) Eigen::Map<VecX>(theta, p_) = f.phi.head(p_);
@@ -202,6 +202,15 @@ public:
             info->n_blocks = n_blocks_;
             info->cost = f.cost;
             info->rcond = f.rcond;
+            info->interp_z = 0.0;
+            for (Index i = 0; i < p_ && f.shift.size() == p_; ++i) {
+                const double se_i = have_cov ? std::sqrt(std::max(0.0, f.cov(i, i))) : 0.0;
+                const double z = f.shift(i) == 0.0 ? 0.0 : std::fabs(f.shift(i)) / se_i;
+                if (!(z <= info->interp_z)) info->interp_z = std::isnan(z) ? kInf : z;
+            }
+        }
+        if (shift) {
+            for (Index i = 0; i < p_; ++i) shift[i] = f.shift.size() == p_ ? f.shift(i) : 0.0;
         }
     }
 
@@ -236,6 +245,7 @@ private:
         double rcond = 0.0;
         std::string weak;
         VecX w;  // weights of the round
+        VecX shift;  // p: interpolation_shift
     };
 
     void load_structure() {
@@ -329,27 +339,31 @@ private:
     }
 
     // Linear stands: E = exp(A~ h) top rows and the stacked Frechet derivatives.
+    // With quad_ the inputs' second derivatives (constant over the interval) are a third
+    // block of the augmented state (N_ + ne_ columns), which the forces do not touch.
     void discretise(bool with_sens) {
-        const Index n = n_;
-        MatX A = MatX::Zero(N_, N_);
+        const Index n = n_, Na = augmented();
+        MatX A = MatX::Zero(Na, Na);
         for (Index i = 0; i < n; ++i) A(i, n + i) = 1.0;
-        A.middleRows(n, n) = Av_;
+        A.block(n, 0, n, N_) = Av_;
         for (Index j = 0; j < ne_; ++j) A(2 * n + j, 2 * n + ne_ + j) = 1.0;
+        if (quad_)
+            for (Index j = 0; j < ne_; ++j) A(2 * n + ne_ + j, 2 * n + 2 * ne_ + j) = 1.0;
         const double h = cfg_.sample_time;
         MatX E = (A * h).exp();
         Etop_ = E.topRows(2 * n);
         if (!with_sens) return;
-        dEtop_.resize(2 * n * p_, N_);
-        MatX big = MatX::Zero(2 * N_, 2 * N_);
-        big.topLeftCorner(N_, N_) = A * h;
-        big.bottomRightCorner(N_, N_) = A * h;
+        dEtop_.resize(2 * n * p_, Na);
+        MatX big = MatX::Zero(2 * Na, 2 * Na);
+        big.topLeftCorner(Na, Na) = A * h;
+        big.bottomRightCorner(Na, Na) = A * h;
         for (Index i = 0; i < p_; ++i) {
-            MatX dA = MatX::Zero(N_, N_);
+            MatX dA = MatX::Zero(Na, Na);
             // d Av / d theta_i = M^-1 (X_i - M_i Av)
-            dA.middleRows(n, n) = MinvX_.middleRows(i * n, n) - MinvM_.middleRows(i * n, n) * Av_;
-            big.topRightCorner(N_, N_) = dA * h;
+            dA.block(n, 0, n, N_) = MinvX_.middleRows(i * n, n) - MinvM_.middleRows(i * n, n) * Av_;
+            big.topRightCorner(Na, Na) = dA * h;
             MatX Eb = big.exp();
-            dEtop_.middleRows(i * 2 * n, 2 * n) = Eb.topRightCorner(N_, N_).topRows(2 * n);
+            dEtop_.middleRows(i * 2 * n, 2 * n) = Eb.topRightCorner(Na, Na).topRows(2 * n);
         }
     }
 
@@ -388,7 +402,7 @@ private:
     void deriv(const MatX &X, VecX &xi, MatX &dX) {
         const Index n = n_;
         xi.head(2 * n) = X.col(0);
-        acc_.noalias() = Av_ * xi;
+        acc_.noalias() = Av_ * xi.head(N_);
         MatX *K = nullptr;
         MatX *G = nullptr;
         if (nonlinear_) {
@@ -408,7 +422,7 @@ private:
             MK_.noalias() = Minv_ * (*K);
             dS.noalias() -= MK_ * X.block(0, 1, n, nd_);
         }
-        stackX_.noalias() = MinvX_ * xi;
+        stackX_.noalias() = MinvX_ * xi.head(N_);
         stackM_.noalias() = MinvM_ * acc_;
         for (Index i = 0; i < p_; ++i) dS.col(i) += stackX_.segment(i * n, n) - stackM_.segment(i * n, n);
         if (G) dS.leftCols(p_).noalias() -= Minv_ * (*G);
@@ -426,7 +440,7 @@ private:
         X.col(0) = phi.segment(p_, nx);
         if (with_sens) X.block(0, 1 + p_, nx, nx).setIdentity();
         MatX dX(nx, cols), K1(nx, cols), K2(nx, cols), K3(nx, cols), K4(nx, cols), Xt(nx, cols);
-        VecX xi = VecX::Zero(N_);
+        VecX xi = VecX::Zero(augmented());
         stackX_.resize(n * p_);
         stackM_.resize(n * p_);
         ps.cost = 0.0;
@@ -460,6 +474,7 @@ private:
         for (Index k = 0; k < ns_; ++k) {
             xi.segment(nx, ne_) = E_.col(k);
             xi.segment(nx + ne_, ne_) = Ed_.col(k);
+            if (quad_) xi.segment(nx + 2 * ne_, ne_) = Edd_.col(k);
             if (kick_) {
                 // held base: the velocities jump by M^-1 d_b (s_k - s_{k-1}) at t_k; before the
                 // first sample the base is taken at 0 (as vibid-sim's stand at rest). The
@@ -516,17 +531,23 @@ private:
                 continue;
             }
             const VecX e0 = E_.col(k), ed = Ed_.col(k);
+            const VecX edd = quad_ ? VecX(Edd_.col(k)) : VecX::Zero(ne_);
+            // the inputs and their slopes at tau into the interval
+            auto inputs_at = [&](double tau) {
+                xi.segment(nx, ne_) = e0 + tau * ed + (0.5 * tau * tau) * edd;
+                if (quad_) xi.segment(nx + ne_, ne_) = ed + tau * edd;
+            };
             for (unsigned s = 0; s < sub; ++s) {
                 const double tau = s * hs;
-                xi.segment(nx, ne_) = e0 + tau * ed;
+                inputs_at(tau);
                 deriv(X, xi, K1);
                 Xt = X + 0.5 * hs * K1;
-                xi.segment(nx, ne_) = e0 + (tau + 0.5 * hs) * ed;
+                inputs_at(tau + 0.5 * hs);
                 deriv(Xt, xi, K2);
                 Xt = X + 0.5 * hs * K2;
                 deriv(Xt, xi, K3);
                 Xt = X + hs * K3;
-                xi.segment(nx, ne_) = e0 + (tau + hs) * ed;
+                inputs_at(tau + hs);
                 deriv(Xt, xi, K4);
                 X += (hs / 6.0) * (K1 + 2.0 * K2 + 2.0 * K3 + K4);
             }
@@ -720,6 +741,7 @@ private:
         const MatX c = ps.scores.colwise() - mean;
         const MatX G = (c * c.transpose()) * (static_cast<double>(B) / static_cast<double>(B - 1));
         f.cov = Hinv * G * Hinv;
+        f.shift = interpolation_shift(f, Hinv);
         if (f.failure & VIBID_OE_SINGULAR)
             for (Index i = 0; i < np_; ++i)
                 if (std::fabs(es.eigenvectors()(i, 0)) > 0.3) f.cov(i, i) = kInf;
@@ -733,6 +755,47 @@ private:
             f.failure |= VIBID_OE_BOUND;
             if (!(f.failure & VIBID_OE_SINGULAR)) f.weak = bound;
         }
+    }
+
+    Index augmented() const { return N_ + (quad_ ? ne_ : 0); }
+
+    // How far the estimate moves when the smooth inputs follow, between samples, the local
+    // parabola instead of the straight line (output_error.h, "Input path"): one Gauss-Newton
+    // step of the cost with parabolic inputs from the fit f (whose linear-input gradient is
+    // zero to the convergence tolerance), Hinv its information's (pseudo-)inverse. The
+    // parabola on [t_k, t_k+1] passes through both samples with the second derivative
+    // (d2_k + d2_k+1) / (2 h^2), d2 the second differences (one-sided at the ends). p values;
+    // zero without a smooth input, inf when the simulation with parabolic inputs diverges.
+    VecX interpolation_shift(const Fit &f, const MatX &Hinv) {
+        VecX shift = VecX::Zero(p_);
+        bool any = false;
+        for (bool sm : in_smooth_) any = any || sm;
+        if (!any || ns_ < 3) return shift;
+        const double h = cfg_.sample_time;
+        const MatX Ed_line = Ed_;
+        Edd_ = MatX::Zero(ne_, ns_);
+        for (Index j = 0; j < ne_; ++j) {
+            if (!in_smooth_[static_cast<std::size_t>(j)]) continue;
+            auto d2 = [&](Index k) {  // second difference at sample k, 1 <= k <= ns-2
+                k = std::min(std::max<Index>(k, 1), ns_ - 2);
+                return E_(j, k + 1) - 2.0 * E_(j, k) + E_(j, k - 1);
+            };
+            for (Index k = 0; k + 1 < ns_; ++k) {
+                const double c = (d2(k) + d2(k + 1)) / (2.0 * h * h);
+                Edd_(j, k) = c;
+                Ed_(j, k) = (E_(j, k + 1) - E_(j, k)) / h - 0.5 * c * h;  // the parabola's slope at t_k
+            }
+        }
+        quad_ = true;
+        weights_ = f.w;
+        Pass ps;
+        const double c = pass(f.phi, true, ps);
+        quad_ = false;
+        Ed_ = Ed_line;
+        Edd_.resize(0, 0);
+        if (!std::isfinite(c)) return VecX::Constant(p_, kInf);
+        shift = (Hinv * ps.g).head(p_);
+        return shift;
     }
 
     std::string phi_name(Index i) const {
@@ -760,7 +823,8 @@ private:
     std::vector<MatX> Mi_, Xi_;
     MatX Minv_, Av_, MinvX_, MinvM_, Etop_, dEtop_, Kc_, Gc_, MK_;
     VecX acc_, gcub_, stackX_, stackM_, stackE_;
-    MatX E_, Ed_, Z_;
+    MatX E_, Ed_, Edd_, Z_;  // inputs, their slopes and (quad_) second derivatives per interval; responses
+    bool quad_ = false;      // inputs parabolic between samples (interpolation_shift only)
     VecX scale_, weights_;
     unsigned substeps_ = 1;
     std::size_t n_blocks_ = 0;
@@ -828,6 +892,14 @@ VIBID_API vibid_status vibid_oe_result(const vibid_oe *oe, double *theta, double
     return vibid::guard("vibid_oe_result", [&]() {
         if (!oe) vibid::throw_error(VIBID_E_NULL_ARGUMENT, "oe is required");
         oe->impl.result(theta, se, cov, offsets, offsets_se, x0, info);
+        return VIBID_OK;
+    });
+}
+
+VIBID_API vibid_status vibid_oe_interp_shift(const vibid_oe *oe, double *shift) {
+    return vibid::guard("vibid_oe_interp_shift", [&]() {
+        if (!oe || !shift) vibid::throw_error(VIBID_E_NULL_ARGUMENT, "oe and shift are required");
+        oe->impl.result(nullptr, nullptr, nullptr, nullptr, nullptr, nullptr, nullptr, shift);
         return VIBID_OK;
     });
 }

@@ -68,6 +68,58 @@ void no_estimate(vibid_report *r, vibid_status status, vibid_report_row_out *out
     out->why = r->why;
 }
 
+// The modes of out->theta with their standard errors from cov (have_cov), and the
+// plausibility of both: the checks every row makes, whoever estimated it.
+void describe(vibid_report *r, const double *cov, bool have_cov, vibid_report_row_out *out) {
+    // An unstable estimate (VIBID_E_UNSTABLE) keeps its modes: a negative zeta or f = 0 is
+    // what the plausibility check flags, and what the reader needs to see. Without a
+    // covariance the modes' standard errors stay NaN (not modal.h's 0).
+    const vibid_status ms =
+        vibid_model_modal(r->model, out->theta, have_cov ? cov : nullptr, out->freq, have_cov ? out->freq_se : nullptr,
+                          out->zeta, have_cov ? out->zeta_se : nullptr, nullptr, nullptr);
+    // copied now: the plausibility check may replace the last error
+    if (ms == VIBID_E_UNSTABLE) std::snprintf(r->unstable, sizeof r->unstable, "%s", vibid_last_error());
+    if (ms != VIBID_OK && ms != VIBID_E_UNSTABLE) {
+        fill_nan(out->freq, r->n);
+        fill_nan(out->zeta, r->n);
+    }
+    if (!have_cov || (ms != VIBID_OK && ms != VIBID_E_UNSTABLE)) {
+        fill_nan(out->freq_se, r->n);
+        fill_nan(out->zeta_se, r->n);
+    }
+
+    unsigned found = 0;
+    if (vibid_plausibility_check(r->model, r->h, out->theta, out->freq, out->zeta, r->n,
+                                 r->pref.n_modes ? &r->pref : nullptr, &found, out->param_implausible,
+                                 out->mode_implausible, r->why, sizeof r->why) != VIBID_OK) {
+        // an argument error (a bug): nothing can be said for the estimate, so it is not
+        // passed as plausible either
+        std::snprintf(r->why, sizeof r->why, "plausibility check failed: %s", vibid_last_error());
+        found = VIBID_IMPLAUSIBLE_NONFINITE;
+    }
+    if (r->unstable[0]) {
+        // Impossible for a passive stand whatever the rules say; a growth within the
+        // rules' 1e-6 zeta tolerance is a slightly negative zeta. Appended: the rules'
+        // findings stay.
+        if (!found) found = VIBID_IMPLAUSIBLE_ZETA_NEGATIVE;
+        const std::size_t len = std::strlen(r->why);
+        std::snprintf(r->why + len, sizeof r->why - len, "%s%s", len ? "; " : "", r->unstable);
+    }
+    out->implausible = found;
+    if (found) out->flags |= VIBID_ROW_IMPLAUSIBLE;
+
+}
+
+// The scalar fields of a row with an estimate, before its checks.
+void start_row(vibid_report *r, vibid_report_row_out *out, unsigned long long n_samples) {
+    r->message[0] = r->why[0] = r->unstable[0] = '\0';
+    out->est_status = VIBID_OK;
+    out->flags = 0;
+    out->n_samples = n_samples;
+    out->message = r->message;
+    out->why = r->why;
+}
+
 }  // namespace
 
 extern "C" {
@@ -124,52 +176,12 @@ VIBID_API vibid_status vibid_report_row(vibid_report *report, vibid_ident *ident
         out->n_samples = info.n_samples;
         return VIBID_OK;
     }
-    r->message[0] = r->why[0] = r->unstable[0] = '\0';
-    out->est_status = VIBID_OK;
-    out->flags = 0;
-    out->n_samples = info.n_samples;
-    out->message = r->message;
-    out->why = r->why;
+    start_row(r, out, info.n_samples);
 
     double *cov = out->cov ? out->cov : r->cov.data();
     const bool have_cov = vibid_ident_covariance(ident, cov) == VIBID_OK;
     if (!have_cov) fill_nan(cov, r->p * r->p);
-    // An unstable estimate (VIBID_E_UNSTABLE) keeps its modes: a negative zeta or f = 0 is
-    // what the plausibility check flags, and what the reader needs to see. Without a
-    // covariance the modes' standard errors stay NaN (not modal.h's 0).
-    const vibid_status ms =
-        vibid_model_modal(r->model, out->theta, have_cov ? cov : nullptr, out->freq, have_cov ? out->freq_se : nullptr,
-                          out->zeta, have_cov ? out->zeta_se : nullptr, nullptr, nullptr);
-    // copied now: the plausibility check may replace the last error
-    if (ms == VIBID_E_UNSTABLE) std::snprintf(r->unstable, sizeof r->unstable, "%s", vibid_last_error());
-    if (ms != VIBID_OK && ms != VIBID_E_UNSTABLE) {
-        fill_nan(out->freq, r->n);
-        fill_nan(out->zeta, r->n);
-    }
-    if (!have_cov || (ms != VIBID_OK && ms != VIBID_E_UNSTABLE)) {
-        fill_nan(out->freq_se, r->n);
-        fill_nan(out->zeta_se, r->n);
-    }
-
-    unsigned found = 0;
-    if (vibid_plausibility_check(r->model, r->h, out->theta, out->freq, out->zeta, r->n,
-                                 r->pref.n_modes ? &r->pref : nullptr, &found, out->param_implausible,
-                                 out->mode_implausible, r->why, sizeof r->why) != VIBID_OK) {
-        // an argument error (a bug): nothing can be said for the estimate, so it is not
-        // passed as plausible either
-        std::snprintf(r->why, sizeof r->why, "plausibility check failed: %s", vibid_last_error());
-        found = VIBID_IMPLAUSIBLE_NONFINITE;
-    }
-    if (r->unstable[0]) {
-        // Impossible for a passive stand whatever the rules say; a growth within the
-        // rules' 1e-6 zeta tolerance is a slightly negative zeta. Appended: the rules'
-        // findings stay.
-        if (!found) found = VIBID_IMPLAUSIBLE_ZETA_NEGATIVE;
-        const std::size_t len = std::strlen(r->why);
-        std::snprintf(r->why + len, sizeof r->why - len, "%s%s", len ? "; " : "", r->unstable);
-    }
-    out->implausible = found;
-    if (found) out->flags |= VIBID_ROW_IMPLAUSIBLE;
+    describe(r, cov, have_cov, out);
 
     vibid_ident_quality q;
     if (vibid_ident_get_quality(ident, &q, out->param_quality) == VIBID_OK) {
@@ -185,6 +197,34 @@ VIBID_API vibid_status vibid_report_row(vibid_report *report, vibid_ident *ident
         if (out->param_quality)
             for (std::size_t i = 0; i < r->p; ++i) out->param_quality[i] = 0;
     }
+    return VIBID_OK;
+}
+
+VIBID_API vibid_status vibid_report_estimate(vibid_report *report, const double *theta, const double *se,
+                                             const double *cov, unsigned quality, unsigned long long n_samples,
+                                             vibid_report_row_out *out) {
+    const vibid_status s = check_out(report, out);
+    if (s != VIBID_OK) return s;
+    if (!theta || !se) return VIBID_FAIL(VIBID_E_NULL_ARGUMENT, "theta and se are required");
+    vibid_report *r = report;
+    start_row(r, out, n_samples);
+    for (std::size_t i = 0; i < r->p; ++i) {
+        out->theta[i] = theta[i];
+        out->se[i] = se[i];
+        if (!std::isfinite(se[i])) quality |= VIBID_QUALITY_NOT_EXCITED;
+        if (out->param_quality) out->param_quality[i] = std::isfinite(se[i]) ? 0u : VIBID_QUALITY_NOT_EXCITED;
+    }
+    double *row_cov = out->cov ? out->cov : r->cov.data();
+    if (cov)
+        std::memcpy(row_cov, cov, r->p * r->p * sizeof *row_cov);
+    else
+        fill_nan(row_cov, r->p * r->p);
+    describe(r, row_cov, cov != nullptr, out);
+    out->quality = quality;
+    out->z_consistency = NAN;
+    out->n_blocks = 0;
+    if (quality & VIBID_QUALITY_SE_INVALID) out->flags |= VIBID_ROW_SE_INVALID;
+    if (quality & VIBID_QUALITY_NOT_EXCITED) out->flags |= VIBID_ROW_NOT_EXCITED;
     return VIBID_OK;
 }
 

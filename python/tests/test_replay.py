@@ -82,9 +82,9 @@ def test_replay_equals_vibidd(run, tmp_path, kind, estimator):
     theirs = daemon_tracks(cfg)
     assert list(ours.columns) == ["time_s", "index", "c1", "c1_se", "d", "d_se", "c2", "c2_se", "f1_hz", "f1_hz_se",
                                   "zeta1", "zeta1_se", "f2_hz", "f2_hz_se", "zeta2", "zeta2_se", "gap_samples", "flags"]
-    # 20000 samples, a row every 500, and the refinement's row (flag R) of the 10 s window
+    # 20000 samples, a row every 500, and the refinement's row (flag W) of the 10 s window
     # ending at the last sample (estimator.refine_every, docs/vibidd.md "Refinement")
-    assert (~ours["flags"].str.contains("R")).sum() == 40
+    assert (~ours["flags"].str.contains("W")).sum() == 40
     pd.testing.assert_frame_equal(ours, theirs, check_exact=True)
     # sample times: the log's stamps (epoch 1700000000) or the CSV's t
     t0 = 1700000000.0 if kind == "candump" else 0.0

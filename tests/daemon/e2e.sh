@@ -94,8 +94,8 @@ check_final() {
 }
 
 # data_rows FILE: the recursive estimator's track rows of a tracks file (not the "#" lines of
-# the estimator's choices, not the column header, not the refinement's rows flagged R)
-data_rows() { grep -v '^#' "$1" | awk -F, 'NR > 1 && $NF !~ /R/' | wc -l; }
+# the estimator's choices, not the column header, not the refinement's rows flagged W)
+data_rows() { grep -v '^#' "$1" | awk -F, 'NR > 1 && $NF !~ /W/' | wc -l; }
 
 # rate_stand HZ FILE: the stand with another sample_rate (captures at that rate)
 rate_stand() {
@@ -160,10 +160,10 @@ replay_candump)
     final=$(check_final tracks.csv 1.0) || exit 1; note "$final"
     rows=$(data_rows tracks.csv)
     [ "$rows" -eq 200 ] || fail "expected 200 rows, got $rows"
-    # every row, the refinement's (flag R) too, is one line
+    # every row, the refinement's (flag W) too, is one line
     [ "$(wc -l < tracks.influx)" -eq "$(grep -v '^#' tracks.csv | tail -n +2 | wc -l)" ] || fail "influx lines != rows"
-    [ "$(grep -c 'flags="[A-Z]*R' tracks.influx)" -eq "$(grep -v '^#' tracks.csv | awk -F, '$NF ~ /R/' | wc -l)" ] ||
-        fail "the refined rows are not flagged R in InfluxDB"
+    [ "$(grep -c 'flags="[A-Z]*W' tracks.influx)" -eq "$(grep -v '^#' tracks.csv | awk -F, '$NF ~ /W/' | wc -l)" ] ||
+        fail "the refined rows are not flagged W in InfluxDB"
     grep -q '^vibid,stand=paper_example1 c1=[0-9.e+]*,c1_se=' tracks.influx || fail "influx format"
     [ "$(status_val source_frames status)" = 120000 ] || fail "frames: $(status_val source_frames status)"
     ;;
@@ -1011,9 +1011,9 @@ outlier)
         timeout 60 "$VIBIDD" -c "$1.cfg" --log-level notice 2> "$1.log" || fail "$1: vibidd exit $? ($(cat "$1.log"))"
     }
     # body FILE: the rows without the columns that may differ (gap_samples, flags)
-    # the recursive estimator's rows: a refinement (flag R) differs by design, a gap (the NaN
+    # the recursive estimator's rows: a refinement (flag W) differs by design, a gap (the NaN
     # capture) skips the window, a response value taken out is left out of its fit
-    body() { grep -v '^#' "$1" | awk -F, -v OFS=, 'NR > 1 && $NF !~ /R/ { NF -= 2; print }'; }
+    body() { grep -v '^#' "$1" | awk -F, -v OFS=, 'NR > 1 && $NF !~ /W/ { NF -= 2; print }'; }
     config_csv v0.cfg ""
     glitched cap_nan.csv nan
     run nan cap_nan.csv ""
@@ -1165,9 +1165,9 @@ units)
 import sys
 def rows(p):
     lines = [l.rstrip("\n").split(",") for l in open(p) if not l.startswith("#")]
-    # the recursive estimator's rows (the refinement's, flag R, converge to 1e-4 of their
+    # the recursive estimator's rows (the refinement's, flag W, converge to 1e-4 of their
     # standard errors, not to rounding)
-    return lines[0], [l for l in lines[1:] if "R" not in l[-1]]
+    return lines[0], [l for l in lines[1:] if "W" not in l[-1]]
 ha, ra = rows(sys.argv[1]); hb, rb = rows(sys.argv[2])
 assert ha == hb and len(ra) == len(rb) == 100, (len(ra), len(rb))
 worst = 0.0

@@ -38,14 +38,14 @@ outputs = { tracks = { path = "tracks.csv"; }; status = { path = "status"; }; };
 EOF
 }
 
-# refined_rows TRACKS: the rows flagged R (flags are the last column)
-refined_rows() { grep -v '^#' "$1" | awk -F, 'NR > 1 && $NF ~ /R/'; }
+# refined_rows TRACKS: the rows flagged W (flags are the last column)
+refined_rows() { grep -v '^#' "$1" | awk -F, 'NR > 1 && $NF ~ /W/'; }
 
 "$SIM" -c stand.cfg --duration 12 --csv cap.csv -q 2> /dev/null || fail "vibid-sim"
 
 case $CASE in
 rows)
-    # Rows flagged R every 2 s of sample time once 6 s are in (windows end at samples 5999,
+    # Rows flagged W every 2 s of sample time once 6 s are in (windows end at samples 5999,
     # 7999, 9999, 11999),
     # their estimates within 3 standard errors of the true values, the same in a second replay.
     config cap.csv
@@ -55,11 +55,11 @@ rows)
     grep -q 'refinement on' log || fail "the log does not say refinement is on"
     refined_rows tracks.csv > r1
     n=$(wc -l < r1)
-    [ "$n" -eq 4 ] || fail "$n rows flagged R, expected 4: $(grep -i refine log)"
-    [ "$(status_val refinements)" = "$n" ] || fail "status refinements=$(status_val refinements), $n R rows"
+    [ "$n" -eq 4 ] || fail "$n rows flagged W, expected 4: $(grep -i refine log)"
+    [ "$(status_val refinements)" = "$n" ] || fail "status refinements=$(status_val refinements), $n W rows"
     [ "$(status_val refine_failed)" = 0 ] || fail "refine_failed=$(status_val refine_failed): $(grep -i refine log)"
     idx=$(column index tracks.csv)
-    awk -F, -v c="$idx" '{ if (($c + 1) % 2000 != 0) { print "R row at index " $c; exit 1 } }' r1 || fail "R row off the 2 s grid"
+    awk -F, -v c="$idx" '{ if (($c + 1) % 2000 != 0) { print "W row at index " $c; exit 1 } }' r1 || fail "W row off the 2 s grid"
     for p in c1:6.0e4 d1:15.0 c2:1.2e5 d2:30.0; do
         name=${p%%:*} truth=${p#*:}
         col=$(column "$name" tracks.csv)
@@ -67,7 +67,7 @@ rows)
             '{ z = ($c - t) / $(c + 1); if (!(z < 3 && z > -3)) { print n " = " $c " +- " $(c + 1) ": " z " standard errors off " t; exit 1 } }' r1 ||
             fail "refined estimate off: $(awk -F, -v c="$col" -v t="$truth" '{ print ($c - t) / $(c + 1) }' r1 | tr '\n' ' ')"
     done
-    # the alarms and the status use them like other rows: the R rows carry no E or P
+    # the alarms and the status use them like other rows: the W rows carry no E or P
     awk -F, '$NF ~ /[EP]/ { exit 1 }' r1 || fail "a refined row flagged E or P"
     mv tracks.csv tracks1.csv
     timeout 120 "$VIBIDD" -c v.cfg 2> log2 || fail "second replay: $(cat log2)"
@@ -78,7 +78,7 @@ rows)
 failed)
     # A glitch in the base displacement at sample 1000: the outlier test takes it out, the
     # window [0, 6000) holds a NaN input sample and its fit fails (the library names it):
-    # counted, logged, no R row at 5999; the windows after it are refined.
+    # counted, logged, no W row at 5999; the windows after it are refined.
     awk -F, 'BEGIN { OFS = "," } NR == 1 { for (i = 1; i <= NF; i++) if ($i == "s") c = i } NR == 1002 { $c = $c + 1.0 } { print }' cap.csv > glitch.csv
     config glitch.csv
     timeout 120 "$VIBIDD" -c v.cfg 2> log || fail "vibidd: $(cat log)"
@@ -87,8 +87,8 @@ failed)
     grep -q 'refinement of the window ending at sample 5999 failed' log || fail "the failure is not logged: $(grep -i refine log)"
     idx=$(column index tracks.csv)
     refined_rows tracks.csv > r
-    awk -F, -v c="$idx" '$c == 5999 { exit 1 }' r || fail "an R row for the failed window"
-    awk -F, -v c="$idx" '$c == 7999 { f = 1 } END { exit !f }' r || fail "no R row after the glitch"
+    awk -F, -v c="$idx" '$c == 5999 { exit 1 }' r || fail "a W row for the failed window"
+    awk -F, -v c="$idx" '$c == 7999 { f = 1 } END { exit !f }' r || fail "no W row after the glitch"
     note "refine_failed=$(status_val refine_failed), $(wc -l < r) refined rows, none for the window with the glitch"
     ;;
 priority)
@@ -124,7 +124,7 @@ priority)
     done
     wait $tpid || fail "vibidd exit $? ($(cat log))"
     n=$(refined_rows tracks.csv | wc -l)
-    [ "$n" -ge 3 ] || fail "$n rows flagged R in the paced replay (4 windows due; at most one skipped): $(grep -i refine log)"
+    [ "$n" -ge 3 ] || fail "$n rows flagged W in the paced replay (4 windows due; at most one skipped): $(grep -i refine log)"
     [ "$(status_val refine_failed)" = 0 ] || fail "refine_failed=$(status_val refine_failed)"
     note "vibidd-refine: policy $policy (5 = SCHED_IDLE), nice $nice; the other threads SCHED_OTHER, nice 0; $n refined rows paced"
     ;;

@@ -243,8 +243,8 @@ for s, ls in lines.items():
     msgs = [parse(l) for l in ls]
     by = {}
     for meas, tags, f, ts in msgs:
-        # a refinement's row (flag R) is a series of its own: tag estimate=refined
-        refined = "R" in f["flags"].strip('"')
+        # a refinement's row (flag W) is a series of its own: tag estimate=refined
+        refined = "W" in f["flags"].strip('"')
         assert meas == "vibid" and tags == ({"estimate": "refined", "stand": s} if refined else {"stand": s}), (
             s, meas, tags, f["flags"])
         by.setdefault(f["seq"], (f, ts))

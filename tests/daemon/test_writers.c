@@ -133,7 +133,7 @@ static void test_influx(void **state)
     r.flags = VD_FLAG_REFINED;
     assert_true(vd_format_influx_row(buf, sizeof buf, &with_site, "s", &r) > 0);
     assert_true(!strncmp(buf, "vibid,estimate=refined,site=plant\\ 1,stand=s c1=250000,", 55));
-    assert_non_null(strstr(buf, ",flags=\"R\" "));
+    assert_non_null(strstr(buf, ",flags=\"W\" "));
 }
 
 static void test_recording_roundtrip(void **state)
@@ -367,11 +367,11 @@ static void test_flag_letters(void **state)
                         VD_FLAG_ALARM,
                     l);
     assert_string_equal(l, "GOPUIA");
-    /* every letter at once: R (a refinement) last */
+    /* every letter at once: W (a refinement) last */
     vd_flag_letters(VD_FLAG_GAP | VD_FLAG_OUTLIER | VD_FLAG_NOEST | VD_FLAG_IMPLAUSIBLE | VD_FLAG_SE_INVALID |
                         VD_FLAG_NOT_EXCITED | VD_FLAG_ALARM | VD_FLAG_REFINED,
                     l);
-    assert_string_equal(l, "GOEPUIAR");
+    assert_string_equal(l, "GOEPUIAW");
     vd_flag_letters(VD_FLAG_NOEST | VD_FLAG_OUTLIER, l);
     assert_string_equal(l, "OE");
     vd_flag_letters(0, l);

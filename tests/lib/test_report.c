@@ -1,7 +1,8 @@
 /* test_report.c: vibid_report_row (vibid/report.h), the one row of vibidd and the Python
  * package: an estimate that breaks a rule and is unstable keeps both reasons (the
  * unstable message appended after the rules' findings; vibidd used to drop it), a row
- * without estimate says why, and bad arguments are refused. */
+ * without estimate says why, bad arguments are refused, and an estimate made elsewhere
+ * (vibid_report_estimate) gets the same checks. */
 #include <setjmp.h>
 #include <stdarg.h>
 #include <stddef.h>
@@ -140,11 +141,54 @@ static void test_no_estimate_and_errors(void **state)
     vibid_model_destroy(m);
 }
 
+/* vibid_report_estimate: an estimate made elsewhere (vibidd's output-error rows) gets the
+ * same checks as vibid_report_row's on the same numbers: identical modes, findings and
+ * flags; the caller's quality becomes the U flag; a non-finite se adds I. */
+static void test_estimate_made_elsewhere(void **state)
+{
+    (void)state;
+    vibid_model *m = example1_model(0);
+    vibid_report *rep = vibid_report_create(m, 1e-3);
+    assert_non_null(rep);
+    const double bad[3] = {2.5e5, -3.0, -18981.0};
+    vibid_ident *id = prior_ident(m, bad);
+    row_buf a, b;
+    row_init(&a);
+    row_init(&b);
+    assert_int_equal(vibid_report_row(rep, id, &a.out), VIBID_OK);
+    char why_a[1024];
+    strcpy(why_a, a.out.why);
+    assert_int_equal(vibid_report_estimate(rep, a.theta, a.se, a.cov, a.out.quality, 8, &b.out), VIBID_OK);
+    assert_memory_equal(a.theta, b.theta, sizeof a.theta);
+    assert_memory_equal(a.f, b.f, sizeof a.f);
+    assert_memory_equal(a.z, b.z, sizeof a.z);
+    assert_memory_equal(a.fse, b.fse, sizeof a.fse);
+    assert_int_equal(a.out.flags, b.out.flags);
+    assert_int_equal(a.out.implausible, b.out.implausible);
+    assert_string_equal(why_a, b.out.why);
+    /* no covariance: modes without standard errors; quality 0 and an inf se: I, no U */
+    const double se[3] = {1.0, INFINITY, 2.0};
+    const double good[3] = {2.5e5, 300.0, 1.5e6};
+    assert_int_equal(vibid_report_estimate(rep, good, se, NULL, 0, 100, &b.out), VIBID_OK);
+    assert_int_equal(b.out.flags, VIBID_ROW_NOT_EXCITED);
+    assert_true(b.pq[1] & VIBID_QUALITY_NOT_EXCITED);
+    assert_int_equal(b.pq[0], 0);
+    assert_true(isnan(b.fse[0]) && isfinite(b.f[0]));
+    assert_true(b.out.n_samples == 100);
+    assert_int_equal(vibid_report_estimate(rep, good, a.se, NULL, VIBID_QUALITY_SE_INVALID, 100, &b.out), VIBID_OK);
+    assert_int_equal(b.out.flags, VIBID_ROW_SE_INVALID);
+    assert_int_equal(vibid_report_estimate(rep, NULL, se, NULL, 0, 0, &b.out), VIBID_E_NULL_ARGUMENT);
+    vibid_ident_destroy(id);
+    vibid_report_destroy(rep);
+    vibid_model_destroy(m);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_rules_and_unstable_both_reported),
         cmocka_unit_test(test_no_estimate_and_errors),
+        cmocka_unit_test(test_estimate_made_elsewhere),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

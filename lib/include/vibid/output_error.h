@@ -52,6 +52,17 @@
  * widen the error bars instead of being assumed white. With fewer than 8 blocks of 50
  * samples the fit is refused as too short for error bars.
  *
+ * Input path: the samples do not say how a smooth input moved between them; the fit
+ * takes the straight line (what vibid-sim's noise and PRBS excitations do), a real
+ * shaker's continuous force does not. The fit also measures how much that assumption
+ * matters: one Gauss-Newton step of the cost with the inputs on the local parabola
+ * through neighbouring samples (second derivative from the second differences) gives the
+ * estimate's shift (vibid_oe_interp_shift) and its size in standard errors
+ * (vibid_oe_fit_info.interp_z). Where it exceeds 1 the error bars do not cover the
+ * unknown input path (a triangle wave's corners between samples; a sine at 10 samples per
+ * period moves a gain by about (2 pi / 10)^2 / 12 = 3 %); vibidd flags such a refined row
+ * `U`. Held inputs are exact and have no shift. Costs one more pass with sensitivities.
+ *
  * A fit that fails (no convergence within max_iterations, a parameter on its bound, an
  * information matrix that is singular in some direction, an unstable simulation from
  * every start) returns its status and reason (vibid_last_error) and
@@ -97,6 +108,9 @@ typedef struct vibid_oe_fit_info {
     size_t n_blocks;           /* blocks behind the covariance */
     double cost;               /* final weighted cost (half the weighted sum of squares) */
     double rcond;              /* reciprocal condition of the Jacobi-scaled information */
+    double interp_z;           /* max over the parameters of |shift_i| / se_i (vibid_oe_interp_shift):
+                                  > 1 when the estimate depends on the inputs' unknown path between
+                                  samples by more than its standard error; 0 without smooth inputs */
 } vibid_oe_fit_info;
 
 /* Defaults for sample time h: offsets on, 100 iterations, automatic substeps and blocks. */
@@ -128,6 +142,13 @@ VIBID_API vibid_status vibid_oe_fit(vibid_oe *oe, size_t n_samples, const double
  * NULL). VIBID_E_STATE before a fit. */
 VIBID_API vibid_status vibid_oe_result(const vibid_oe *oe, double *theta, double *se, double *cov, double *offsets,
                                        double *offsets_se, double *x0, vibid_oe_fit_info *info);
+
+/* The last fit's dependence on the inputs' path between samples (above, "Input path"):
+ * shift (p) = how far, to first order, the estimate moves when every smooth input
+ * follows the local parabola through its neighbouring samples instead of the straight
+ * line (model units; 0 without smooth inputs; inf when that simulation diverges).
+ * VIBID_E_STATE before a fit. */
+VIBID_API vibid_status vibid_oe_interp_shift(const vibid_oe *oe, double *shift);
 
 /* Simulates the model with parameters theta (p), initial state x0 (2 n, NULL = at rest)
  * and offsets (n_response, NULL = none) driven by the inputs of channels (n_samples x

@@ -96,6 +96,16 @@ VIBID_API const vibid_plausibility_ref *vibid_report_reference(const vibid_repor
  * arrays or an ident of another shape (out untouched). Real time: above. */
 VIBID_API vibid_status vibid_report_row(vibid_report *report, vibid_ident *ident, vibid_report_row_out *out);
 
+/* The row of an estimate made elsewhere (e.g. an output-error fit: output_error.h), with
+ * the same checks as vibid_report_row's: theta and se (p each, copied into out), cov (p x
+ * p column-major, NULL: none; then the modes' standard errors are NaN), quality
+ * (VIBID_QUALITY_* the caller found for it; VIBID_QUALITY_NOT_EXCITED is added where an se
+ * is not finite), n_samples behind it. z_consistency NaN, n_blocks 0. VIBID_OK when written;
+ * VIBID_E_NULL_ARGUMENT for missing arrays. Allocates only vibid_model_modal's scratch. */
+VIBID_API vibid_status vibid_report_estimate(vibid_report *report, const double *theta, const double *se,
+                                             const double *cov, unsigned quality, unsigned long long n_samples,
+                                             vibid_report_row_out *out);
+
 /* A row without estimate for a reason the caller knows (e.g. a failed
  * vibid_ident_twin_sync): values NaN, VIBID_ROW_NOEST, est_status = status, message =
  * vibid_last_error(). Allocates nothing. */
