@@ -5,6 +5,7 @@
 #include <linux/can.h>
 #include <linux/can/raw.h>
 #include <net/if.h>
+#include <stdlib.h>
 #include <string.h>
 #include <sys/ioctl.h>
 #include <sys/socket.h>
@@ -12,9 +13,70 @@
 
 #include <vibid_drivers/num_format.h>
 
+/* Formats rows rows of batch b and writes them, 64 KiB of text at a time (writer thread).
+ * 0, or -1 on a write error. */
+static int csv_format_batch(sim_csv *c, const double *b, size_t rows)
+{
+    const size_t stride = 1 + c->n, row_max = stride * (VIBID_NUM_FORMAT_MAX + 1) + 1;
+    char text[65536 + (64 + 1) * (VIBID_NUM_FORMAT_MAX + 1) + 1];
+    size_t len = 0;
+    for (size_t r = 0; r < rows; r++) {
+        const double *v = b + r * stride;
+        len += vibid_num_format(text + len, v[0]);
+        for (size_t i = 1; i < stride; i++) {
+            text[len++] = ',';
+            len += vibid_num_format(text + len, v[i]);
+        }
+        text[len++] = '\n';
+        if (len + row_max > sizeof text || r + 1 == rows) {
+            if (fwrite(text, 1, len, c->f) != len) return -1;
+            len = 0;
+        }
+    }
+    return 0;
+}
+
+static void *csv_writer(void *arg)
+{
+    sim_csv *c = arg;
+    pthread_mutex_lock(&c->mu);
+    for (;;) {
+        while (c->pending < 0 && !c->stop) pthread_cond_wait(&c->cv, &c->mu);
+        if (c->pending < 0) break; /* stopped, nothing left */
+        const int b = c->pending;
+        const size_t rows = c->pending_rows;
+        const int failed = c->failed;
+        pthread_mutex_unlock(&c->mu);
+        const int bad = failed ? 0 : csv_format_batch(c, c->batch[b], rows); /* after a failure: dropped, counted by the caller */
+        pthread_mutex_lock(&c->mu);
+        if (bad) c->failed = 1;
+        c->pending = -1;
+        pthread_cond_broadcast(&c->cv);
+    }
+    pthread_mutex_unlock(&c->mu);
+    return NULL;
+}
+
+/* Hands batch cur (fill rows) to the writer, waiting while it writes the previous one. */
+static int csv_hand_over(sim_csv *c)
+{
+    pthread_mutex_lock(&c->mu);
+    while (c->pending >= 0) pthread_cond_wait(&c->cv, &c->mu);
+    c->pending = c->cur;
+    c->pending_rows = c->fill;
+    const int failed = c->failed;
+    pthread_cond_broadcast(&c->cv);
+    pthread_mutex_unlock(&c->mu);
+    c->cur ^= 1;
+    c->fill = 0;
+    if (failed) c->failed_seen = 1;
+    return failed ? -1 : 0;
+}
+
 int sim_csv_open(sim_csv *c, const char *path, const vibid_stand *stand, char *err, size_t errlen)
 {
     memset(c, 0, sizeof *c);
+    c->pending = -1;
     const vibid_model *m = vibid_stand_model(stand);
     vibid_model_dims d;
     vibid_model_get_dims(m, &d);
@@ -30,9 +92,17 @@ int sim_csv_open(sim_csv *c, const char *path, const vibid_stand *stand, char *e
             if (input == (pass == 0)) c->order[c->n++] = i;
         }
     snprintf(c->path, sizeof c->path, "%s", path);
+    for (int b = 0; b < 2; b++)
+        if (!(c->batch[b] = malloc(SIM_CSV_BATCH * (1 + c->n) * sizeof(double)))) {
+            snprintf(err, errlen, "--csv %s: out of memory for the write batches", path);
+            free(c->batch[0]);
+            return -1;
+        }
     c->f = fopen(path, "w");
     if (!c->f) {
         snprintf(err, errlen, "--csv %s: cannot create: %s", path, strerror(errno));
+        free(c->batch[0]);
+        free(c->batch[1]);
         return -1;
     }
     /* 1 MiB of stdio buffer: a 10-DOF row is about 400 bytes, so a write(2) per ~2600 rows */
@@ -40,29 +110,47 @@ int sim_csv_open(sim_csv *c, const char *path, const vibid_stand *stand, char *e
     fprintf(c->f, "t");
     for (size_t i = 0; i < c->n; i++) fprintf(c->f, ",%s", vibid_stand_channel_name(stand, c->order[i]));
     fprintf(c->f, "\n");
+    pthread_mutex_init(&c->mu, NULL);
+    pthread_cond_init(&c->cv, NULL);
+    int rc = pthread_create(&c->thread, NULL, csv_writer, c);
+    if (rc != 0) {
+        snprintf(err, errlen, "--csv %s: cannot start the writer thread: %s", path, strerror(rc));
+        fclose(c->f);
+        c->f = NULL;
+        free(c->batch[0]);
+        free(c->batch[1]);
+        return -1;
+    }
+    c->started = 1;
     return 0;
 }
 
 int sim_csv_write(sim_csv *c, double t, const double *values)
 {
-    /* One row as text, then one buffered write: every value in its shortest round-trip form
-     * (num_format.h; printf's %.17g was the bottleneck of the CSV output). */
-    char row[(64 + 1) * VIBID_NUM_FORMAT_MAX + 1];
-    size_t len = vibid_num_format(row, t);
-    for (size_t i = 0; i < c->n; i++) {
-        row[len++] = ',';
-        len += vibid_num_format(row + len, values[c->order[i]]);
-    }
-    row[len++] = '\n';
-    return fwrite(row, 1, len, c->f) == len ? 0 : -1;
+    double *row = c->batch[c->cur] + c->fill * (1 + c->n);
+    row[0] = t;
+    for (size_t i = 0; i < c->n; i++) row[1 + i] = values[c->order[i]];
+    if (++c->fill < SIM_CSV_BATCH) return c->failed_seen ? -1 : 0;
+    return csv_hand_over(c);
 }
 
 int sim_csv_close(sim_csv *c, char *err, size_t errlen)
 {
     if (!c->f) return 0;
-    int bad = ferror(c->f);
+    if (c->fill) (void)csv_hand_over(c);
+    pthread_mutex_lock(&c->mu);
+    c->stop = 1;
+    pthread_cond_broadcast(&c->cv);
+    pthread_mutex_unlock(&c->mu);
+    pthread_join(c->thread, NULL);
+    pthread_mutex_destroy(&c->mu);
+    pthread_cond_destroy(&c->cv);
+    int bad = c->failed || ferror(c->f);
     if (fclose(c->f) != 0) bad = 1;
     c->f = NULL;
+    free(c->batch[0]);
+    free(c->batch[1]);
+    c->batch[0] = c->batch[1] = NULL;
     if (bad) {
         snprintf(err, errlen, "--csv %s: write failed (disk full?)", c->path);
         return -1;

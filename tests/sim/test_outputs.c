@@ -428,6 +428,10 @@ static void test_bad_input(void **state)
     expect_error(args, 2, "does_not_exist.cfg");
     snprintf(args, sizeof args, "-c %s --bogus", STAND1);
     expect_error(args, 2, "unknown option '--bogus'");
+    /* a CSV that cannot be written (the writer thread's error reaches the exit status):
+     * 2 s at 2 kHz are several batches of SIM_CSV_BATCH rows and stdio buffers */
+    snprintf(args, sizeof args, "-c %s -s %s --duration 2 --csv /dev/full -q", STAND1, SIM1);
+    expect_error(args, 1, "--csv /dev/full: write failed (disk full?)");
 }
 
 int main(void)
