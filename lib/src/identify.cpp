@@ -46,9 +46,16 @@ struct OeFree {
 };
 }  // namespace
 
+namespace vibid {
+struct EstimatorOps;  // one estimator kind's operations (kEstimators, at the end of this file)
+}  // namespace vibid
+
 struct vibid_ident {
     vibid_model model;
     vibid_ident_config cfg{};
+    // The operations of the estimator that runs (cfg.estimator; AUTO resolved to the
+    // state-space estimator is EKF's), set once by create.
+    const vibid::EstimatorOps *ops = nullptr;
     std::unique_ptr<vibid_regressor, RegressorFree> reg;
     std::unique_ptr<vibid_lsq, LsqFree> lsq;
     std::unique_ptr<vibid::BlockIV> biv;  // IV and AUTO: sums per block (block_iv.hpp)
@@ -132,7 +139,83 @@ struct vibid_ident {
     vibid_ident &operator=(vibid_ident &&) = default;  // tune_prefilter's replacement
 };
 
+namespace vibid {
+
+// Whether an estimator estimates the constant forces (vibid_ident_config.constant_terms).
+enum class ConstantForces {
+    none,        // never (constant_terms on is refused)
+    structured,  // on the structured form (not the ZOH form): extra columns of the regression
+    start,       // those of its start estimator (OE), which decides
+};
+
+// What create_ident passes on to an estimator's create: with_check = false leaves out the
+// discretization check (the check's own estimator) and the pre-filter pilot;
+// prefilter_why: the reason for a cutoff the pilot chose (see resolve_config).
+struct CreateOptions {
+    bool with_check;
+    const std::string &prefilter_why;
+};
+
+// A regression estimator's fit of the difference form: Theta (p_reg x q), Cov(vec Theta)
+// (column-major vec), the solve's rank and condition, the quality so far, the parameters
+// the data leave unexcited (empty: none), the measured discretization error per
+// parameter (empty: no check) and whether the constant forces stand (with_c).
+struct RegressionFit {
+    Eigen::MatrixXd Th, cov_reg;
+    vibid_lsq_info li{};
+    vibid_ident_quality qual{};
+    std::vector<int> weak;
+    Eigen::VectorXd disc_error;
+    bool with_c = false;
+};
+
+// One estimator kind, one entry of kEstimators (indexed by vibid_estimator, at the end of
+// this file). The rest of this file knows no estimator by name: adding one is writing
+// these functions and adding its entry. The regression estimators (LS, IV, AUTO, RLS)
+// share the regressor, the pre-filter and the way back from the difference form
+// (create_regression, push_regression, estimate_regression) and fill in the four
+// regression hooks; the others leave them NULL.
+struct EstimatorOps {
+    vibid_estimator kind;
+    const char *name;  // vibid_estimator_name
+    ConstantForces constants;
+    // The instrumented estimators: instrument lag, pre-filter pilot, discretization check.
+    bool instrumented;
+    // The identification for a configuration create_ident has checked (cfg.estimator is
+    // this kind). Throws vibid::Error.
+    std::unique_ptr<vibid_ident> (*create)(const vibid_model &model, const vibid_ident_config &cfg,
+                                           const CreateOptions &opt);
+    // One sample (n_channels values): real time, no exceptions, no allocation.
+    vibid_status (*push)(vibid_ident &id, const double *channels);
+    // vibid_ident_estimate without the argument checks; throws vibid::Error.
+    vibid_status (*estimate)(vibid_ident &id, double *theta, double *se, vibid_ident_info *info);
+    // vibid_ident_set_prior without the argument checks; throws vibid::Error.
+    void (*set_prior)(vibid_ident &id, const double *theta0, const double *P0);
+    // Regression hooks: the estimator's line(s) of the description (resolve_config), its
+    // solver objects sized for push (create_regression), one ready row x, y into them
+    // (real time, no exceptions, no allocation) and the fit (estimate_regression).
+    void (*describe)(const vibid_ident_config &cfg, std::string &why);
+    void (*make_solver)(vibid_ident &id);
+    vibid_status (*push_row)(vibid_ident &id);
+    void (*solve)(vibid_ident &id, RegressionFit &fit);
+};
+
+}  // namespace vibid
+
+using vibid::ConstantForces;
+using vibid::CreateOptions;
+using vibid::EstimatorOps;
+using vibid::RegressionFit;
+
 namespace {
+
+// The number of estimator kinds (entries of kEstimators).
+constexpr int kEstimatorCount = VIBID_ESTIMATOR_OE + 1;
+
+// The entry of estimator kind k, 0 <= k < kEstimatorCount (create_ident checks it).
+const EstimatorOps &ops_of(int k);
+const EstimatorOps &ops_of(vibid_estimator k) { return ops_of(vibid::enum_value(k)); }
+
 
 void check_status(vibid_status s, const char *what) {
     if (s != VIBID_OK) throw_error(s, "%s: %s", what, vibid_last_error());
@@ -269,11 +352,10 @@ void restart_window(vibid_ident &id) {
 // samples (34 blocks of the IV statistics at f_a / 20).
 std::size_t pilot_length(double h) { return std::max<std::size_t>(4096, static_cast<std::size_t>(std::ceil(2.0 / h))); }
 
-// Whether the estimator for cfg runs the pre-filter pilot: the IV family with the
+// Whether the estimator for cfg runs the pre-filter pilot: an instrumented one with the
 // automatic cutoff on a stand whose nominal model gives no natural frequency.
 bool runs_pilot(const vibid_ident_config &cfg, double f_nominal_max) {
-    return (cfg.estimator == VIBID_ESTIMATOR_AUTO || cfg.estimator == VIBID_ESTIMATOR_IV) && cfg.prefilter_hz < 0.0 &&
-           !(f_nominal_max > 0.0);
+    return ops_of(cfg.estimator).instrumented && cfg.prefilter_hz < 0.0 && !(f_nominal_max > 0.0);
 }
 
 // The automatic cutoff for a highest natural frequency fmax (Hz) at sample rate fa:
@@ -294,11 +376,11 @@ double chi2_survival(double x, std::size_t k) {
 }
 
 // Whether the estimator for cfg on model m accumulates the constant-force columns
-// (vibid_ident_config.constant_terms): LS, IV and AUTO on the structured form, unless OFF.
+// (vibid_ident_config.constant_terms): those that estimate them on the structured form
+// (LS, IV and AUTO), on that form, unless OFF.
 bool has_constant_columns(const vibid_model &m, const vibid_ident_config &cfg) {
-    const bool form = m.discretization != VIBID_DISC_ZOH &&
-                      (cfg.estimator == VIBID_ESTIMATOR_LS || cfg.estimator == VIBID_ESTIMATOR_IV ||
-                       cfg.estimator == VIBID_ESTIMATOR_AUTO);
+    const bool form =
+        m.discretization != VIBID_DISC_ZOH && ops_of(cfg.estimator).constants == ConstantForces::structured;
     return form && cfg.constant_terms != VIBID_CONSTANT_OFF;
 }
 
@@ -313,31 +395,9 @@ vibid_ident_config resolve_config(const vibid_model &m, const vibid_ident_config
     vibid_ident_config r = cfg;
     const double h = cfg.sample_time, fa = 1.0 / h;
     const bool zoh = m.discretization == VIBID_DISC_ZOH;
-    const bool iv_family = cfg.estimator == VIBID_ESTIMATOR_AUTO || cfg.estimator == VIBID_ESTIMATOR_IV;
-    switch (cfg.estimator) {
-    case VIBID_ESTIMATOR_AUTO:
-        why += "estimator: instrumental variables with block statistics (automatic): consistent where noise on "
-               "the measured channels biases LS and RLS, exact on noise-free data; error bars from the spread "
-               "over 32..64 blocks, valid for coloured equation errors\n";
-        break;
-    case VIBID_ESTIMATOR_IV: why += "estimator: instrumental variables with block statistics (configured)\n"; break;
-    case VIBID_ESTIMATOR_EKF: break;  // create_state_space describes it
-    case VIBID_ESTIMATOR_KF_RLS: break;
-    case VIBID_ESTIMATOR_OE: break;  // create_output_error
-    case VIBID_ESTIMATOR_LS:
-        why += "estimator: batch least squares (configured); biased by noise on the measured channels, standard "
-               "errors assume white equation errors (flagged as not valid)\n";
-        break;
-    case VIBID_ESTIMATOR_RLS:
-        why += "estimator: recursive least squares (configured); biased by noise on the measured channels, "
-               "standard errors assume white equation errors (flagged as not valid)\n";
-        if (cfg.rls_alpha == 0.0)
-            why += "RLS prior: scaled to the data (automatic): P0 = diag(1 / (1e-6 sum x_i^2)) over the first "
-                   "samples, so that no parameter's units make it strong\n";
-        else
-            why += strprintf("RLS prior: P0 = I / %g (configured)\n", cfg.rls_alpha);
-        break;
-    }
+    const EstimatorOps &ops = ops_of(cfg.estimator);
+    const bool iv_family = ops.instrumented;
+    ops.describe(cfg, why);
     if (zoh) {
         r.difference_order = 2;
         why += "discretization: ZOH difference form (1.16) of the stand (exact for held inputs)\n";
@@ -416,9 +476,9 @@ vibid_ident_config resolve_config(const vibid_model &m, const vibid_ident_config
                                "each estimate and kept when a Wald test of all of them = 0 rejects at p < %g "
                                "(automatic)\n",
                                kConstantTestLevel);
-    else if (cfg.estimator == VIBID_ESTIMATOR_RLS || (zoh && iv_family) || (zoh && cfg.estimator == VIBID_ESTIMATOR_LS))
+    else if (ops.constants != ConstantForces::structured || zoh)
         why += "constant forces: not estimated (not implemented for RLS and the ZOH form)\n";
-    else if (iv_family || cfg.estimator == VIBID_ESTIMATOR_LS)
+    else
         why += "constant forces: off (configured)\n";
     const std::string held = held_signals(m);
     if (!held.empty())
@@ -462,29 +522,23 @@ vibid_status collect_prior_rows(vibid_ident &id) {
 
 extern "C" {
 
-namespace {
-// The one table of estimator names (identify.h), indexed by vibid_estimator.
-constexpr const char *kEstimatorNames[] = {"ls", "iv", "rls", "auto", "ekf", "kf_rls", "oe"};
-constexpr int kEstimatorCount = static_cast<int>(sizeof kEstimatorNames / sizeof kEstimatorNames[0]);
-static_assert(kEstimatorCount == VIBID_ESTIMATOR_OE + 1, "a name for every vibid_estimator");
-}  // namespace
-
+// The estimator names (identify.h) are those of the entries of kEstimators.
 VIBID_API const char *vibid_estimator_name(vibid_estimator kind) {
     const int k = vibid::enum_value(kind);
-    return k >= 0 && k < kEstimatorCount ? kEstimatorNames[k] : nullptr;
+    return k >= 0 && k < kEstimatorCount ? ops_of(k).name : nullptr;
 }
 
 VIBID_API vibid_status vibid_estimator_from_name(const char *name, vibid_estimator *kind) {
     if (!name || !kind) return VIBID_FAIL(VIBID_E_NULL_ARGUMENT, "name and kind are required");
     for (int k = 0; k < kEstimatorCount; ++k)
-        if (std::strcmp(name, kEstimatorNames[k]) == 0) {
-            *kind = static_cast<vibid_estimator>(k);
+        if (std::strcmp(name, ops_of(k).name) == 0) {
+            *kind = ops_of(k).kind;
             return VIBID_OK;
         }
     char names[128] = "";
     for (int k = 0; k < kEstimatorCount; ++k) {
         const std::size_t len = std::strlen(names);
-        std::snprintf(names + len, sizeof names - len, "%s%s", k ? ", " : "", kEstimatorNames[k]);
+        std::snprintf(names + len, sizeof names - len, "%s%s", k ? ", " : "", ops_of(k).name);
     }
     return VIBID_FAIL(VIBID_E_OUT_OF_RANGE, "estimator \"%.64s\" unknown: one of %s", name, names);
 }
@@ -599,10 +653,6 @@ vibid_status estimate_state_space(vibid_ident &id, double *theta, double *se, vi
 
 }  // namespace
 
-namespace {
-std::unique_ptr<vibid_ident> create_output_error(const vibid_model &model, const vibid_ident_config &cfg);
-vibid_status estimate_output_error(vibid_ident &id, double *theta, double *se, vibid_ident_info *info);
-}  // namespace
 
 extern "C" {
 
@@ -632,122 +682,60 @@ std::unique_ptr<vibid_ident> create_ident(const vibid_model *model, const vibid_
     const int ct = vibid::enum_value(cfg->constant_terms);
     if (ct != VIBID_CONSTANT_AUTO && ct != VIBID_CONSTANT_OFF && ct != VIBID_CONSTANT_ON)
         throw_error(VIBID_E_OUT_OF_RANGE, "constant_terms %d unknown (0 auto, 1 off, 2 on)", ct);
-    if (ct == VIBID_CONSTANT_ON && (est == VIBID_ESTIMATOR_RLS || est == VIBID_ESTIMATOR_EKF ||
-                                    est == VIBID_ESTIMATOR_KF_RLS ||
-                                    (model->discretization == VIBID_DISC_ZOH && est != VIBID_ESTIMATOR_OE)))
+    const EstimatorOps &ops = ops_of(est);
+    if (ct == VIBID_CONSTANT_ON &&
+        (ops.constants == ConstantForces::none ||
+         (model->discretization == VIBID_DISC_ZOH && ops.constants == ConstantForces::structured)))
         throw_error(VIBID_E_UNSUPPORTED,
                     "constant_terms on: constant forces are estimated by LS, IV and AUTO on the structured form "
                     "only (not RLS, the state-space estimators or the ZOH form)");
-    if (est == VIBID_ESTIMATOR_OE) return create_output_error(*model, *cfg);
-    // A stand that leaves coordinates unmeasured (some signal of the equations can
-    // not be formed from the channels) or declares an unmeasured random force gets
-    // the state-space estimator under AUTO; the regression estimators cannot run on it.
-    bool state_space = cfg->estimator == VIBID_ESTIMATOR_EKF || cfg->estimator == VIBID_ESTIMATOR_KF_RLS;
-    std::string why_state_space;
-    if (cfg->estimator == VIBID_ESTIMATOR_AUTO) {
-        if (!model->disturbances.empty()) {
-            state_space = true;
-            why_state_space = "the stand declares an unmeasured random force";
-        } else {
-            try {
-                vibid::check_signals_available(*model);
-            } catch (const vibid::Error &e) {
-                state_space = true;
-                why_state_space = std::string("the stand is not fully measured (") + e.what() + ")";
-            }
-        }
-    }
-    if (state_space) return create_state_space(*model, *cfg, why_state_space);
+    std::unique_ptr<vibid_ident> id = ops.create(*model, *cfg, CreateOptions{with_check, prefilter_why});
+    id->ops = &ops_of(id->cfg.estimator);  // AUTO on the state-space estimator: EKF's
+    return id;
+}
+
+// The regression estimators' create (LS, IV, AUTO, RLS): the regressor and the difference
+// form, the estimator's solver (make_solver), the ZOH way back, the discretization check
+// and the pre-filter pilot.
+std::unique_ptr<vibid_ident> create_regression(const vibid_model &model, const vibid_ident_config &cfg,
+                                               const CreateOptions &opt) {
     // Identifiability before any sample.
     // The check's own message says why (not identifiable, a signal not measured, a
     // discretization that does not support the model): no prefix that would claim
     // "not identifiable" for all of them.
     {
-        const vibid_status st = vibid_model_check_identifiable(model, nullptr);
+        const vibid_status st = vibid_model_check_identifiable(&model, nullptr);
         if (st != VIBID_OK) throw_error(st, "%s", vibid_last_error());
     }
     auto id = std::make_unique<vibid_ident>();
-    id->model = *model;
-    id->f_nominal_max = nominal_max_frequency(*model);
-    id->cfg = resolve_config(*model, *cfg, id->f_nominal_max, prefilter_why, id->description);
-    id->requested = *cfg;
+    id->model = model;
+    id->f_nominal_max = nominal_max_frequency(model);
+    id->cfg = resolve_config(model, cfg, id->f_nominal_max, opt.prefilter_why, id->description);
+    id->requested = cfg;
     const vibid_ident_config &rcfg = id->cfg;
-    if ((rcfg.estimator == VIBID_ESTIMATOR_IV || rcfg.estimator == VIBID_ESTIMATOR_AUTO) &&
-        rcfg.iv_lag < rcfg.difference_order + 1)
+    if (ops_of(rcfg.estimator).instrumented && rcfg.iv_lag < rcfg.difference_order + 1)
         throw_error(VIBID_E_OUT_OF_RANGE, "iv_lag = %zu is shorter than the difference window (%u samples)",
                     rcfg.iv_lag, rcfg.difference_order + 1);
-    id->reg.reset(vibid_regressor_create_order(model, rcfg.sample_time, rcfg.prefilter_hz, rcfg.difference_order));
+    id->reg.reset(vibid_regressor_create_order(&model, rcfg.sample_time, rcfg.prefilter_hz, rcfg.difference_order));
     if (!id->reg) throw_error(VIBID_E_OUT_OF_RANGE, "%s", vibid_last_error());
     vibid_regressor_dims rd{};
     check_status(vibid_regressor_get_dims(id->reg.get(), &rd), "regressor");
     id->p_reg = rd.n_regressors;
     id->m = rd.n_equations;
     id->q = rd.n_outputs;
-    id->n = model->nodes.size();
-    id->p = model->param_term.size();
-    id->n_channels = model->channels.size();
-    id->zoh = model->discretization == VIBID_DISC_ZOH;
+    id->n = model.nodes.size();
+    id->p = model.param_term.size();
+    id->n_channels = model.channels.size();
+    id->zoh = model.discretization == VIBID_DISC_ZOH;
     id->x.assign(id->p_reg * id->m, 0.0);
     id->y.assign(id->m * id->q, 0.0);
     id->rows_x.assign(id->p_reg * id->m, 0.0);
     id->rows_w.assign(id->p_reg * id->m, 0.0);
-    id->nb = has_constant_columns(*model, rcfg) ? id->n : 0;
-    const std::size_t pa = id->p_reg + id->nb;
-    if (id->nb) id->rows_xc.assign(pa * id->m, 0.0);
-    switch (rcfg.estimator) {
-    case VIBID_ESTIMATOR_EKF: break;  // create_state_space
-    case VIBID_ESTIMATOR_KF_RLS: break;
-    case VIBID_ESTIMATOR_OE: break;  // create_output_error
-    case VIBID_ESTIMATOR_LS:
-        id->lsq.reset(vibid_lsq_create(id->p_reg, id->q));
-        if (!id->lsq) throw_error(VIBID_E_NO_MEMORY, "vibid_lsq_create: %s", vibid_last_error());
-        if (id->nb) {
-            id->lsq_c.reset(vibid_lsq_create(pa, id->q));
-            if (!id->lsq_c) throw_error(VIBID_E_NO_MEMORY, "vibid_lsq_create: %s", vibid_last_error());
-        }
-        break;
-    case VIBID_ESTIMATOR_IV:
-    case VIBID_ESTIMATOR_AUTO: {
-        // Blocks much longer than the equation error's correlation (window + filter
-        // memory, i.e. about the lag): 4 (lag + window), at least 64 samples. With
-        // forgetting, 64 blocks span about 6 memories.
-        const std::size_t width = rcfg.difference_order + 1;
-        std::size_t block = std::max<std::size_t>(4 * (rcfg.iv_lag + width), 64);
-        if (rcfg.forgetting < 1.0)
-            block = std::max<std::size_t>(
-                static_cast<std::size_t>(std::ceil(6.0 / (1.0 - rcfg.forgetting) / 64.0)), 2 * (rcfg.iv_lag + width));
-        id->biv = std::make_unique<vibid::BlockIV>(pa, id->q, rcfg.forgetting, block, 64);
-        id->ring.assign((rcfg.iv_lag + 1) * id->p_reg * id->m, 0.0);
-        id->ring_unit.assign(rcfg.iv_lag + 1, 0.0);
-        break;
-    }
-    case VIBID_ESTIMATOR_RLS: {
-        vibid_rls_config rc;
-        vibid_rls_config_init(&rc, id->p_reg, id->q);
-        rc.n_equations = id->m;
-        rc.forgetting = cfg->forgetting;
-        // Automatic prior (rls_alpha = 0): the RLS starts from a prior scaled to the
-        // data (push); until then, and for start values given without P0, 1e-9.
-        const double alpha = rcfg.rls_alpha > 0.0 ? rcfg.rls_alpha : 1e-9;
-        rc.alpha = alpha;
-        rc.trace_max = static_cast<double>(id->p_reg) / alpha;
-        if (rcfg.rls_alpha == 0.0) {
-            id->auto_prior = true;
-            id->prior_len = std::max<std::size_t>(8 * id->p_reg, 100);
-            id->prior_rows.assign(id->prior_len * (id->p_reg * id->m + id->m * id->q), 0.0);
-            id->prior_ss.assign(id->p_reg, 0.0);
-            id->prior_P0.assign(id->p_reg * id->p_reg, 0.0);
-            id->prior_theta.assign(id->p_reg * id->q, 0.0);
-            if (!id->zoh && vibid_model_nominal(model, id->prior_theta.data()) != VIBID_OK)
-                std::fill(id->prior_theta.begin(), id->prior_theta.end(), 0.0);
-        }
-        id->rls.reset(vibid_rls_create(&rc));
-        if (!id->rls) throw_error(VIBID_E_OUT_OF_RANGE, "vibid_rls_create: %s", vibid_last_error());
-        break;
-    }
-    }
+    id->nb = has_constant_columns(model, rcfg) ? id->n : 0;
+    if (id->nb) id->rows_xc.assign((id->p_reg + id->nb) * id->m, 0.0);
+    ops_of(rcfg.estimator).make_solver(*id);
     if (id->zoh) {
-        const Eigen::Index n = static_cast<Eigen::Index>(id->n), r = static_cast<Eigen::Index>(model->inputs.size());
+        const Eigen::Index n = static_cast<Eigen::Index>(id->n), r = static_cast<Eigen::Index>(model.inputs.size());
         const Eigen::Index rz = static_cast<Eigen::Index>((id->p_reg - 2 * id->n) / 2);
         auto fetch = [&](long param, MatrixXd &Mm, MatrixXd &Dm, MatrixXd &Cm, MatrixXd &Bz) {
             Mm.resize(n, n);
@@ -758,10 +746,10 @@ std::unique_ptr<vibid_ident> create_ident(const vibid_model *model, const vibid_
             vibid_status s;
             if (param < 0) {
                 std::vector<double> zero(id->p, 0.0);
-                s = vibid_model_assemble(model, zero.data(), Mm.data(), Dm.data(), Cm.data(), Bm.data(), nullptr,
+                s = vibid_model_assemble(&model, zero.data(), Mm.data(), Dm.data(), Cm.data(), Bm.data(), nullptr,
                                          cb.data());
             } else {
-                s = vibid_model_structure(model, static_cast<std::size_t>(param), Mm.data(), Dm.data(), Cm.data(),
+                s = vibid_model_structure(&model, static_cast<std::size_t>(param), Mm.data(), Dm.data(), Cm.data(),
                                           Bm.data(), nullptr, cb.data());
             }
             check_status(s, "structure");
@@ -780,20 +768,20 @@ std::unique_ptr<vibid_ident> create_ident(const vibid_model *model, const vibid_
     // Not with held inputs: their hold equivalents describe a hold of h, which every
     // second sample does not show (on the held-base test stand the check reported 10 to
     // 100 times the actual errors); the a-priori bound stays for them.
-    if (with_check && id->biv && !id->zoh && held_signals(*model).empty() &&
+    if (opt.with_check && id->biv && !id->zoh && held_signals(model).empty() &&
         rcfg.prefilter_hz < 0.45 / (2.0 * rcfg.sample_time)) {
         vibid_ident_config hc = rcfg;
         hc.estimator = VIBID_ESTIMATOR_IV;
         hc.sample_time = 2.0 * rcfg.sample_time;
         hc.forgetting = rcfg.forgetting * rcfg.forgetting;
         hc.iv_lag = std::max<std::size_t>((rcfg.iv_lag + 1) / 2, rcfg.difference_order + 1);
-        id->half = create_ident(model, &hc, false);
+        id->half = create_ident(&model, &hc, false);
         id->description +=
             "discretization check: the same estimator on every second sample (step 2h); their difference "
             "beyond its noise, / 3, is included in the standard errors as the discretization error (an error "
             "growing as h^2: the aliasing of corners in the excitation)\n";
     }
-    if (with_check && runs_pilot(*cfg, id->f_nominal_max)) {
+    if (opt.with_check && runs_pilot(cfg, id->f_nominal_max)) {
         id->pilot_len = pilot_length(rcfg.sample_time);
         id->pilot.assign(id->pilot_len * id->n_channels, 0.0);
     }
@@ -843,86 +831,14 @@ VIBID_API vibid_status vibid_ident_dims(const vibid_ident *ident, size_t *n_chan
 VIBID_API vibid_status vibid_ident_set_prior(vibid_ident *ident, const double *theta0, const double *P0) {
     VIBID_GUARD(
         if (!ident) throw_error(VIBID_E_NULL_ARGUMENT, "ident is NULL");
-        if (ident->ee) throw_error(VIBID_E_STATE, "output error starts from its equation-error estimate: no prior");
-        if (ident->ekf) {
-            // The filter's start values (used at its next start: now, or after a reset).
-            if (P0)
-                throw_error(VIBID_E_OUT_OF_RANGE, "EKF: the start covariance is relative (50 %% of each start value): "
-                                                  "pass P0 = NULL");
-            std::vector<double> th(ident->p);
-            if (theta0) {
-                for (std::size_t i = 0; i < ident->p; ++i)
-                    if (!std::isfinite(theta0[i]) || theta0[i] == 0.0)
-                        throw_error(VIBID_E_OUT_OF_RANGE, "theta0[%zu] = %g: EKF start values must be finite and != 0",
-                                    i, theta0[i]);
-                th.assign(theta0, theta0 + ident->p);
-            } else {
-                check_status(vibid_model_nominal(&ident->model, th.data()), "nominal values");
-            }
-            ident->ekf->set_start(th.data());
-            return VIBID_OK;
-        }
-        if (!ident->rls)
-            throw_error(VIBID_E_STATE, "start values are for the RLS and EKF estimators only (LS and IV are batch "
-                                       "estimators)");
-        vibid_ident &id = *ident;
-        const std::size_t p = id.p;
-        if (!id.zoh) {
-            // Central differences: the regression parameters are the physical ones.
-            if (theta0) {
-                std::size_t bad = 0;
-                while (bad < p && std::isfinite(theta0[bad])) ++bad;
-                if (bad < p) throw_error(VIBID_E_NONFINITE, "theta0[%zu] = %g is not finite", bad, theta0[bad]);
-                check_status(vibid_rls_set_prior(id.rls.get(), theta0, P0), "prior");
-            } else {
-                // Nominal values; p is small for a stand, the stack buffer avoids allocating.
-                double nominal[256];
-                if (p > 256) throw_error(VIBID_E_DIMENSION, "more than 256 unknowns: pass theta0");
-                check_status(vibid_model_nominal(&id.model, nominal), "nominal values");
-                check_status(vibid_rls_set_prior(id.rls.get(), nominal, P0), "prior");
-            }
-            id.has_prior = true;
-            id.prior_done = true;  // start values replace the automatic prior
-            return VIBID_OK;
-        }
-        if (P0)
-            throw_error(VIBID_E_OUT_OF_RANGE,
-                        "ZOH: P0 refers to the difference form (1.16), not to the physical parameters: pass NULL");
-        std::vector<double> th(p);
-        if (theta0)
-            std::copy(theta0, theta0 + p, th.begin());
-        else
-            check_status(vibid_model_nominal(&id.model, th.data()), "nominal values");
-        for (std::size_t i = 0; i < p; ++i)
-            if (!std::isfinite(th[i])) throw_error(VIBID_E_NONFINITE, "theta0[%zu] = %g is not finite", i, th[i]);
-        // Physical parameters -> (1.16): Theta^T = [A1 A2 B1 B0] = [-Dt -Ct B1t B2t]
-        // with the base as the last input column (as the regressor builds it).
-        const Eigen::Index n = static_cast<Eigen::Index>(id.n), r = static_cast<Eigen::Index>(id.model.inputs.size());
-        const Eigen::Index rz = static_cast<Eigen::Index>((id.p_reg - 2 * id.n) / 2);
-        MatrixXd M(n, n), D(n, n), C(n, n), B(n, std::max<Eigen::Index>(r, 1)), Bz(n, rz);
-        VectorXd cb(n);
-        check_status(vibid_model_assemble(&id.model, th.data(), M.data(), D.data(), C.data(), r ? B.data() : nullptr,
-                                          nullptr, cb.data()),
-                     "assemble");
-        if (r) Bz.leftCols(r) = B.leftCols(r);
-        if (rz > r) Bz.col(r) = cb;
-        MatrixXd Dt(n, n), Ct(n, n), B1(n, rz), B2(n, rz);
-        check_status(vibid_second_order_form(id.n, static_cast<std::size_t>(rz), M.data(), D.data(), C.data(),
-                                             rz ? Bz.data() : nullptr, id.cfg.sample_time, Dt.data(), Ct.data(),
-                                             rz ? B1.data() : nullptr, rz ? B2.data() : nullptr),
-                     "ZOH difference form of theta0");
-        MatrixXd ThT(n, 2 * n + 2 * rz);
-        ThT << -Dt, -Ct, B1, B2;
-        const MatrixXd Th = ThT.transpose();
-        check_status(vibid_rls_set_prior(id.rls.get(), Th.data(), nullptr), "prior");
-        id.has_prior = true;
-        id.prior_done = true;
+        ident->ops->set_prior(*ident, theta0, P0);
         return VIBID_OK;);
 }
 
 namespace {
 
 vibid_status push_sample(vibid_ident *ident, const double *channels);
+vibid_status push_regression(vibid_ident &id, const double *channels);
 
 // A candidate's pre-filter line until the pilot has chosen (replaced by the reason).
 constexpr const char *kPilotPlaceholder = "pre-filter: (a pilot candidate)\n";
@@ -1063,24 +979,28 @@ void tune_prefilter(vibid_ident &id) {
 }  // namespace
 
 // Real-time path for every estimator: no exceptions, no allocation (but for the one push
-// that ends the pre-filter pilot: tune_prefilter).
+// that ends the pre-filter pilot: tune_prefilter; and OE's, which keeps every sample).
 VIBID_API vibid_status vibid_ident_push(vibid_ident *ident, const double *channels) {
     if (!ident || !channels) return VIBID_FAIL(VIBID_E_NULL_ARGUMENT, "ident and channels are required");
     if (ident->twin_of)
         return VIBID_FAIL(VIBID_E_STATE, "a twin takes no samples: push them into the identification it copies");
-    if (ident->ee) {
-        // OE keeps every sample as received (a gap included: the fit leaves it out)
-        ident->samples.insert(ident->samples.end(), channels, channels + ident->n_channels);
-        ++ident->n_samples;
-        return vibid_ident_push(ident->ee.get(), channels);
-    }
-    if (ident->pilot_count >= ident->pilot_len) return push_sample(ident, channels);
-    std::copy(channels, channels + ident->n_channels, ident->pilot.data() + ident->pilot_count * ident->n_channels);
-    ++ident->pilot_count;
-    const vibid_status s = push_sample(ident, channels);
-    if (ident->pilot_count == ident->pilot_len) tune_prefilter(*ident);
+    return ident->ops->push(*ident, channels);
+}
+
+namespace {
+
+// The regression estimators' push: the pre-filter pilot (its samples kept, and at its last
+// one the cutoff chosen), then the sample (push_sample).
+vibid_status push_regression(vibid_ident &id, const double *channels) {
+    if (id.pilot_count >= id.pilot_len) return push_sample(&id, channels);
+    std::copy(channels, channels + id.n_channels, id.pilot.data() + id.pilot_count * id.n_channels);
+    ++id.pilot_count;
+    const vibid_status s = push_sample(&id, channels);
+    if (id.pilot_count == id.pilot_len) tune_prefilter(id);
     return s;
 }
+
+}  // namespace
 
 namespace {
 
@@ -1094,13 +1014,9 @@ void constant_rows(const vibid_ident &id, const double *rows, double unit, doubl
     for (std::size_t e = 0; e < m && e < id.nb; ++e) out[pm + e + e * m] = -unit;
 }
 
+// One sample into a regression estimator (and its discretization check): the regressor,
+// then a ready row into the estimator (push_row).
 vibid_status push_sample(vibid_ident *ident, const double *channels) {
-    if (ident->ekf) {
-        const vibid_status st = ident->ekf->push(channels);
-        if (st == VIBID_OK || st == VIBID_E_DIVERGED) ++ident->n_samples;
-        ident->n_rows = ident->ekf->stats().n_steps;
-        return st;
-    }
     int ready = 0;
     vibid_status s = vibid_regressor_push(ident->reg.get(), channels, ident->x.data(), ident->y.data(), &ready);
     if (s != VIBID_OK) {
@@ -1122,58 +1038,10 @@ vibid_status push_sample(vibid_ident *ident, const double *channels) {
         ident->half_take = !ident->half_take;
     }
     if (!ready) return VIBID_OK;
-    const std::size_t p = ident->p_reg, m = ident->m;
-    switch (ident->cfg.estimator) {
-    case VIBID_ESTIMATOR_EKF: break;  // handled above
-    case VIBID_ESTIMATOR_KF_RLS: break;
-    case VIBID_ESTIMATOR_OE: break;  // create_output_error
-    case VIBID_ESTIMATOR_LS:
-        transpose_into(ident->x.data(), p, m, ident->rows_x.data());
-        s = vibid_lsq_add_rows(ident->lsq.get(), m, ident->rows_x.data(), ident->y.data(), nullptr);
-        if (s == VIBID_OK && ident->nb) {
-            constant_rows(*ident, ident->rows_x.data(), vibid::regressor_unit(*ident->reg), ident->rows_xc.data());
-            s = vibid_lsq_add_rows(ident->lsq_c.get(), m, ident->rows_xc.data(), ident->y.data(), nullptr);
-        }
-        break;
-    case VIBID_ESTIMATOR_IV:
-    case VIBID_ESTIMATOR_AUTO: {
-        // A cubic term of a wild sample can overflow: such a row would poison every sum.
-        if (!vibid::all_finite(ident->x.data(), p * m) || !vibid::all_finite(ident->y.data(), m * ident->q)) {
-            restart_window(*ident);
-            return VIBID_FAIL(VIBID_E_NONFINITE, "regressor overflow (non-finite row): window restarted");
-        }
-        const std::size_t L = ident->cfg.iv_lag, slots = L + 1, block = p * m;
-        double *slot = ident->ring.data() + (ident->n_built % slots) * block;
-        std::copy(ident->x.begin(), ident->x.end(), slot);
-        const double unit = vibid::regressor_unit(*ident->reg);
-        ident->ring_unit[ident->n_built % slots] = unit;
-        if (ident->n_built >= L) {
-            const std::size_t old_slot = (ident->n_built - L) % slots;
-            const double *old = ident->ring.data() + old_slot * block;
-            transpose_into(ident->x.data(), p, m, ident->rows_x.data());
-            transpose_into(old, p, m, ident->rows_w.data());
-            if (ident->nb) {
-                // The constant's instrument is the constant column of the delayed row.
-                ident->biv->add_constants(m, ident->rows_x.data(), ident->rows_w.data(), ident->y.data(), unit,
-                                          ident->ring_unit[old_slot]);
-            } else {
-                ident->biv->add(m, ident->rows_x.data(), ident->rows_w.data(), ident->y.data());
-            }
-            ident->biv->end_sample();
-        }
-        break;
-    }
-    case VIBID_ESTIMATOR_RLS:
-        if (ident->auto_prior && !ident->prior_done) {
-            s = collect_prior_rows(*ident);
-            break;
-        }
-        s = vibid_rls_update(ident->rls.get(), ident->x.data(), ident->y.data());
-        break;
-    }
+    s = ident->ops->push_row(*ident);
     if (s != VIBID_OK) return s;
     ++ident->n_built;
-    ident->n_rows += m;
+    ident->n_rows += ident->m;
     return VIBID_OK;
 }
 
@@ -1227,234 +1095,141 @@ VIBID_API vibid_status vibid_ident_estimate(vibid_ident *ident, double *theta, d
                                             vibid_ident_info *info) {
     VIBID_GUARD(
         if (!ident || !theta) throw_error(VIBID_E_NULL_ARGUMENT, "ident and theta are required");
-        vibid_ident &id = *ident;
-        if (id.ekf) return estimate_state_space(id, theta, stderr_out, info);
-        if (id.ee) return estimate_output_error(id, theta, stderr_out, info);
-        const std::size_t pr = id.p_reg, q = id.q, P = pr * q;
-        MatrixXd Th(pr, q);
-        MatrixXd cov_reg = MatrixXd::Zero(P, P);  // Cov(vec Theta), vec column-major
-        vibid_lsq_info li{};
-        vibid_ident_info out{};
-        if (id.n_rows <= pr && !(id.rls && id.has_prior))
-            throw_error(VIBID_E_INSUFFICIENT_DATA, "%llu equations for %zu regressors: push more samples", id.n_rows, pr);
-        if (id.rls && id.auto_prior && !id.prior_done)
-            throw_error(VIBID_E_INSUFFICIENT_DATA,
-                        "%zu of the first %zu samples collected to scale the RLS prior: push more samples",
-                        id.prior_count, id.prior_len);
-        vibid_ident_quality qual{};
-        qual.z_consistency = std::nan("");
-        std::vector<int> weak;
-        VectorXd disc_error;  // measured discretization error per parameter (empty: no check)
-        // Constant forces (nb > 0, structured form: q = 1): the fit with them, the test,
-        // the choice (choose_constants); the last estimate's constants start empty.
-        const std::size_t pa = pr + id.nb;
-        bool with_c = false;
-        id.const_values.clear();
-        id.const_se.clear();
-        id.const_p = std::nan("");
-        if (id.lsq) {
-            vibid_status s = vibid_lsq_solve(id.lsq.get(), Th.data(), &li);
-            if (s == VIBID_E_NOT_IDENTIFIABLE) refuse_null_space(id, li);
-            check_status(s, "least squares");
-            MatrixXd Pm(pr, pr), Sig(q, q);
-            check_status(vibid_lsq_covariance(id.lsq.get(), Pm.data(), Sig.data()), "least-squares covariance");
-            for (std::size_t j = 0; j < q; ++j)
-                for (std::size_t l = 0; l < q; ++l)
-                    cov_reg.block(j * pr, l * pr, pr, pr) = Sig(j, l) * Pm;
-            if (id.nb) {
-                VectorXd tha(pa);
-                MatrixXd Pa(pa, pa), Sa(1, 1);
-                vibid_lsq_info lc{};
-                vibid_status sc = vibid_lsq_solve(id.lsq_c.get(), tha.data(), &lc);
-                if (sc == VIBID_OK) sc = vibid_lsq_covariance(id.lsq_c.get(), Pa.data(), Sa.data());
-                if (sc != VIBID_OK && id.cfg.constant_terms == VIBID_CONSTANT_ON)
-                    check_status(sc, "least squares with constant forces");
-                if (sc == VIBID_OK && choose_constants(id, tha, Sa(0, 0) * Pa)) {
-                    with_c = true;
-                    Th = tha.head(static_cast<Eigen::Index>(pr));
-                    cov_reg = Sa(0, 0) * Pa.topLeftCorner(static_cast<Eigen::Index>(pr), static_cast<Eigen::Index>(pr));
-                    li = lc;
-                }
-            }
-            qual.flags |= VIBID_QUALITY_SE_INVALID;
-        } else if (id.biv) {
-            if (id.biv->samples() * id.m <= pr)
-                throw_error(VIBID_E_INSUFFICIENT_DATA, "%llu instrumented samples for %zu regressors: push more samples",
-                            id.biv->samples(), pr);
-            // In directions the data of this window hardly inform, the last estimate stays
-            // (last_theta: p_reg, then the nb constants, 0 where the plain fit stood).
-            const double *ref = id.have_theta ? id.last_theta.data() : nullptr;
-            vibid::BlockIVResult res;
-            if (id.nb) {
-                // AUTO: the test needs the fit with the constants, not its consistency
-                // check (two more solves), which only the fit kept needs.
-                const bool on = id.cfg.constant_terms == VIBID_CONSTANT_ON;
-                try {
-                    res = id.biv->solve(ref, pa, on);
-                    with_c = choose_constants(id, res.theta.col(0), res.cov);
-                    if (with_c && !on) res = id.biv->solve(ref, pa);
-                } catch (const vibid::Error &) {
-                    if (on) throw;
-                }
-            }
-            if (with_c) {
-                const Eigen::Index np = static_cast<Eigen::Index>(pr);
-                res.theta = MatrixXd(res.theta.topRows(np));
-                res.cov = MatrixXd(res.cov.topLeftCorner(np, np));
-                res.not_excited.resize(pr);
-            } else {
-                res = id.biv->solve(ref, pr);
-            }
-            Th = res.theta;
-            cov_reg = res.cov;
-            li.rank = res.rank;
-            li.rcond = res.rcond;
-            qual.n_blocks = res.n_blocks;
-            qual.z_consistency = res.z_max;
-            weak = res.not_excited;
-            if (id.half && id.half->biv->samples() * id.m > pr) {
-                try {
-                    const vibid::BlockIVResult rh = id.half->biv->solve(ref, with_c ? pa : pr);
-                    // Richardson, see below. The difference also carries the two
-                    // estimates' noise: var(half) - var(this) where this one uses all
-                    // samples (Hausman), which is taken out of its square.
-                    disc_error = VectorXd::Zero(static_cast<Eigen::Index>(pr));
-                    for (Eigen::Index i = 0; i < static_cast<Eigen::Index>(pr); ++i) {
-                        const double d = rh.theta(i, 0) - Th(i, 0);
-                        const double vd = std::max(rh.cov(i, i) - cov_reg(i, i), 0.0);
-                        disc_error(i) = std::sqrt(std::max(d * d - vd, 0.0)) / 3.0;
-                    }
-                    if (!disc_error.allFinite()) disc_error.resize(0);
-                } catch (const vibid::Error &) {
-                    disc_error.resize(0);  // no check this time; the a-priori bound stays
-                }
-            }
-            // Too few blocks for a covariance (early in a run), too few that carry the
-            // information (n_eff below p_reg + 4: the spread of the scores would rest on fewer
-            // than 4 blocks beyond the directions fitted, e.g. excitation only in the newest
-            // blocks), or the halves disagree.
-            if (!cov_reg.allFinite() || !(res.z_max <= 4.0) ||
-                res.n_eff < static_cast<double>(with_c ? pa : pr) + 4.0)
-                qual.flags |= VIBID_QUALITY_SE_INVALID;
-        } else {
-            MatrixXd Pm(pr, pr), Sig(q, q);
-            bool sig_ok;
-            if (id.twin_of) {  // the RLS outputs as copied (vibid_ident_twin_sync)
-                Th = Eigen::Map<const MatrixXd>(id.frozen_theta.data(), pr, q);
-                Pm = Eigen::Map<const MatrixXd>(id.frozen_P.data(), pr, pr);
-                Sig = Eigen::Map<const MatrixXd>(id.frozen_sig.data(), q, q);
-                sig_ok = id.frozen_sig_ok;
-            } else {
-                check_status(vibid_rls_theta(id.rls.get(), Th.data()), "recursive least squares");
-                check_status(vibid_rls_covariance(id.rls.get(), Pm.data()), "rls covariance");
-                sig_ok = vibid_rls_residual_covariance(id.rls.get(), Sig.data()) == VIBID_OK;
-            }
-            if (sig_ok)
-                for (std::size_t j = 0; j < q; ++j)
-                    for (std::size_t l = 0; l < q; ++l)
-                        cov_reg.block(j * pr, l * pr, pr, pr) = Sig(j, l) * Pm;
-            li.rank = pr;
-            li.rcond = 0.0;
-            qual.flags |= VIBID_QUALITY_SE_INVALID;
-        }
-        const std::size_t p = id.p;
-        MatrixXd cov(p, p);
-        std::vector<unsigned> pflags(p, 0u);
-        if (!id.zoh) {
-            std::copy(Th.data(), Th.data() + p, theta);
-            cov = cov_reg;
-            // Discretization bias: the stencils' error at the highest natural frequency
-            // of this estimate (of the nominal model when the estimate gives none), as a
-            // relative bound on every parameter, added to the variances: (w h)^2 / 6 for
-            // (1.17), (w h)^4 / 30 for five-point stencils.
-            double fmax = 0.0;
-            {
-                std::vector<double> f(id.n), z(id.n);
-                if (vibid_model_modal(&id.model, theta, nullptr, f.data(), nullptr, z.data(), nullptr, nullptr,
-                                      nullptr) == VIBID_OK)
-                    for (double v : f)
-                        if (std::isfinite(v)) fmax = std::max(fmax, v);
-                if (!(fmax > 0.0)) fmax = id.f_nominal_max;
-            }
-            const double wh = 2.0 * M_PI * fmax * id.cfg.sample_time;
-            double rel = id.cfg.difference_order == 4 ? std::pow(wh, 4) / 30.0 : wh * wh / 6.0;
-            // A held base's jumps reach a damper as impulses, whose images above Nyquist
-            // the hold equivalents do not describe: on the held-base test stand
-            // (ident.default) the noise-free dampers came out 0.6 (w h)^4 off, the springs
-            // 0.08 (w h)^4. Bounds: (w h)^4 on damping, (w h)^4 / 10 on the rest. (Held
-            // forces stay within the stencils' bound: 4e-6 on the test chain.)
-            const bool impulses = id.model.has_base && id.model.base_hold == VIBID_HOLD_ZOH && id.model.base_damper;
-            // Measured discretization error (Richardson): the estimate from every second
-            // sample minus this one is (2^a - 1) times this one's error where the error
-            // scales as h^a. a = 2 for what the a-priori bound misses, the aliasing of
-            // non-smooth signals (a corner of a triangle excitation is a jump in the third
-            // derivative of the response; the paper's example 1 came out c1 +0.10 /
-            // +0.026 / +0.0063 / +0.0015 % at 1 / 2 / 4 / 8 kHz): the error is the
-            // difference / 3. A corner on a sample has error E at h and 4 E or -2 E on
-            // either grid of step 2h: / 3 gives |E| for both. Corners halfway between
-            // samples are missed (both grids see them at a quarter step, error E too);
-            // smooth signals (a = 4) get 5 times their error.
-            qual.bias_relative = 0.0;
-            for (std::size_t i = 0; i < p; ++i) {
-                const Eigen::Index ii = static_cast<Eigen::Index>(i);
-                double ri = rel;
-                if (impulses) {
-                    const bool damping = id.model.terms[id.model.param_term[i]].kind == VIBID_PARAM_DAMPING;
-                    ri = std::max(rel, damping ? std::pow(wh, 4) : std::pow(wh, 4) / 10.0);
-                }
-                double bias = ri * std::fabs(theta[i]);
-                if (disc_error.size() == static_cast<Eigen::Index>(p)) bias = std::max(bias, disc_error(ii));
-                cov(ii, ii) += bias * bias;
-                if (theta[i] != 0.0) qual.bias_relative = std::max(qual.bias_relative, bias / std::fabs(theta[i]));
-            }
-            for (std::size_t i = 0; i < p && i < weak.size(); ++i)
-                if (weak[i]) pflags[i] |= VIBID_QUALITY_NOT_EXCITED;
-        } else {
-            VectorXd th = zoh_to_theta(id, Th, out.log_info);
-            // Standard errors through the numerical Jacobian of the whole way back.
-            MatrixXd J(p, P);
-            for (std::size_t k = 0; k < P; ++k) {
-                const double step = 1e-6 * std::max(std::fabs(Th.data()[k]), 1e-9);
-                MatrixXd tp = Th, tm = Th;
-                tp.data()[k] += step;
-                tm.data()[k] -= step;
-                vibid_log_info dummy{};
-                J.col(static_cast<Eigen::Index>(k)) = (zoh_to_theta(id, tp, dummy) - zoh_to_theta(id, tm, dummy)) / (2 * step);
-            }
-            cov = J * cov_reg * J.transpose();
-            std::copy(th.data(), th.data() + p, theta);
-        }
-        for (std::size_t i = 0; i < p; ++i) {
-            if (qual.flags & VIBID_QUALITY_SE_INVALID) pflags[i] |= VIBID_QUALITY_SE_INVALID;
-            if (pflags[i] & VIBID_QUALITY_NOT_EXCITED) qual.flags |= VIBID_QUALITY_NOT_EXCITED;
-        }
-        if (stderr_out)
-            for (std::size_t i = 0; i < p; ++i)
-                stderr_out[i] = (pflags[i] & VIBID_QUALITY_NOT_EXCITED)
-                                    ? HUGE_VAL
-                                    : std::sqrt(std::max(cov(static_cast<Eigen::Index>(i), static_cast<Eigen::Index>(i)), 0.0));
-        std::copy(cov.data(), cov.data() + p * p, id.cov.begin());
-        id.have_cov = true;
-        if (id.biv) {
-            id.last_theta.assign(Th.data(), Th.data() + Th.size());
-            if (id.nb) {
-                if (with_c)
-                    id.last_theta.insert(id.last_theta.end(), id.const_values.begin(), id.const_values.end());
-                else
-                    id.last_theta.resize(pa, 0.0);
-            }
-            id.have_theta = true;
-        }
-        qual.rcond = li.rcond;
-        id.quality = qual;
-        id.param_flags = pflags;
-        out.n_samples = id.n_samples;
-        out.n_rows = id.n_rows;
-        out.rank = li.rank;
-        out.rcond = li.rcond;
-        if (info) *info = out;
-        return VIBID_OK;);
+        return ident->ops->estimate(*ident, theta, stderr_out, info););
 }
+
+}  // extern "C"
+
+namespace {
+
+// The regression estimators' estimate: the estimator's fit of the difference form (solve),
+// then the physical parameters (directly, or by the ZOH way back), the discretization
+// bound and check in their standard errors, the flags.
+vibid_status estimate_regression(vibid_ident &id, double *theta, double *stderr_out, vibid_ident_info *info) {
+    const std::size_t pr = id.p_reg, q = id.q, P = pr * q;
+    RegressionFit fit;
+    MatrixXd &Th = fit.Th;
+    Th.resize(static_cast<Eigen::Index>(pr), static_cast<Eigen::Index>(q));
+    MatrixXd &cov_reg = fit.cov_reg;  // Cov(vec Theta), vec column-major
+    cov_reg = MatrixXd::Zero(static_cast<Eigen::Index>(P), static_cast<Eigen::Index>(P));
+    vibid_lsq_info &li = fit.li;
+    vibid_ident_info out{};
+    if (id.n_rows <= pr && !(id.rls && id.has_prior))
+        throw_error(VIBID_E_INSUFFICIENT_DATA, "%llu equations for %zu regressors: push more samples", id.n_rows, pr);
+    vibid_ident_quality &qual = fit.qual;
+    qual.z_consistency = std::nan("");
+    // Constant forces (nb > 0, structured form: q = 1): the fit with them, the test,
+    // the choice (choose_constants); the last estimate's constants start empty.
+    const std::size_t pa = pr + id.nb;
+    id.const_values.clear();
+    id.const_se.clear();
+    id.const_p = std::nan("");
+    id.ops->solve(id, fit);
+    const std::vector<int> &weak = fit.weak;
+    const VectorXd &disc_error = fit.disc_error;  // measured discretization error per parameter (empty: no check)
+    const bool with_c = fit.with_c;
+    const std::size_t p = id.p;
+    MatrixXd cov(p, p);
+    std::vector<unsigned> pflags(p, 0u);
+    if (!id.zoh) {
+        std::copy(Th.data(), Th.data() + p, theta);
+        cov = cov_reg;
+        // Discretization bias: the stencils' error at the highest natural frequency
+        // of this estimate (of the nominal model when the estimate gives none), as a
+        // relative bound on every parameter, added to the variances: (w h)^2 / 6 for
+        // (1.17), (w h)^4 / 30 for five-point stencils.
+        double fmax = 0.0;
+        {
+            std::vector<double> f(id.n), z(id.n);
+            if (vibid_model_modal(&id.model, theta, nullptr, f.data(), nullptr, z.data(), nullptr, nullptr,
+                                  nullptr) == VIBID_OK)
+                for (double v : f)
+                    if (std::isfinite(v)) fmax = std::max(fmax, v);
+            if (!(fmax > 0.0)) fmax = id.f_nominal_max;
+        }
+        const double wh = 2.0 * M_PI * fmax * id.cfg.sample_time;
+        double rel = id.cfg.difference_order == 4 ? std::pow(wh, 4) / 30.0 : wh * wh / 6.0;
+        // A held base's jumps reach a damper as impulses, whose images above Nyquist
+        // the hold equivalents do not describe: on the held-base test stand
+        // (ident.default) the noise-free dampers came out 0.6 (w h)^4 off, the springs
+        // 0.08 (w h)^4. Bounds: (w h)^4 on damping, (w h)^4 / 10 on the rest. (Held
+        // forces stay within the stencils' bound: 4e-6 on the test chain.)
+        const bool impulses = id.model.has_base && id.model.base_hold == VIBID_HOLD_ZOH && id.model.base_damper;
+        // Measured discretization error (Richardson): the estimate from every second
+        // sample minus this one is (2^a - 1) times this one's error where the error
+        // scales as h^a. a = 2 for what the a-priori bound misses, the aliasing of
+        // non-smooth signals (a corner of a triangle excitation is a jump in the third
+        // derivative of the response; the paper's example 1 came out c1 +0.10 /
+        // +0.026 / +0.0063 / +0.0015 % at 1 / 2 / 4 / 8 kHz): the error is the
+        // difference / 3. A corner on a sample has error E at h and 4 E or -2 E on
+        // either grid of step 2h: / 3 gives |E| for both. Corners halfway between
+        // samples are missed (both grids see them at a quarter step, error E too);
+        // smooth signals (a = 4) get 5 times their error.
+        qual.bias_relative = 0.0;
+        for (std::size_t i = 0; i < p; ++i) {
+            const Eigen::Index ii = static_cast<Eigen::Index>(i);
+            double ri = rel;
+            if (impulses) {
+                const bool damping = id.model.terms[id.model.param_term[i]].kind == VIBID_PARAM_DAMPING;
+                ri = std::max(rel, damping ? std::pow(wh, 4) : std::pow(wh, 4) / 10.0);
+            }
+            double bias = ri * std::fabs(theta[i]);
+            if (disc_error.size() == static_cast<Eigen::Index>(p)) bias = std::max(bias, disc_error(ii));
+            cov(ii, ii) += bias * bias;
+            if (theta[i] != 0.0) qual.bias_relative = std::max(qual.bias_relative, bias / std::fabs(theta[i]));
+        }
+        for (std::size_t i = 0; i < p && i < weak.size(); ++i)
+            if (weak[i]) pflags[i] |= VIBID_QUALITY_NOT_EXCITED;
+    } else {
+        VectorXd th = zoh_to_theta(id, Th, out.log_info);
+        // Standard errors through the numerical Jacobian of the whole way back.
+        MatrixXd J(p, P);
+        for (std::size_t k = 0; k < P; ++k) {
+            const double step = 1e-6 * std::max(std::fabs(Th.data()[k]), 1e-9);
+            MatrixXd tp = Th, tm = Th;
+            tp.data()[k] += step;
+            tm.data()[k] -= step;
+            vibid_log_info dummy{};
+            J.col(static_cast<Eigen::Index>(k)) = (zoh_to_theta(id, tp, dummy) - zoh_to_theta(id, tm, dummy)) / (2 * step);
+        }
+        cov = J * cov_reg * J.transpose();
+        std::copy(th.data(), th.data() + p, theta);
+    }
+    for (std::size_t i = 0; i < p; ++i) {
+        if (qual.flags & VIBID_QUALITY_SE_INVALID) pflags[i] |= VIBID_QUALITY_SE_INVALID;
+        if (pflags[i] & VIBID_QUALITY_NOT_EXCITED) qual.flags |= VIBID_QUALITY_NOT_EXCITED;
+    }
+    if (stderr_out)
+        for (std::size_t i = 0; i < p; ++i)
+            stderr_out[i] = (pflags[i] & VIBID_QUALITY_NOT_EXCITED)
+                                ? HUGE_VAL
+                                : std::sqrt(std::max(cov(static_cast<Eigen::Index>(i), static_cast<Eigen::Index>(i)), 0.0));
+    std::copy(cov.data(), cov.data() + p * p, id.cov.begin());
+    id.have_cov = true;
+    if (id.biv) {
+        id.last_theta.assign(Th.data(), Th.data() + Th.size());
+        if (id.nb) {
+            if (with_c)
+                id.last_theta.insert(id.last_theta.end(), id.const_values.begin(), id.const_values.end());
+            else
+                id.last_theta.resize(pa, 0.0);
+        }
+        id.have_theta = true;
+    }
+    qual.rcond = li.rcond;
+    id.quality = qual;
+    id.param_flags = pflags;
+    out.n_samples = id.n_samples;
+    out.n_rows = id.n_rows;
+    out.rank = li.rank;
+    out.rcond = li.rcond;
+    if (info) *info = out;
+    return VIBID_OK;
+}
+
+}  // namespace
+
+extern "C" {
 
 VIBID_API vibid_ident *vibid_ident_twin_create(const vibid_ident *ident) {
     return vibid::guard_create<vibid_ident>(__func__, [&] {
@@ -1678,5 +1453,426 @@ vibid_status estimate_output_error(vibid_ident &id, double *theta, double *se, v
     }
     return VIBID_OK;
 }
+
+}  // namespace
+
+// ---- The estimators. Each kind's functions, then the table of them (kEstimators). ----
+
+namespace {
+
+// Start values are for the recursive estimators: refused by the batch ones (LS, IV, AUTO).
+void refuse_prior(vibid_ident &, const double *, const double *) {
+    throw_error(VIBID_E_STATE, "start values are for the RLS and EKF estimators only (LS and IV are batch "
+                               "estimators)");
+}
+
+// -- LS: batch least squares on the difference form (lsq.h), plus a second QR with the
+// constant-force columns (lsq_c).
+
+void describe_ls(const vibid_ident_config &, std::string &why) {
+    why += "estimator: batch least squares (configured); biased by noise on the measured channels, standard "
+           "errors assume white equation errors (flagged as not valid)\n";
+}
+
+void make_solver_ls(vibid_ident &id) {
+    const std::size_t pa = id.p_reg + id.nb;
+    id.lsq.reset(vibid_lsq_create(id.p_reg, id.q));
+    if (!id.lsq) throw_error(VIBID_E_NO_MEMORY, "vibid_lsq_create: %s", vibid_last_error());
+    if (id.nb) {
+        id.lsq_c.reset(vibid_lsq_create(pa, id.q));
+        if (!id.lsq_c) throw_error(VIBID_E_NO_MEMORY, "vibid_lsq_create: %s", vibid_last_error());
+    }
+}
+
+vibid_status push_row_ls(vibid_ident &id) {
+    const std::size_t p = id.p_reg, m = id.m;
+    vibid_status s;
+    transpose_into(id.x.data(), p, m, id.rows_x.data());
+    s = vibid_lsq_add_rows(id.lsq.get(), m, id.rows_x.data(), id.y.data(), nullptr);
+    if (s == VIBID_OK && id.nb) {
+        constant_rows(id, id.rows_x.data(), vibid::regressor_unit(*id.reg), id.rows_xc.data());
+        s = vibid_lsq_add_rows(id.lsq_c.get(), m, id.rows_xc.data(), id.y.data(), nullptr);
+    }
+    return s;
+}
+
+void solve_ls(vibid_ident &id, RegressionFit &fit) {
+    const std::size_t pr = id.p_reg, q = id.q, pa = pr + id.nb;
+    MatrixXd &Th = fit.Th, &cov_reg = fit.cov_reg;
+    vibid_lsq_info &li = fit.li;
+    bool &with_c = fit.with_c;
+    vibid_status s = vibid_lsq_solve(id.lsq.get(), Th.data(), &li);
+    if (s == VIBID_E_NOT_IDENTIFIABLE) refuse_null_space(id, li);
+    check_status(s, "least squares");
+    MatrixXd Pm(pr, pr), Sig(q, q);
+    check_status(vibid_lsq_covariance(id.lsq.get(), Pm.data(), Sig.data()), "least-squares covariance");
+    for (std::size_t j = 0; j < q; ++j)
+        for (std::size_t l = 0; l < q; ++l)
+            cov_reg.block(j * pr, l * pr, pr, pr) = Sig(j, l) * Pm;
+    if (id.nb) {
+        VectorXd tha(pa);
+        MatrixXd Pa(pa, pa), Sa(1, 1);
+        vibid_lsq_info lc{};
+        vibid_status sc = vibid_lsq_solve(id.lsq_c.get(), tha.data(), &lc);
+        if (sc == VIBID_OK) sc = vibid_lsq_covariance(id.lsq_c.get(), Pa.data(), Sa.data());
+        if (sc != VIBID_OK && id.cfg.constant_terms == VIBID_CONSTANT_ON)
+            check_status(sc, "least squares with constant forces");
+        if (sc == VIBID_OK && choose_constants(id, tha, Sa(0, 0) * Pa)) {
+            with_c = true;
+            Th = tha.head(static_cast<Eigen::Index>(pr));
+            cov_reg = Sa(0, 0) * Pa.topLeftCorner(static_cast<Eigen::Index>(pr), static_cast<Eigen::Index>(pr));
+            li = lc;
+        }
+    }
+    fit.qual.flags |= VIBID_QUALITY_SE_INVALID;
+}
+
+// -- IV and AUTO: instrumental variables with block statistics (block_iv.hpp), the
+// instruments the regressors iv_lag samples earlier (ring).
+
+void describe_auto(const vibid_ident_config &, std::string &why) {
+    why += "estimator: instrumental variables with block statistics (automatic): consistent where noise on "
+           "the measured channels biases LS and RLS, exact on noise-free data; error bars from the spread "
+           "over 32..64 blocks, valid for coloured equation errors\n";
+}
+
+void describe_iv(const vibid_ident_config &, std::string &why) {
+    why += "estimator: instrumental variables with block statistics (configured)\n";
+}
+
+void make_solver_iv(vibid_ident &id) {
+    const vibid_ident_config &rcfg = id.cfg;
+    const std::size_t pa = id.p_reg + id.nb;
+    // Blocks much longer than the equation error's correlation (window + filter
+    // memory, i.e. about the lag): 4 (lag + window), at least 64 samples. With
+    // forgetting, 64 blocks span about 6 memories.
+    const std::size_t width = rcfg.difference_order + 1;
+    std::size_t block = std::max<std::size_t>(4 * (rcfg.iv_lag + width), 64);
+    if (rcfg.forgetting < 1.0)
+        block = std::max<std::size_t>(
+            static_cast<std::size_t>(std::ceil(6.0 / (1.0 - rcfg.forgetting) / 64.0)), 2 * (rcfg.iv_lag + width));
+    id.biv = std::make_unique<vibid::BlockIV>(pa, id.q, rcfg.forgetting, block, 64);
+    id.ring.assign((rcfg.iv_lag + 1) * id.p_reg * id.m, 0.0);
+    id.ring_unit.assign(rcfg.iv_lag + 1, 0.0);
+}
+
+vibid_status push_row_iv(vibid_ident &id) {
+    const std::size_t p = id.p_reg, m = id.m;
+    // A cubic term of a wild sample can overflow: such a row would poison every sum.
+    if (!vibid::all_finite(id.x.data(), p * m) || !vibid::all_finite(id.y.data(), m * id.q)) {
+        restart_window(id);
+        return VIBID_FAIL(VIBID_E_NONFINITE, "regressor overflow (non-finite row): window restarted");
+    }
+    const std::size_t L = id.cfg.iv_lag, slots = L + 1, block = p * m;
+    double *slot = id.ring.data() + (id.n_built % slots) * block;
+    std::copy(id.x.begin(), id.x.end(), slot);
+    const double unit = vibid::regressor_unit(*id.reg);
+    id.ring_unit[id.n_built % slots] = unit;
+    if (id.n_built >= L) {
+        const std::size_t old_slot = (id.n_built - L) % slots;
+        const double *old = id.ring.data() + old_slot * block;
+        transpose_into(id.x.data(), p, m, id.rows_x.data());
+        transpose_into(old, p, m, id.rows_w.data());
+        if (id.nb) {
+            // The constant's instrument is the constant column of the delayed row.
+            id.biv->add_constants(m, id.rows_x.data(), id.rows_w.data(), id.y.data(), unit, id.ring_unit[old_slot]);
+        } else {
+            id.biv->add(m, id.rows_x.data(), id.rows_w.data(), id.y.data());
+        }
+        id.biv->end_sample();
+    }
+    return VIBID_OK;
+}
+
+void solve_iv(vibid_ident &id, RegressionFit &fit) {
+    const std::size_t pr = id.p_reg, pa = pr + id.nb;
+    MatrixXd &Th = fit.Th, &cov_reg = fit.cov_reg;
+    vibid_lsq_info &li = fit.li;
+    vibid_ident_quality &qual = fit.qual;
+    std::vector<int> &weak = fit.weak;
+    VectorXd &disc_error = fit.disc_error;
+    bool &with_c = fit.with_c;
+    if (id.biv->samples() * id.m <= pr)
+        throw_error(VIBID_E_INSUFFICIENT_DATA, "%llu instrumented samples for %zu regressors: push more samples",
+                    id.biv->samples(), pr);
+    // In directions the data of this window hardly inform, the last estimate stays
+    // (last_theta: p_reg, then the nb constants, 0 where the plain fit stood).
+    const double *ref = id.have_theta ? id.last_theta.data() : nullptr;
+    vibid::BlockIVResult res;
+    if (id.nb) {
+        // AUTO: the test needs the fit with the constants, not its consistency
+        // check (two more solves), which only the fit kept needs.
+        const bool on = id.cfg.constant_terms == VIBID_CONSTANT_ON;
+        try {
+            res = id.biv->solve(ref, pa, on);
+            with_c = choose_constants(id, res.theta.col(0), res.cov);
+            if (with_c && !on) res = id.biv->solve(ref, pa);
+        } catch (const vibid::Error &) {
+            if (on) throw;
+        }
+    }
+    if (with_c) {
+        const Eigen::Index np = static_cast<Eigen::Index>(pr);
+        res.theta = MatrixXd(res.theta.topRows(np));
+        res.cov = MatrixXd(res.cov.topLeftCorner(np, np));
+        res.not_excited.resize(pr);
+    } else {
+        res = id.biv->solve(ref, pr);
+    }
+    Th = res.theta;
+    cov_reg = res.cov;
+    li.rank = res.rank;
+    li.rcond = res.rcond;
+    qual.n_blocks = res.n_blocks;
+    qual.z_consistency = res.z_max;
+    weak = res.not_excited;
+    if (id.half && id.half->biv->samples() * id.m > pr) {
+        try {
+            const vibid::BlockIVResult rh = id.half->biv->solve(ref, with_c ? pa : pr);
+            // Richardson, see below. The difference also carries the two
+            // estimates' noise: var(half) - var(this) where this one uses all
+            // samples (Hausman), which is taken out of its square.
+            disc_error = VectorXd::Zero(static_cast<Eigen::Index>(pr));
+            for (Eigen::Index i = 0; i < static_cast<Eigen::Index>(pr); ++i) {
+                const double d = rh.theta(i, 0) - Th(i, 0);
+                const double vd = std::max(rh.cov(i, i) - cov_reg(i, i), 0.0);
+                disc_error(i) = std::sqrt(std::max(d * d - vd, 0.0)) / 3.0;
+            }
+            if (!disc_error.allFinite()) disc_error.resize(0);
+        } catch (const vibid::Error &) {
+            disc_error.resize(0);  // no check this time; the a-priori bound stays
+        }
+    }
+    // Too few blocks for a covariance (early in a run), too few that carry the
+    // information (n_eff below p_reg + 4: the spread of the scores would rest on fewer
+    // than 4 blocks beyond the directions fitted, e.g. excitation only in the newest
+    // blocks), or the halves disagree.
+    if (!cov_reg.allFinite() || !(res.z_max <= 4.0) ||
+        res.n_eff < static_cast<double>(with_c ? pa : pr) + 4.0)
+        qual.flags |= VIBID_QUALITY_SE_INVALID;
+}
+
+// -- RLS: recursive least squares on the difference form (rls.h), from start values
+// (vibid_ident_set_prior) or a prior scaled to the first samples (collect_prior_rows).
+
+void describe_rls(const vibid_ident_config &cfg, std::string &why) {
+    why += "estimator: recursive least squares (configured); biased by noise on the measured channels, "
+           "standard errors assume white equation errors (flagged as not valid)\n";
+    if (cfg.rls_alpha == 0.0)
+        why += "RLS prior: scaled to the data (automatic): P0 = diag(1 / (1e-6 sum x_i^2)) over the first "
+               "samples, so that no parameter's units make it strong\n";
+    else
+        why += strprintf("RLS prior: P0 = I / %g (configured)\n", cfg.rls_alpha);
+}
+
+void make_solver_rls(vibid_ident &id) {
+    const vibid_ident_config &rcfg = id.cfg;
+    vibid_rls_config rc;
+    vibid_rls_config_init(&rc, id.p_reg, id.q);
+    rc.n_equations = id.m;
+    rc.forgetting = rcfg.forgetting;
+    // Automatic prior (rls_alpha = 0): the RLS starts from a prior scaled to the
+    // data (push); until then, and for start values given without P0, 1e-9.
+    const double alpha = rcfg.rls_alpha > 0.0 ? rcfg.rls_alpha : 1e-9;
+    rc.alpha = alpha;
+    rc.trace_max = static_cast<double>(id.p_reg) / alpha;
+    if (rcfg.rls_alpha == 0.0) {
+        id.auto_prior = true;
+        id.prior_len = std::max<std::size_t>(8 * id.p_reg, 100);
+        id.prior_rows.assign(id.prior_len * (id.p_reg * id.m + id.m * id.q), 0.0);
+        id.prior_ss.assign(id.p_reg, 0.0);
+        id.prior_P0.assign(id.p_reg * id.p_reg, 0.0);
+        id.prior_theta.assign(id.p_reg * id.q, 0.0);
+        if (!id.zoh && vibid_model_nominal(&id.model, id.prior_theta.data()) != VIBID_OK)
+            std::fill(id.prior_theta.begin(), id.prior_theta.end(), 0.0);
+    }
+    id.rls.reset(vibid_rls_create(&rc));
+    if (!id.rls) throw_error(VIBID_E_OUT_OF_RANGE, "vibid_rls_create: %s", vibid_last_error());
+}
+
+vibid_status push_row_rls(vibid_ident &id) {
+    if (id.auto_prior && !id.prior_done) return collect_prior_rows(id);
+    return vibid_rls_update(id.rls.get(), id.x.data(), id.y.data());
+}
+
+void solve_rls(vibid_ident &id, RegressionFit &fit) {
+    if (id.auto_prior && !id.prior_done)
+        throw_error(VIBID_E_INSUFFICIENT_DATA,
+                    "%zu of the first %zu samples collected to scale the RLS prior: push more samples",
+                    id.prior_count, id.prior_len);
+    const std::size_t pr = id.p_reg, q = id.q;
+    MatrixXd &Th = fit.Th, &cov_reg = fit.cov_reg;
+    vibid_lsq_info &li = fit.li;
+    MatrixXd Pm(pr, pr), Sig(q, q);
+    bool sig_ok;
+    if (id.twin_of) {  // the RLS outputs as copied (vibid_ident_twin_sync)
+        Th = Eigen::Map<const MatrixXd>(id.frozen_theta.data(), pr, q);
+        Pm = Eigen::Map<const MatrixXd>(id.frozen_P.data(), pr, pr);
+        Sig = Eigen::Map<const MatrixXd>(id.frozen_sig.data(), q, q);
+        sig_ok = id.frozen_sig_ok;
+    } else {
+        check_status(vibid_rls_theta(id.rls.get(), Th.data()), "recursive least squares");
+        check_status(vibid_rls_covariance(id.rls.get(), Pm.data()), "rls covariance");
+        sig_ok = vibid_rls_residual_covariance(id.rls.get(), Sig.data()) == VIBID_OK;
+    }
+    if (sig_ok)
+        for (std::size_t j = 0; j < q; ++j)
+            for (std::size_t l = 0; l < q; ++l)
+                cov_reg.block(j * pr, l * pr, pr, pr) = Sig(j, l) * Pm;
+    li.rank = pr;
+    li.rcond = 0.0;
+    fit.qual.flags |= VIBID_QUALITY_SE_INVALID;
+}
+
+void set_prior_rls(vibid_ident &id, const double *theta0, const double *P0) {
+    const std::size_t p = id.p;
+    if (!id.zoh) {
+        // Central differences: the regression parameters are the physical ones.
+        if (theta0) {
+            std::size_t bad = 0;
+            while (bad < p && std::isfinite(theta0[bad])) ++bad;
+            if (bad < p) throw_error(VIBID_E_NONFINITE, "theta0[%zu] = %g is not finite", bad, theta0[bad]);
+            check_status(vibid_rls_set_prior(id.rls.get(), theta0, P0), "prior");
+        } else {
+            // Nominal values; p is small for a stand, the stack buffer avoids allocating.
+            double nominal[256];
+            if (p > 256) throw_error(VIBID_E_DIMENSION, "more than 256 unknowns: pass theta0");
+            check_status(vibid_model_nominal(&id.model, nominal), "nominal values");
+            check_status(vibid_rls_set_prior(id.rls.get(), nominal, P0), "prior");
+        }
+        id.has_prior = true;
+        id.prior_done = true;  // start values replace the automatic prior
+        return;
+    }
+    if (P0)
+        throw_error(VIBID_E_OUT_OF_RANGE,
+                    "ZOH: P0 refers to the difference form (1.16), not to the physical parameters: pass NULL");
+    std::vector<double> th(p);
+    if (theta0)
+        std::copy(theta0, theta0 + p, th.begin());
+    else
+        check_status(vibid_model_nominal(&id.model, th.data()), "nominal values");
+    for (std::size_t i = 0; i < p; ++i)
+        if (!std::isfinite(th[i])) throw_error(VIBID_E_NONFINITE, "theta0[%zu] = %g is not finite", i, th[i]);
+    // Physical parameters -> (1.16): Theta^T = [A1 A2 B1 B0] = [-Dt -Ct B1t B2t]
+    // with the base as the last input column (as the regressor builds it).
+    const Eigen::Index n = static_cast<Eigen::Index>(id.n), r = static_cast<Eigen::Index>(id.model.inputs.size());
+    const Eigen::Index rz = static_cast<Eigen::Index>((id.p_reg - 2 * id.n) / 2);
+    MatrixXd M(n, n), D(n, n), C(n, n), B(n, std::max<Eigen::Index>(r, 1)), Bz(n, rz);
+    VectorXd cb(n);
+    check_status(vibid_model_assemble(&id.model, th.data(), M.data(), D.data(), C.data(), r ? B.data() : nullptr,
+                                      nullptr, cb.data()),
+                 "assemble");
+    if (r) Bz.leftCols(r) = B.leftCols(r);
+    if (rz > r) Bz.col(r) = cb;
+    MatrixXd Dt(n, n), Ct(n, n), B1(n, rz), B2(n, rz);
+    check_status(vibid_second_order_form(id.n, static_cast<std::size_t>(rz), M.data(), D.data(), C.data(),
+                                         rz ? Bz.data() : nullptr, id.cfg.sample_time, Dt.data(), Ct.data(),
+                                         rz ? B1.data() : nullptr, rz ? B2.data() : nullptr),
+                 "ZOH difference form of theta0");
+    MatrixXd ThT(n, 2 * n + 2 * rz);
+    ThT << -Dt, -Ct, B1, B2;
+    const MatrixXd Th = ThT.transpose();
+    check_status(vibid_rls_set_prior(id.rls.get(), Th.data(), nullptr), "prior");
+    id.has_prior = true;
+    id.prior_done = true;
+}
+
+// -- EKF and KF_RLS: the state-space estimators (stand_ekf.hpp; create_state_space,
+// estimate_state_space above); AUTO chooses the EKF on a stand the regression cannot run on.
+
+std::unique_ptr<vibid_ident> create_ekf(const vibid_model &model, const vibid_ident_config &cfg,
+                                        const CreateOptions &) {
+    return create_state_space(model, cfg, std::string());
+}
+
+vibid_status push_state_space(vibid_ident &id, const double *channels) {
+    const vibid_status st = id.ekf->push(channels);
+    if (st == VIBID_OK || st == VIBID_E_DIVERGED) ++id.n_samples;
+    id.n_rows = id.ekf->stats().n_steps;
+    return st;
+}
+
+void set_prior_state_space(vibid_ident &id, const double *theta0, const double *P0) {
+    // The filter's start values (used at its next start: now, or after a reset).
+    if (P0)
+        throw_error(VIBID_E_OUT_OF_RANGE, "EKF: the start covariance is relative (50 %% of each start value): "
+                                          "pass P0 = NULL");
+    std::vector<double> th(id.p);
+    if (theta0) {
+        for (std::size_t i = 0; i < id.p; ++i)
+            if (!std::isfinite(theta0[i]) || theta0[i] == 0.0)
+                throw_error(VIBID_E_OUT_OF_RANGE, "theta0[%zu] = %g: EKF start values must be finite and != 0",
+                            i, theta0[i]);
+        th.assign(theta0, theta0 + id.p);
+    } else {
+        check_status(vibid_model_nominal(&id.model, th.data()), "nominal values");
+    }
+    id.ekf->set_start(th.data());
+}
+
+// -- AUTO: instrumental variables (as IV) where the regression can run, else the EKF.
+
+// A stand that leaves coordinates unmeasured (some signal of the equations can not be
+// formed from the channels) or declares an unmeasured random force gets the state-space
+// estimator; the regression estimators cannot run on it.
+std::unique_ptr<vibid_ident> create_auto(const vibid_model &model, const vibid_ident_config &cfg,
+                                         const CreateOptions &opt) {
+    if (!model.disturbances.empty())
+        return create_state_space(model, cfg, "the stand declares an unmeasured random force");
+    try {
+        vibid::check_signals_available(model);
+    } catch (const vibid::Error &e) {
+        return create_state_space(model, cfg, std::string("the stand is not fully measured (") + e.what() + ")");
+    }
+    return create_regression(model, cfg, opt);
+}
+
+// -- OE: output error (create_output_error, estimate_output_error above).
+
+std::unique_ptr<vibid_ident> create_oe(const vibid_model &model, const vibid_ident_config &cfg,
+                                       const CreateOptions &) {
+    return create_output_error(model, cfg);
+}
+
+// Keeps every sample as received (a gap included: the fit leaves it out) and gives it to
+// the start estimator. Allocates (the kept samples grow).
+vibid_status push_output_error(vibid_ident &id, const double *channels) {
+    id.samples.insert(id.samples.end(), channels, channels + id.n_channels);
+    ++id.n_samples;
+    return vibid_ident_push(id.ee.get(), channels);
+}
+
+void refuse_prior_oe(vibid_ident &, const double *, const double *) {
+    throw_error(VIBID_E_STATE, "output error starts from its equation-error estimate: no prior");
+}
+
+// The table, indexed by vibid_estimator.
+constexpr EstimatorOps kEstimators[] = {
+    {VIBID_ESTIMATOR_LS, "ls", ConstantForces::structured, false, create_regression, push_regression,
+     estimate_regression, refuse_prior, describe_ls, make_solver_ls, push_row_ls, solve_ls},
+    {VIBID_ESTIMATOR_IV, "iv", ConstantForces::structured, true, create_regression, push_regression,
+     estimate_regression, refuse_prior, describe_iv, make_solver_iv, push_row_iv, solve_iv},
+    {VIBID_ESTIMATOR_RLS, "rls", ConstantForces::none, false, create_regression, push_regression,
+     estimate_regression, set_prior_rls, describe_rls, make_solver_rls, push_row_rls, solve_rls},
+    {VIBID_ESTIMATOR_AUTO, "auto", ConstantForces::structured, true, create_auto, push_regression,
+     estimate_regression, refuse_prior, describe_auto, make_solver_iv, push_row_iv, solve_iv},
+    {VIBID_ESTIMATOR_EKF, "ekf", ConstantForces::none, false, create_ekf, push_state_space, estimate_state_space,
+     set_prior_state_space, nullptr, nullptr, nullptr, nullptr},
+    {VIBID_ESTIMATOR_KF_RLS, "kf_rls", ConstantForces::none, false, create_ekf, push_state_space,
+     estimate_state_space, set_prior_state_space, nullptr, nullptr, nullptr, nullptr},
+    {VIBID_ESTIMATOR_OE, "oe", ConstantForces::start, false, create_oe, push_output_error, estimate_output_error,
+     refuse_prior_oe, nullptr, nullptr, nullptr, nullptr},
+};
+
+constexpr bool table_in_order() {
+    for (int k = 0; k < kEstimatorCount; ++k)
+        if (kEstimators[k].kind != k) return false;
+    return true;
+}
+static_assert(sizeof kEstimators / sizeof kEstimators[0] == kEstimatorCount, "an entry for every vibid_estimator");
+static_assert(table_in_order(), "kEstimators is indexed by vibid_estimator");
+
+const EstimatorOps &ops_of(int k) { return kEstimators[k]; }
 
 }  // namespace

@@ -110,8 +110,12 @@ void nominal_omega_range(const vibid_model &m, double &wmin, double &wmax) {
 // ---------------------------------------------------------------------------------
 // Identifiability from the measured channels (before any sample)
 
-void check_identifiable_state_space(const vibid_model &m, double h, std::string &report) {
-    const std::size_t n = m.nodes.size(), p = m.param_term.size(), r = m.inputs.size();
+namespace {
+
+// Something unknown, a lumped network, and a start value for every unknown: the
+// state-space estimator starts from the stand's nominal values.
+void check_start_values(const vibid_model &m) {
+    const std::size_t p = m.param_term.size();
     if (p == 0) throw_error(VIBID_E_OUT_OF_RANGE, "nothing unknown: every mass, element and gain is known");
     if (m.full_matrix)
         throw_error(VIBID_E_UNSUPPORTED, "the state-space estimator needs a lumped network (nodes and elements), not "
@@ -126,15 +130,24 @@ void check_identifiable_state_space(const vibid_model &m, double h, std::string 
                     "the state-space estimator (the stand is not fully measured) starts from the stand's nominal "
                     "values; these unknowns have none: %s (give `value`/`mass`/`gain` as the start value)",
                     missing.c_str());
+}
+
+// A base motion the filter can take as an input, some measured node to compare the
+// model with, and something that excites the stand.
+void check_measured_and_excited(const vibid_model &m) {
     if (m.has_base && !measured_disp(m, VIBID_BASE))
         throw_error(VIBID_E_DIMENSION, "base: its displacement must be measured (it is an input of the stand's "
                                        "model; an unmeasured base motion cannot be told from the stand's response)");
     std::size_t nmeas = 0;
     for (const auto &nd : m.nodes) nmeas += static_cast<std::size_t>(__builtin_popcount(nd.measured));
     if (nmeas == 0) throw_error(VIBID_E_DIMENSION, "no node is measured: nothing to compare the model with");
-    if (r == 0 && !m.has_base && m.disturbances.empty())
+    if (m.inputs.empty() && !m.has_base && m.disturbances.empty())
         throw_error(VIBID_E_NOT_IDENTIFIABLE, "nothing excites the stand: no measured force input, no base motion "
                                               "and no disturbance (declare the random excitation as a disturbance)");
+}
+
+// Something known (a term or a disturbance intensity) fixes the scale of the unknowns.
+void check_scale_fixed(const vibid_model &m) {
     bool any_known = false;
     for (const auto &t : m.terms)
         if (!t.unknown && t.value != 0.0) any_known = true;
@@ -144,185 +157,283 @@ void check_identifiable_state_space(const vibid_model &m, double h, std::string 
         throw_error(VIBID_E_NOT_IDENTIFIABLE,
                     "nothing known fixes the scale: with every mass, element, gain and disturbance intensity unknown, "
                     "all of them times any factor fit the data equally well; make one known");
+}
 
-    // Frequency grid spanning the nominal modes, below the Nyquist frequency.
+// The sensitivity test's frequencies (rad/s): nf log-spaced from lo to hi, spanning the
+// nominal modes, below the Nyquist frequency pi / h.
+struct FrequencyGrid {
+    double lo = 0.0, hi = 0.0;
+    int nf = 96;
+    double at(int f) const { return lo * std::pow(hi / lo, static_cast<double>(f) / (nf - 1)); }
+};
+
+FrequencyGrid frequency_grid(const vibid_model &m, double h) {
     double wmin = 0.0, wmax = 0.0;
     nominal_omega_range(m, wmin, wmax);
     const double wnyq = M_PI / h;
     if (!(wmax > 0.0)) wmin = wmax = 0.1 * wnyq;
-    const double lo = std::max(0.2 * wmin, 1e-6 * wnyq), hi = std::min(5.0 * wmax, 0.95 * wnyq);
-    const int nf = 96;
+    FrequencyGrid g;
+    g.lo = std::max(0.2 * wmin, 1e-6 * wnyq);
+    g.hi = std::min(5.0 * wmax, 0.95 * wnyq);
+    return g;
+}
 
-    const Index ni = static_cast<Index>(r) + (m.has_base ? 1 : 0);  // measured inputs (base last)
-    const std::size_t nw = m.disturbances.size();
-    std::vector<std::size_t> unknown_w;
-    for (std::size_t l = 0; l < nw; ++l)
-        if (m.disturbances[l].std_dev == 0.0) unknown_w.push_back(l);
-    // Columns: the linear parameters (cubic ones have no linear sensitivity), then the
-    // unknown disturbance variances.
-    std::vector<std::size_t> cols;
+// The unknowns of the test, its columns: the linear parameters (indices into the model's
+// unknowns; cubic ones have no linear sensitivity and are named in cubic_names), then the
+// disturbances of unknown intensity (indices into m.disturbances).
+struct TestedUnknowns {
+    std::vector<std::size_t> cols, unknown_w;
     std::string cubic_names;
-    for (std::size_t i = 0; i < p; ++i) {
+    std::size_t size() const { return cols.size() + unknown_w.size(); }
+    std::string name(const vibid_model &m, std::size_t c) const {
+        return c < cols.size() ? m.terms[m.param_term[cols[c]]].name
+                               : "intensity of " + m.disturbances[unknown_w[c - cols.size()]].name;
+    }
+};
+
+TestedUnknowns tested_unknowns(const vibid_model &m) {
+    TestedUnknowns u;
+    for (std::size_t l = 0; l < m.disturbances.size(); ++l)
+        if (m.disturbances[l].std_dev == 0.0) u.unknown_w.push_back(l);
+    for (std::size_t i = 0; i < m.param_term.size(); ++i) {
         if (m.terms[m.param_term[i]].kind == VIBID_PARAM_CUBIC)
-            cubic_names += (cubic_names.empty() ? "'" : ", '") + m.terms[m.param_term[i]].name + "'";
+            u.cubic_names += (u.cubic_names.empty() ? "'" : ", '") + m.terms[m.param_term[i]].name + "'";
         else
-            cols.push_back(i);
+            u.cols.push_back(i);
     }
-    const std::size_t nq = cols.size() + unknown_w.size();
-    if (nq == 0) {
-        report = "identifiability: only cubic coefficients are unknown; they are determined by the amplitude of the "
-                 "response, not checked before the data";
-        return;
-    }
-    struct Out {
-        std::size_t node;
-        int q;
-    };
-    std::vector<Out> outs;
-    for (std::size_t i = 0; i < n; ++i)
+    return u;
+}
+
+// The stand's matrices at its nominal values (th) and the structure of each unknown i
+// (model.h: Mi[i] ... cbi[i]), n x n and n x r.
+struct NominalStand {
+    MatX M0, D0, C0, B0;
+    VecX db0, cb0;
+    std::vector<double> th;
+    std::vector<MatX> Mi, Di, Ci, Bi;
+    std::vector<VecX> dbi, cbi;
+};
+
+NominalStand nominal_stand(const vibid_model &m) {
+    const std::size_t p = m.param_term.size(), r = m.inputs.size();
+    const Index nn = static_cast<Index>(m.nodes.size());
+    NominalStand s;
+    s.M0.resize(nn, nn);
+    s.D0.resize(nn, nn);
+    s.C0.resize(nn, nn);
+    s.B0.resize(nn, static_cast<Index>(r));
+    s.db0.resize(nn);
+    s.cb0.resize(nn);
+    s.th.resize(p);
+    vibid_model_nominal(&m, s.th.data());
+    vibid_model_assemble(&m, s.th.data(), s.M0.data(), s.D0.data(), s.C0.data(), s.B0.data(), s.db0.data(),
+                         s.cb0.data());
+    s.Mi.assign(p, MatX(nn, nn));
+    s.Di.assign(p, MatX(nn, nn));
+    s.Ci.assign(p, MatX(nn, nn));
+    s.Bi.assign(p, MatX(nn, static_cast<Index>(r)));
+    s.dbi.assign(p, VecX(nn));
+    s.cbi.assign(p, VecX(nn));
+    for (std::size_t i = 0; i < p; ++i)
+        vibid_model_structure(&m, i, s.Mi[i].data(), s.Di[i].data(), s.Ci[i].data(), s.Bi[i].data(), s.dbi[i].data(),
+                              s.cbi[i].data());
+    return s;
+}
+
+// A measured quantity: node, and q = 0 displacement, 1 velocity, 2 acceleration.
+struct MeasuredOutput {
+    std::size_t node;
+    int q;
+};
+
+std::vector<MeasuredOutput> measured_outputs(const vibid_model &m) {
+    std::vector<MeasuredOutput> outs;
+    for (std::size_t i = 0; i < m.nodes.size(); ++i)
         for (int q = 0; q < 3; ++q)
             if (m.nodes[i].measured & (1u << q)) outs.push_back({i, q});
-    const Index no = static_cast<Index>(outs.size());
-    const Index nn = static_cast<Index>(n);
+    return outs;
+}
 
-    MatX M0(nn, nn), D0(nn, nn), C0(nn, nn), B0(nn, static_cast<Index>(r));
-    VecX db0(nn), cb0(nn);
-    std::vector<double> th(p);
-    vibid_model_nominal(&m, th.data());
-    vibid_model_assemble(&m, th.data(), M0.data(), D0.data(), C0.data(), B0.data(), db0.data(), cb0.data());
-    std::vector<MatX> Mi(p, MatX(nn, nn)), Di(p, MatX(nn, nn)), Ci(p, MatX(nn, nn)),
-        Bi(p, MatX(nn, static_cast<Index>(r)));
-    std::vector<VecX> dbi(p, VecX(nn)), cbi(p, VecX(nn));
-    for (std::size_t i = 0; i < p; ++i)
-        vibid_model_structure(&m, i, Mi[i].data(), Di[i].data(), Ci[i].data(), Bi[i].data(), dbi[i].data(),
-                              cbi[i].data());
+// The responses at one frequency w: Y (n x (ni + nw)) to the measured inputs (forces,
+// then the base, c_b + i w d_b) and to a unit force of each disturbance, and their
+// relative sensitivities dY[c] = dY / d log theta to the tested parameters.
+struct Responses {
+    CMat Y;
+    std::vector<CMat> dY;
+};
 
-    std::vector<VecX> rows;  // each a real row of length nq
-    for (int f = 0; f < nf; ++f) {
-        const double w = lo * std::pow(hi / lo, static_cast<double>(f) / (nf - 1));
-        const std::complex<double> iw(0.0, w);
-        CMat Z = (-w * w) * M0.cast<std::complex<double>>() + iw * D0.cast<std::complex<double>>() +
-                 C0.cast<std::complex<double>>();
-        Eigen::PartialPivLU<CMat> lu(Z);
-        // Input matrix: measured forces, base (c_b + i w d_b), disturbances (unit force).
-        CMat F(nn, ni + static_cast<Index>(nw));
-        F.setZero();
-        for (Index j = 0; j < static_cast<Index>(r); ++j) F.col(j) = B0.col(j).cast<std::complex<double>>();
+Responses responses_at(const vibid_model &m, const NominalStand &s, const TestedUnknowns &u, double w) {
+    const std::size_t r = m.inputs.size(), nw = m.disturbances.size();
+    const Index nn = static_cast<Index>(m.nodes.size());
+    const Index ni = static_cast<Index>(r) + (m.has_base ? 1 : 0);  // measured inputs (base last)
+    const std::complex<double> iw(0.0, w);
+    CMat Z = (-w * w) * s.M0.cast<std::complex<double>>() + iw * s.D0.cast<std::complex<double>>() +
+             s.C0.cast<std::complex<double>>();
+    Eigen::PartialPivLU<CMat> lu(Z);
+    // Input matrix: measured forces, base (c_b + i w d_b), disturbances (unit force).
+    CMat F(nn, ni + static_cast<Index>(nw));
+    F.setZero();
+    for (Index j = 0; j < static_cast<Index>(r); ++j) F.col(j) = s.B0.col(j).cast<std::complex<double>>();
+    if (m.has_base)
+        F.col(static_cast<Index>(r)) = s.cb0.cast<std::complex<double>>() + iw * s.db0.cast<std::complex<double>>();
+    for (std::size_t l = 0; l < nw; ++l) F(static_cast<Index>(m.disturbances[l].node), ni + static_cast<Index>(l)) = 1.0;
+    Responses out;
+    out.Y = lu.solve(F);
+    const CMat &Y = out.Y;
+    out.dY.resize(u.size());
+    for (std::size_t c = 0; c < u.cols.size(); ++c) {
+        const std::size_t i = u.cols[c];
+        CMat dZ = (-w * w) * s.Mi[i].cast<std::complex<double>>() + iw * s.Di[i].cast<std::complex<double>>() +
+                  s.Ci[i].cast<std::complex<double>>();
+        CMat dF(nn, ni + static_cast<Index>(nw));
+        dF.setZero();
+        for (Index j = 0; j < static_cast<Index>(r); ++j) dF.col(j) = s.Bi[i].col(j).cast<std::complex<double>>();
         if (m.has_base)
-            F.col(static_cast<Index>(r)) = cb0.cast<std::complex<double>>() + iw * db0.cast<std::complex<double>>();
-        for (std::size_t l = 0; l < nw; ++l) F(static_cast<Index>(m.disturbances[l].node), ni + static_cast<Index>(l)) = 1.0;
-        const CMat Y = lu.solve(F);
-        auto out_factor = [&](int q) {
-            return q == 0 ? std::complex<double>(1.0) : q == 1 ? iw : std::complex<double>(-w * w);
-        };
-        std::vector<CMat> dY(nq);
-        for (std::size_t c = 0; c < cols.size(); ++c) {
-            const std::size_t i = cols[c];
-            CMat dZ = (-w * w) * Mi[i].cast<std::complex<double>>() + iw * Di[i].cast<std::complex<double>>() +
-                      Ci[i].cast<std::complex<double>>();
-            CMat dF(nn, ni + static_cast<Index>(nw));
-            dF.setZero();
-            for (Index j = 0; j < static_cast<Index>(r); ++j) dF.col(j) = Bi[i].col(j).cast<std::complex<double>>();
-            if (m.has_base)
-                dF.col(static_cast<Index>(r)) =
-                    cbi[i].cast<std::complex<double>>() + iw * dbi[i].cast<std::complex<double>>();
-            // relative sensitivity: d/d log theta
-            dY[c] = lu.solve(dF - dZ * Y) * th[i];
-        }
-        // Measured inputs: the transfer functions themselves, relative to their size.
-        for (Index o = 0; o < no; ++o) {
-            const std::complex<double> g = out_factor(outs[static_cast<std::size_t>(o)].q);
-            const Index node = static_cast<Index>(outs[static_cast<std::size_t>(o)].node);
-            for (Index j = 0; j < ni; ++j) {
-                const double mag = std::abs(g * Y(node, j));
-                if (!(mag > 1e-300)) continue;
-                VecX re = VecX::Zero(static_cast<Index>(nq)), im = VecX::Zero(static_cast<Index>(nq));
-                for (std::size_t c = 0; c < cols.size(); ++c) {
-                    const std::complex<double> v = g * dY[c](node, j) / mag;
-                    re(static_cast<Index>(c)) = v.real();
-                    im(static_cast<Index>(c)) = v.imag();
-                }
-                rows.push_back(re);
-                rows.push_back(im);
+            dF.col(static_cast<Index>(r)) =
+                s.cbi[i].cast<std::complex<double>>() + iw * s.dbi[i].cast<std::complex<double>>();
+        // relative sensitivity: d/d log theta
+        out.dY[c] = lu.solve(dF - dZ * Y) * s.th[i];
+    }
+    return out;
+}
+
+// The factor of a measured quantity q at w: 1, i w, -w^2.
+std::complex<double> output_factor(int q, double w) {
+    return q == 0 ? std::complex<double>(1.0) : q == 1 ? std::complex<double>(0.0, w) : std::complex<double>(-w * w);
+}
+
+// Rows (real and imaginary parts, length u.size()) of the measured inputs' transfer
+// functions' sensitivities, relative to their size, at w.
+void append_transfer_rows(const vibid_model &m, const TestedUnknowns &u, const std::vector<MeasuredOutput> &outs,
+                          const Responses &resp, double w, std::vector<VecX> &rows) {
+    const Index ni = static_cast<Index>(m.inputs.size()) + (m.has_base ? 1 : 0);
+    const Index nq = static_cast<Index>(u.size());
+    for (const MeasuredOutput &out : outs) {
+        const std::complex<double> g = output_factor(out.q, w);
+        const Index node = static_cast<Index>(out.node);
+        for (Index j = 0; j < ni; ++j) {
+            const double mag = std::abs(g * resp.Y(node, j));
+            if (!(mag > 1e-300)) continue;
+            VecX re = VecX::Zero(nq), im = VecX::Zero(nq);
+            for (std::size_t c = 0; c < u.cols.size(); ++c) {
+                const std::complex<double> v = g * resp.dY[c](node, j) / mag;
+                re(static_cast<Index>(c)) = v.real();
+                im(static_cast<Index>(c)) = v.imag();
             }
-        }
-        // Disturbances: only the output (cross-)spectra are observable:
-        // S_oo' = sum_l R_l T_ol conj(T_o'l).
-        if (nw) {
-            for (Index o = 0; o < no; ++o)
-                for (Index o2 = o; o2 < no; ++o2) {
-                    const Index a = static_cast<Index>(outs[static_cast<std::size_t>(o)].node),
-                                b = static_cast<Index>(outs[static_cast<std::size_t>(o2)].node);
-                    const std::complex<double> ga = out_factor(outs[static_cast<std::size_t>(o)].q),
-                                               gb = out_factor(outs[static_cast<std::size_t>(o2)].q);
-                    std::complex<double> S(0.0);
-                    std::vector<double> Rl(nw);
-                    for (std::size_t l = 0; l < nw; ++l) {
-                        Rl[l] = m.disturbances[l].std_dev > 0.0 ? m.disturbances[l].std_dev * m.disturbances[l].std_dev
-                                                                : 1.0;
-                        S += Rl[l] * ga * Y(a, ni + static_cast<Index>(l)) *
-                             std::conj(gb * Y(b, ni + static_cast<Index>(l)));
-                    }
-                    const double mag = std::abs(S);
-                    if (!(mag > 1e-300)) continue;
-                    VecX re = VecX::Zero(static_cast<Index>(nq)), im = VecX::Zero(static_cast<Index>(nq));
-                    for (std::size_t c = 0; c < cols.size(); ++c) {
-                        std::complex<double> d(0.0);
-                        for (std::size_t l = 0; l < nw; ++l) {
-                            const Index cl = ni + static_cast<Index>(l);
-                            d += Rl[l] * (ga * dY[c](a, cl) * std::conj(gb * Y(b, cl)) +
-                                          ga * Y(a, cl) * std::conj(gb * dY[c](b, cl)));
-                        }
-                        re(static_cast<Index>(c)) = (d / mag).real();
-                        im(static_cast<Index>(c)) = (d / mag).imag();
-                    }
-                    for (std::size_t u = 0; u < unknown_w.size(); ++u) {
-                        const std::size_t l = unknown_w[u];
-                        const Index cl = ni + static_cast<Index>(l);
-                        const std::complex<double> d = Rl[l] * ga * Y(a, cl) * std::conj(gb * Y(b, cl));
-                        re(static_cast<Index>(cols.size() + u)) = (d / mag).real();
-                        im(static_cast<Index>(cols.size() + u)) = (d / mag).imag();
-                    }
-                    rows.push_back(re);
-                    if (o2 != o) rows.push_back(im);
-                }
+            rows.push_back(re);
+            rows.push_back(im);
         }
     }
-    MatX J(static_cast<Index>(rows.size()), static_cast<Index>(nq));
+}
+
+// Rows of the disturbances' output (cross-)spectra S_oo' = sum_l R_l T_ol conj(T_o'l), the
+// only thing observable of them, relative to their size, at w: their sensitivities to the
+// tested parameters and to the unknown intensities R_l.
+void append_spectrum_rows(const vibid_model &m, const TestedUnknowns &u, const std::vector<MeasuredOutput> &outs,
+                          const Responses &resp, double w, std::vector<VecX> &rows) {
+    const std::size_t nw = m.disturbances.size();
+    const Index ni = static_cast<Index>(m.inputs.size()) + (m.has_base ? 1 : 0);
+    const Index nq = static_cast<Index>(u.size());
+    const CMat &Y = resp.Y;
+    for (std::size_t o = 0; o < outs.size(); ++o)
+        for (std::size_t o2 = o; o2 < outs.size(); ++o2) {
+            const Index a = static_cast<Index>(outs[o].node), b = static_cast<Index>(outs[o2].node);
+            const std::complex<double> ga = output_factor(outs[o].q, w), gb = output_factor(outs[o2].q, w);
+            std::complex<double> S(0.0);
+            std::vector<double> Rl(nw);
+            for (std::size_t l = 0; l < nw; ++l) {
+                Rl[l] = m.disturbances[l].std_dev > 0.0 ? m.disturbances[l].std_dev * m.disturbances[l].std_dev : 1.0;
+                S += Rl[l] * ga * Y(a, ni + static_cast<Index>(l)) * std::conj(gb * Y(b, ni + static_cast<Index>(l)));
+            }
+            const double mag = std::abs(S);
+            if (!(mag > 1e-300)) continue;
+            VecX re = VecX::Zero(nq), im = VecX::Zero(nq);
+            for (std::size_t c = 0; c < u.cols.size(); ++c) {
+                std::complex<double> d(0.0);
+                for (std::size_t l = 0; l < nw; ++l) {
+                    const Index cl = ni + static_cast<Index>(l);
+                    d += Rl[l] * (ga * resp.dY[c](a, cl) * std::conj(gb * Y(b, cl)) +
+                                  ga * Y(a, cl) * std::conj(gb * resp.dY[c](b, cl)));
+                }
+                re(static_cast<Index>(c)) = (d / mag).real();
+                im(static_cast<Index>(c)) = (d / mag).imag();
+            }
+            for (std::size_t k = 0; k < u.unknown_w.size(); ++k) {
+                const std::size_t l = u.unknown_w[k];
+                const Index cl = ni + static_cast<Index>(l);
+                const std::complex<double> d = Rl[l] * ga * Y(a, cl) * std::conj(gb * Y(b, cl));
+                re(static_cast<Index>(u.cols.size() + k)) = (d / mag).real();
+                im(static_cast<Index>(u.cols.size() + k)) = (d / mag).imag();
+            }
+            rows.push_back(re);
+            if (o2 != o) rows.push_back(im);
+        }
+}
+
+// The relative sensitivities of everything measured to the tested unknowns over the
+// grid: one row per real number observed, u.size() columns.
+MatX sensitivity_matrix(const vibid_model &m, const FrequencyGrid &grid, const TestedUnknowns &u) {
+    const NominalStand stand = nominal_stand(m);
+    const std::vector<MeasuredOutput> outs = measured_outputs(m);
+    std::vector<VecX> rows;  // each a real row of length u.size()
+    for (int f = 0; f < grid.nf; ++f) {
+        const double w = grid.at(f);
+        const Responses resp = responses_at(m, stand, u, w);
+        append_transfer_rows(m, u, outs, resp, w, rows);
+        if (!m.disturbances.empty()) append_spectrum_rows(m, u, outs, resp, w, rows);
+    }
+    MatX J(static_cast<Index>(rows.size()), static_cast<Index>(u.size()));
     for (std::size_t k = 0; k < rows.size(); ++k) J.row(static_cast<Index>(k)) = rows[k].transpose();
+    return J;
+}
+
+// The rank test on the sensitivities J: throws naming the unknowns in the directions the
+// measured responses do not determine, else returns the report line.
+std::string rank_test(const vibid_model &m, const FrequencyGrid &grid, const TestedUnknowns &u, const MatX &J) {
+    const std::size_t nq = u.size();
     Eigen::JacobiSVD<MatX> svd(J, Eigen::ComputeFullV);
     const VecX sv = svd.singularValues();
     // Structural non-identifiability gives singular values at rounding level (1e-15 of
     // the largest); a poorly excited but identifiable direction stays far above 1e-9.
     const double tol = 1e-9 * (sv.size() ? sv(0) : 0.0);
-    std::string bad;
     Index rank = 0;
     for (Index k = 0; k < sv.size(); ++k)
         if (sv(k) > tol) ++rank;
     if (rank < static_cast<Index>(nq)) {
         VecX weight = VecX::Zero(static_cast<Index>(nq));
         for (Index k = rank; k < static_cast<Index>(nq); ++k) weight += svd.matrixV().col(k).cwiseAbs2();
+        std::string bad;
         for (Index c = 0; c < static_cast<Index>(nq); ++c)
-            if (weight(c) > 1e-3) {
-                const std::string name = c < static_cast<Index>(cols.size())
-                                             ? m.terms[m.param_term[cols[static_cast<std::size_t>(c)]]].name
-                                             : "intensity of " + m.disturbances[unknown_w[static_cast<std::size_t>(
-                                                                     c - static_cast<Index>(cols.size()))]].name;
-                bad += (bad.empty() ? "'" : ", '") + name + "'";
-            }
+            if (weight(c) > 1e-3) bad += (bad.empty() ? "'" : ", '") + u.name(m, static_cast<std::size_t>(c)) + "'";
         throw_error(VIBID_E_NOT_IDENTIFIABLE,
                     "not identifiable from the measured channels: %s (at the nominal values the measured responses "
                     "determine only %ld of these %zu unknowns; sensitivity rank test over %.3g..%.3g Hz); make them "
                     "known or measure more of the stand",
-                    bad.c_str(), static_cast<long>(rank), nq, lo / (2 * M_PI), hi / (2 * M_PI));
+                    bad.c_str(), static_cast<long>(rank), nq, grid.lo / (2 * M_PI), grid.hi / (2 * M_PI));
     }
     char buf[320];
     std::snprintf(buf, sizeof buf,
                   "identifiability: the measured channels determine all %zu unknowns at the nominal values "
                   "(sensitivity rank %zu over %.3g..%.3g Hz, smallest relative singular value %.2g)%s",
-                  nq, nq, lo / (2 * M_PI), hi / (2 * M_PI), sv(sv.size() - 1) / sv(0),
-                  cubic_names.empty() ? "" : "; cubic coefficients are not part of the test");
-    report = buf;
+                  nq, nq, grid.lo / (2 * M_PI), grid.hi / (2 * M_PI), sv(sv.size() - 1) / sv(0),
+                  u.cubic_names.empty() ? "" : "; cubic coefficients are not part of the test");
+    return buf;
+}
+
+}  // namespace
+
+void check_identifiable_state_space(const vibid_model &m, double h, std::string &report) {
+    check_start_values(m);
+    check_measured_and_excited(m);
+    check_scale_fixed(m);
+    const FrequencyGrid grid = frequency_grid(m, h);
+    const TestedUnknowns u = tested_unknowns(m);
+    if (u.size() == 0) {
+        report = "identifiability: only cubic coefficients are unknown; they are determined by the amplitude of the "
+                 "response, not checked before the data";
+        return;
+    }
+    report = rank_test(m, grid, u, sensitivity_matrix(m, grid, u));
 }
 
 // ---------------------------------------------------------------------------------
