@@ -279,6 +279,8 @@ struct vd_mqtt {
     uint64_t status_seq;
     bool sock_active; /* a connection attempt or a connection */
     bool connected_local, just_connected, ever_connected;
+    bool final_will; /* the drain's last connection: its will is the final status (see pub_main) */
+    bool final_up;   /* that connection was made */
     double attempt_t;    /* when the current attempt began (mono_s) */
     fail_kind last_fail; /* of the last failed attempt or lost connection; FAIL_NONE once connected */
     int refused_rc;      /* CONNACK reason of the current attempt (0 = none) */
@@ -449,7 +451,8 @@ static void on_connect(struct mosquitto *mosq, void *obj, int rc, int flags,
     m->just_connected = true;
     m->last_fail = FAIL_NONE;
     atomic_store(&m->connected, 1);
-    if (m->ever_connected) atomic_fetch_add(&m->reconnects, 1);
+    if (m->ever_connected && !m->final_will) atomic_fetch_add(&m->reconnects, 1);
+    if (m->final_will) m->final_up = true;
 }
 
 static void on_publish(struct mosquitto *mosq, void *obj, int mid, int reason,
@@ -535,7 +538,8 @@ static bool refused_locally(int rc) {
 static void publish_pending(vd_mqtt *m) {
     if (m->just_connected) {
         m->just_connected = false;
-        vd_notice("mqtt: connected to %s as '%s'%s; publishing under %s/%s/%s/", url_of(m), m->client_id,
+        if (!m->final_will)
+            vd_notice("mqtt: connected to %s as '%s'%s; publishing under %s/%s/%s/", url_of(m), m->client_id,
                   m->ever_connected ? " again" : "", m->cfg->mqtt.prefix, m->cfg->mqtt.site, m->stand);
         m->ever_connected = true;
         m->last_logged[0] = '\0';
@@ -622,6 +626,20 @@ static bool disconnect_cleanly(vd_mqtt *m) {
     return true;
 }
 
+/* The final status (the latest the daemon gave) as the will of the next connection; false
+ * when it cannot be set (then the drain ends as before, on a connection whose will is
+ * "offline") */
+static bool set_final_will(vd_mqtt *m) {
+    if (!m->st_local_len) return false;
+    int n = vd_mqtt_format_status(m->st_json, VD_MQTT_STATUS_MAX * 2, m->cfg, m->stand, m->status_seq + 1,
+                                  m->st_local, m->st_local_len);
+    if (n < 0 || mosquitto_will_set(m->mosq, m->topic_status, n, m->st_json, m->cfg->mqtt.qos, true) !=
+                     MOSQ_ERR_SUCCESS)
+        return false;
+    m->final_will = true;
+    return true;
+}
+
 static void lost(vd_mqtt *m, int rc, int e, double *backoff, double *next_try) {
     bool was = m->connected_local;
     char why[400];
@@ -642,7 +660,8 @@ static void lost(vd_mqtt *m, int rc, int e, double *backoff, double *next_try) {
  * connecting (the back-off as before) as long as an attempt can begin before the deadline and
  * the last failure can heal (the broker down or restarting, a lost connection: FAIL_NET); every
  * lost connection let the broker publish the will ("offline"), so the drain reconnects even
- * with nothing queued, to put the final status over it. It ends at once when nothing more can
+ * with nothing queued, to put the final status over it; and it ends on a last connection
+ * whose will is the final status (set_final_will). It ends at once when nothing more can
  * be sent: the next attempt is due after the deadline, or the broker refused vibidd, TLS
  * failed or the peer did not answer CONNECT (those do not heal within seconds). What is left
  * is counted (unsent) and logged. */
@@ -666,6 +685,19 @@ static void *pub_main(void *arg) {
         }
         if (stopping) {
             if (m->connected_local && idle(m)) {
+                if (!m->final_will && set_final_will(m)) {
+                    /* this connection's will says "offline", and DISCONNECT is never
+                     * acknowledged: a cut between the final status and DISCONNECT (a proxy, a
+                     * flaky link; e2e_mqtt flaps met it) lets the broker put "offline" over
+                     * "stopped". So the last connection carries the final status as its will:
+                     * however it ends, the retained status is the final one. It costs one more
+                     * connection at each stop, not counted as a reconnection. */
+                    disconnect_cleanly(m);
+                    m->sock_active = m->connected_local = false;
+                    atomic_store(&m->connected, 0);
+                    next_try = now;
+                    continue;
+                }
                 if ((clean = disconnect_cleanly(m))) break;
                 lost(m, MOSQ_ERR_CONN_LOST, 0, &backoff, &next_try); /* the will is out: again */
                 continue;
@@ -746,7 +778,8 @@ static void *pub_main(void *arg) {
     if (left || unacked || !clean)
         vd_warning("mqtt: stopped with %zu messages unsent and %llu unacknowledged (%s; drain_timeout %g s)%s",
                    left, (unsigned long long)unacked, why_end ? why_end : "disconnected", m->cfg->mqtt.drain_timeout_s,
-                   clean || !m->ever_connected ? "" : "; the broker has published the will (offline), not the final status");
+                   clean || !m->ever_connected || m->final_up ? ""
+                                                                 : "; the broker has published the will (offline), not the final status");
     else
         vd_info("mqtt: every message acknowledged by the broker (%llu), disconnected",
                 (unsigned long long)atomic_load(&m->published));

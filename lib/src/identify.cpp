@@ -653,9 +653,6 @@ vibid_status estimate_state_space(vibid_ident &id, double *theta, double *se, vi
 
 }  // namespace
 
-
-extern "C" {
-
 namespace {
 
 // vibid_ident_create; with_check = false leaves out the discretization check (the
@@ -789,6 +786,8 @@ std::unique_ptr<vibid_ident> create_regression(const vibid_model &model, const v
 }
 
 }  // namespace
+
+extern "C" {
 
 VIBID_API vibid_ident *vibid_ident_create(const vibid_model *model, const vibid_ident_config *cfg) {
     return vibid::guard_create<vibid_ident>(__func__, [&] { return create_ident(model, cfg, true).release(); });
