@@ -96,9 +96,9 @@ static void refine_once(vd_refine *r)
         st = vibid_oe_result(r->oe, res->theta, res->se, res->cov, NULL, NULL, NULL, &info);
     /* The standard errors cover the noise, not the inputs' unknown path between samples
      * (output_error.h, "Input path"): where that moves the estimate by more than one of
-     * them, the row says U. */
+     * them and the data do not show the straight line to be the path, the row says U. */
     res->interp_z = info.interp_z;
-    if (st == VIBID_OK && !(info.interp_z <= 1.0))
+    if (st == VIBID_OK && info.input_path_uncovered)
         res->quality |= VIBID_QUALITY_SE_INVALID;
     res->duration_s = mono_s() - t0;
     if (st != VIBID_OK) {

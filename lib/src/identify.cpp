@@ -1393,6 +1393,43 @@ std::unique_ptr<vibid_ident> create_output_error(const vibid_model &model, const
     return id;
 }
 
+// The fit's dependence on the smooth inputs' path between samples (output_error.h, "Input
+// path"): where the estimate moves by more than one standard error when the inputs follow
+// the local parabola instead of the straight line, and the data do not show the straight
+// line to be the path (fi.input_path_uncovered), the error bars do not cover that unknown:
+// the estimate and the parameters moved are flagged VIBID_QUALITY_SE_INVALID. Returns the
+// description's line ("" when no input is smooth).
+std::string input_path_check(vibid_ident &id, const vibid_oe_fit_info &fi, const std::vector<double> &se) {
+    std::vector<double> shift(id.p);
+    check_status(vibid_oe_interp_shift(id.oe.get(), shift.data()), "output error");
+    bool smooth = false;
+    for (double v : shift) smooth = smooth || v != 0.0;
+    if (!smooth) return std::string();
+    const char *const what = "the smooth inputs' unknown path between samples (parabola through neighbouring samples "
+                             "against the straight line)";
+    if (!(fi.interp_z > 1.0))
+        return strprintf("input path: %s moves the estimate by at most %.2g of its standard errors\n", what, fi.interp_z);
+    std::string moved;
+    for (std::size_t i = 0; i < id.p; ++i) {
+        const double z = std::fabs(shift[i]) / se[i];
+        if (!(z <= 1.0)) {
+            if (fi.input_path_uncovered) id.param_flags[i] |= VIBID_QUALITY_SE_INVALID;
+            vibid_param_info pi{};
+            vibid_model_param_info(&id.model, i, &pi);
+            moved += strprintf("%s%s %.3g se", moved.empty() ? "" : ", ", pi.name, z);
+        }
+    }
+    if (!fi.input_path_uncovered)
+        return strprintf("input path: %s would move %s, but the data show the straight line to be the path (evidence "
+                         "%.3g, decisive below -%g): not flagged\n",
+                         what, moved.c_str(), fi.interp_evidence, VIBID_OE_PATH_DECISIVE);
+    id.quality.flags |= VIBID_QUALITY_SE_INVALID;
+    return strprintf("input path: %s moves %s; %s (evidence %+.3g): the error bars do not cover it\n", what, moved.c_str(),
+                     fi.interp_evidence > VIBID_OE_PATH_DECISIVE ? "the data prefer the parabola"
+                                                                  : "the data do not tell which path is right",
+                     fi.interp_evidence);
+}
+
 // The fit at vibid_ident_estimate: the equation-error estimate first (its failure is this
 // estimate's failure: no start), then the output-error fit from it. A fit that fails leaves
 // the equation-error estimate, its quality plus VIBID_QUALITY_REFINE_FAILED, and the reason
@@ -1444,6 +1481,7 @@ vibid_status estimate_output_error(vibid_ident &id, double *theta, double *se, v
         id.description = id.ee->description + id.oe_description + strprintf("output-error fit: %u iterations from start %zu (%s), %zu samples, %zu blocks\n",
                                                        fi.iterations, fi.start, fi.start == 0 ? "the equation-error estimate" : "the nominal values",
                                                        fi.n_samples, fi.n_blocks);
+        id.description += input_path_check(id, fi, sd);
     }
     id.have_cov = true;
     if (info) {

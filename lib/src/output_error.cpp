@@ -208,6 +208,9 @@ public:
                 const double z = f.shift(i) == 0.0 ? 0.0 : std::fabs(f.shift(i)) / se_i;
                 if (!(z <= info->interp_z)) info->interp_z = std::isnan(z) ? kInf : z;
             }
+            info->interp_evidence = f.path_evidence;
+            info->input_path_uncovered =
+                info->interp_z > 1.0 && !(f.path_evidence < -VIBID_OE_PATH_DECISIVE) ? 1 : 0;
         }
         if (shift) {
             for (Index i = 0; i < p_; ++i) shift[i] = f.shift.size() == p_ ? f.shift(i) : 0.0;
@@ -246,6 +249,7 @@ private:
         std::string weak;
         VecX w;  // weights of the round
         VecX shift;  // p: interpolation_shift
+        double path_evidence = 0.0;  // interpolation_shift: the data's preference for the parabola
     };
 
     void load_structure() {
@@ -741,7 +745,7 @@ private:
         const MatX c = ps.scores.colwise() - mean;
         const MatX G = (c * c.transpose()) * (static_cast<double>(B) / static_cast<double>(B - 1));
         f.cov = Hinv * G * Hinv;
-        f.shift = interpolation_shift(f, Hinv);
+        f.shift = interpolation_shift(f, Hinv, f.path_evidence);
         if (f.failure & VIBID_OE_SINGULAR)
             for (Index i = 0; i < np_; ++i)
                 if (std::fabs(es.eigenvectors()(i, 0)) > 0.3) f.cov(i, i) = kInf;
@@ -766,8 +770,18 @@ private:
     // parabola on [t_k, t_k+1] passes through both samples with the second derivative
     // (d2_k + d2_k+1) / (2 h^2), d2 the second differences (one-sided at the ends). p values;
     // zero without a smooth input, inf when the simulation with parabolic inputs diverges.
-    VecX interpolation_shift(const Fit &f, const MatX &Hinv) {
+    //
+    // evidence: which path the data prefer, 2 (cost of the line at f - cost of the parabola
+    // at its Gauss-Newton optimum) / the residual variance, so a log-likelihood ratio in
+    // chi-square units for white residuals; divided by the
+    // inflation of the sandwich covariance over the Gauss-Newton one (coloured residuals
+    // carry less information than their count). > 0: the parabola explains the data better;
+    // < 0: the straight line does (as on captures simulated with inputs linear between
+    // samples: vibid-sim's noise and PRBS, scipy's lsim).
+    static constexpr int kPathSteps = 3;  // Gauss-Newton steps of the parabola's fit (evidence)
+    VecX interpolation_shift(const Fit &f, const MatX &Hinv, double &evidence) {
         VecX shift = VecX::Zero(p_);
+        evidence = 0.0;
         bool any = false;
         for (bool sm : in_smooth_) any = any || sm;
         if (!any || ns_ < 3) return shift;
@@ -790,11 +804,46 @@ private:
         weights_ = f.w;
         Pass ps;
         const double c = pass(f.phi, true, ps);
+        // The parabola's own fit, for the evidence: Gauss-Newton steps on this pass's
+        // information (the line fit's Hinv does not bound the decrease: its quadratic model
+        // predicted a negative cost on a cubic stand), each kept only where it lowers the
+        // cost, so parabola_cost bounds the parabola's optimum from above and the evidence
+        // leans to the straight line when the steps fall short.
+        double parabola_cost = c;
+        if (std::isfinite(c)) {
+            VecX phi = f.phi;
+            Pass cur = ps;
+            for (int it = 0; it < kPathSteps; ++it) {
+                const VecX d = cur.H.diagonal().cwiseMax(1e-300).cwiseSqrt().cwiseInverse();
+                const MatX Hs = d.asDiagonal() * cur.H * d.asDiagonal();
+                const VecX step = d.asDiagonal() * Hs.completeOrthogonalDecomposition().solve(VecX(d.asDiagonal() * cur.g));
+                VecX cand = phi + step;
+                project(cand);
+                Pass next;
+                const double cn = pass(cand, true, next);
+                if (!(cn < parabola_cost)) break;
+                parabola_cost = cn;
+                phi = cand;
+                cur = next;
+            }
+        }
         quad_ = false;
         Ed_ = Ed_line;
         Edd_.resize(0, 0);
         if (!std::isfinite(c)) return VecX::Constant(p_, kInf);
         shift = (Hinv * ps.g).head(p_);
+        double inflation = 0.0;
+        Index counted = 0;
+        for (Index i = 0; i < np_; ++i)
+            if (Hinv(i, i) > 0.0 && std::isfinite(f.cov(i, i))) {
+                inflation += f.cov(i, i) / Hinv(i, i);
+                ++counted;
+            }
+        inflation = counted ? std::max(1.0, inflation / static_cast<double>(counted)) : 1.0;
+        // the weights are fixed per round, not 1 / variance: the residual variance in the
+        // cost's units is 2 cost / residuals
+        const double residuals = ps.count.sum();
+        evidence = f.cost > 0.0 && residuals > 0.0 ? (f.cost - parabola_cost) * residuals / f.cost / inflation : 0.0;
         return shift;
     }
 

@@ -58,10 +58,15 @@
  * matters: one Gauss-Newton step of the cost with the inputs on the local parabola
  * through neighbouring samples (second derivative from the second differences) gives the
  * estimate's shift (vibid_oe_interp_shift) and its size in standard errors
- * (vibid_oe_fit_info.interp_z). Where it exceeds 1 the error bars do not cover the
+ * (vibid_oe_fit_info.interp_z), and the same pass tells which path the data prefer
+ * (interp_evidence: the drop of the weighted cost from the line's fit to the parabola's
+ * Gauss-Newton optimum). Where the shift exceeds 1 se the error bars do not cover the
  * unknown input path (a triangle wave's corners between samples; a sine at 10 samples per
- * period moves a gain by about (2 pi / 10)^2 / 12 = 3 %); vibidd flags such a refined row
- * `U`. Held inputs are exact and have no shift. Costs one more pass with sensitivities.
+ * period moves a gain by about (2 pi / 10)^2 / 12 = 3 %), unless the data show decisively
+ * that the straight line is the path (captures simulated with inputs linear between
+ * samples): input_path_uncovered says which, and vibidd and vibid_ident flag such an
+ * estimate `U`. Held inputs are exact and have no shift. Costs one more pass with
+ * sensitivities.
  *
  * A fit that fails (no convergence within max_iterations, a parameter on its bound, an
  * information matrix that is singular in some direction, an unstable simulation from
@@ -111,7 +116,17 @@ typedef struct vibid_oe_fit_info {
     double interp_z;           /* max over the parameters of |shift_i| / se_i (vibid_oe_interp_shift):
                                   > 1 when the estimate depends on the inputs' unknown path between
                                   samples by more than its standard error; 0 without smooth inputs */
+    double interp_evidence;    /* which input path the data prefer ("Input path"): > 0 the parabola,
+                                  < 0 the straight line; a log-likelihood ratio in chi-square units,
+                                  deflated for coloured residuals; 0 without smooth inputs */
+    int input_path_uncovered;  /* 1: the error bars do not cover the input path (interp_z > 1 and the
+                                  data do not prefer the straight line by VIBID_OE_PATH_DECISIVE);
+                                  the estimate is to be flagged VIBID_QUALITY_SE_INVALID */
 } vibid_oe_fit_info;
+
+/* The evidence (vibid_oe_fit_info.interp_evidence) beyond which the data decide the input
+ * path: 10, a likelihood ratio of e^5 (about 150:1), "very strong" on Jeffreys' scale. */
+#define VIBID_OE_PATH_DECISIVE 10.0
 
 /* Defaults for sample time h: offsets on, 100 iterations, automatic substeps and blocks. */
 VIBID_API void vibid_oe_config_init(vibid_oe_config *cfg, double sample_time);
