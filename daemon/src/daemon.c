@@ -2,6 +2,7 @@
 
 #include "daemon.h"
 
+#include "clock.h"
 #include "log.h"
 
 #include <errno.h>
@@ -27,15 +28,6 @@
 #define VD_WAKE_SIGNAL SIGUSR1
 
 #define VD_REPLAY_RING 4096u /* ring slots used for a file source (see vd_daemon_init) */
-
-static int64_t mono_ns(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (int64_t)ts.tv_sec * 1000000000LL + ts.tv_nsec;
-}
-
-static double mono_s(void) { return (double)mono_ns() * 1e-9; }
 
 /* ---------------------------------------------------------------- source ---- */
 
@@ -239,9 +231,9 @@ static void *acq_main(void *arg)
         atomic_fetch_add_explicit(&d->acq_beat, 1, memory_order_relaxed);
         size_t n = 0;
         vibid_drv_error de = {0};
-        int64_t t0 = mono_ns();
+        int64_t t0 = vd_mono_ns();
         vibid_drv_status st = vibid_source_read(d->src, recs, cap, &n, d->cfg->read_timeout_ms, &de);
-        int64_t t_rx = mono_ns();
+        int64_t t_rx = vd_mono_ns();
         atomic_fetch_add_explicit(&d->acq_reads, 1, memory_order_relaxed);
         for (size_t i = 0; i < n; i++) {
             vibid_record_copy(&item->rec, &recs[i]);
@@ -325,14 +317,6 @@ static void *acq_main(void *arg)
 
 /* ------------------------------------------------------- estimation thread ---- */
 
-static const char *fault_name(vibid_fault_code c)
-{
-    static const char *const n[] = {"none",      "bad_line",  "unknown_id", "short_frame", "nonfinite", "duplicate",
-                                    "late",      "bus_error", "dropped",    "poll",        "link",       "corrupt",
-                                    "clock"};
-    return (unsigned)c < sizeof n / sizeof n[0] ? n[c] : "fault";
-}
-
 static void handle_fault(vd_daemon *d, const vibid_record *rec)
 {
     d->faults++;
@@ -340,7 +324,8 @@ static void handle_fault(vd_daemon *d, const vibid_record *rec)
     uint64_t k = ++d->faults_by_code[c];
     /* every fault is counted; the log shows the first 20 of each kind, then every 1000th */
     if (k <= 20 || k % 1000 == 0)
-        vd_warning("source fault (%s #%llu): %s", fault_name(rec->fault), (unsigned long long)k, rec->text);
+        vd_warning("source fault (%s #%llu): %s", vibid_fault_name(rec->fault), (unsigned long long)k,
+                   rec->text);
 }
 
 static void handle_gap_log(vd_daemon *d, const vibid_record *rec)
@@ -489,7 +474,7 @@ static void take_snapshot(vd_daemon *d, const char *state, double now)
     pthread_mutex_unlock(&d->stats_mu);
     s->n_fault_kinds = (unsigned)VIBID_FAULT_LAST;
     for (unsigned c = 1; c <= (unsigned)VIBID_FAULT_LAST && c < 16; c++) {
-        s->fault_kind[c] = fault_name((vibid_fault_code)c);
+        s->fault_kind[c] = vibid_fault_name((vibid_fault_code)c);
         s->faults_by_kind[c] = d->faults_by_code[c];
     }
     s->rows = d->est.rows;
@@ -682,7 +667,7 @@ static void outputs_status(vd_daemon *d, bool status_due, bool final, double now
 
 static void housekeeping(vd_daemon *d, bool final)
 {
-    double now = mono_s();
+    double now = vd_mono_s();
     atomic_fetch_add_explicit(&d->est_beat, 1, memory_order_relaxed);
     if (atomic_exchange(&d->reopen, 0))
         for (size_t i = 0; i < d->n_out; i++)
@@ -809,7 +794,7 @@ static void process_released(vd_daemon *d, const vibid_record *rec, int64_t t_rx
     int due = vd_est_record(&d->est, rec, &d->row);
     if (rec->kind == VIBID_REC_SAMPLE && d->measure_latency) {
         /* the estimate is updated with this sample (pushed; a due row's state kept) */
-        int64_t lat = (mono_ns() - t_rx_ns) / 1000;
+        int64_t lat = (vd_mono_ns() - t_rx_ns) / 1000;
         if (lat < 0)
             lat = 0;
         d->lat_hist[lat < VD_LAT_BUCKETS ? lat : VD_LAT_BUCKETS - 1]++;
@@ -872,7 +857,7 @@ static void process(vd_daemon *d, const vd_item *it)
  * while samples keep coming, for CPU time. true if a record arrived. */
 static bool spin_for_record(vd_daemon *d)
 {
-    int64_t until = mono_ns() + (int64_t)d->cfg->handoff_spin_us * 1000;
+    int64_t until = vd_mono_ns() + (int64_t)d->cfg->handoff_spin_us * 1000;
     do {
         for (int i = 0; i < 64; i++) {
             if (vd_ring_peek(d->ring))
@@ -881,7 +866,7 @@ static bool spin_for_record(vd_daemon *d)
             __builtin_ia32_pause(); /* spin-wait hint: frees the core's pipeline for its sibling */
 #endif
         }
-    } while (!atomic_load(&d->acq_done) && mono_ns() < until);
+    } while (!atomic_load(&d->acq_done) && vd_mono_ns() < until);
     return vd_ring_peek(d->ring) != NULL;
 }
 
@@ -1083,7 +1068,7 @@ int vd_daemon_run(vd_daemon *d)
     d->main_thread = pthread_self();
     signal(SIGPIPE, SIG_IGN);
 
-    d->t_start = mono_s();
+    d->t_start = vd_mono_s();
     d->t_last_flush = d->t_start;
     {
         /* before the estimation thread, which hands it work */
@@ -1134,7 +1119,7 @@ int vd_daemon_run(vd_daemon *d)
             atomic_store(&d->reopen, 1);
             wake_consumer(d);
         }
-        double now = mono_s();
+        double now = vd_mono_s();
         if (wd_period > 0 && now - t_wd >= wd_period) {
             uint64_t a = atomic_load(&d->acq_beat), e = atomic_load(&d->est_beat);
             bool acq_ok = a != last_acq_beat || atomic_load(&d->acq_done);
@@ -1161,7 +1146,7 @@ int vd_daemon_run(vd_daemon *d)
             drained = true;
         }
     if (drained) {
-        take_snapshot(d, "stopped", mono_s());
+        take_snapshot(d, "stopped", vd_mono_s());
         format_status(d, &d->snap);
         for (size_t i = 0; i < d->n_out; i++)
             if ((d->out[i].ops->flags & VD_OUTPUT_STATUS_AFTER_DRAIN) && d->out[i].ops->status)

@@ -2,6 +2,7 @@
 
 #include "influx_http.h"
 
+#include "clock.h"
 #include "log.h"
 #include "writers.h"
 
@@ -27,12 +28,6 @@
 #define ANSWER_SHOWN 400              /* of it, in a log line */
 #define HEADERS_MAX (64u << 10)       /* an answer's header lines at most (InfluxDB sends < 1 KiB) */
 #define RING_WRAP 0xffffffffu         /* record header: the rest of the ring is unused */
-
-static double mono_s(void) {
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
-}
 
 /* ------------------------------------------------------------- pure parts ---- */
 
@@ -148,12 +143,6 @@ struct vd_influx_http {
     _Atomic uint64_t written, requests, failures, rejected, dropped;
     _Atomic int ok;
 };
-
-static int64_t mono_ns(void) {
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (int64_t)ts.tv_sec * 1000000000 + ts.tv_nsec;
-}
 
 static void wake(vd_influx_http *h) {
     atomic_thread_fence(memory_order_seq_cst);
@@ -318,7 +307,7 @@ static size_t on_header(char *data, size_t size, size_t nmemb, void *obj) {
 static int on_progress(void *obj, curl_off_t a, curl_off_t b, curl_off_t c, curl_off_t d) {
     (void)a, (void)b, (void)c, (void)d;
     vd_influx_http *h = obj;
-    return atomic_load(&h->stop) && mono_ns() > atomic_load(&h->deadline_ns);
+    return atomic_load(&h->stop) && vd_mono_ns() > atomic_load(&h->deadline_ns);
 }
 
 /* The server's answer as one printable line */
@@ -369,7 +358,7 @@ static long post(vd_influx_http *h, size_t bytes, double *retry_after) {
 static void log_failure(vd_influx_http *h, bool error_level, const char *reason, const char *fmt, ...)
     __attribute__((format(printf, 4, 5)));
 static void log_failure(vd_influx_http *h, bool error_level, const char *reason, const char *fmt, ...) {
-    double now = mono_s();
+    double now = vd_mono_s();
     if (!strncmp(reason, h->last_logged, sizeof h->last_logged - 1) && now - h->last_log_t <= RELOG_S) return;
     char line[CURL_ERROR_SIZE + ANSWER_MAX + 400];
     va_list ap;
@@ -406,10 +395,10 @@ static void *writer_main(void *arg) {
     double backoff = BACKOFF_FIRST_S, next_try = 0, oldest_t = 0;
     bool stopping = false, no_retry = false;
     for (;;) {
-        double now = mono_s();
+        double now = vd_mono_s();
         if (!stopping && atomic_load(&h->stop)) stopping = true;
         uint64_t waiting = atomic_load(&h->lines_in) - atomic_load(&h->lines_out);
-        if (stopping && (waiting == 0 || mono_ns() >= atomic_load(&h->deadline_ns))) break;
+        if (stopping && (waiting == 0 || vd_mono_ns() >= atomic_load(&h->deadline_ns))) break;
         if (stopping && next_try > 1e-9 * (double)atomic_load(&h->deadline_ns)) {
             /* the back-off (or the server's Retry-After) puts the next request after the
              * deadline: nothing more can be written, so waiting for the deadline gains nothing */
@@ -427,7 +416,7 @@ static void *writer_main(void *arg) {
         double due = (waiting >= h->batch_limit || stopping) ? now : oldest_t + cfg->influx_http.batch_interval_s;
         if (next_try > due) due = next_try;
         if (due > now) {
-            double until_deadline = stopping ? 1e-9 * (double)(atomic_load(&h->deadline_ns) - mono_ns()) : 1.0;
+            double until_deadline = stopping ? 1e-9 * (double)(atomic_load(&h->deadline_ns) - vd_mono_ns()) : 1.0;
             sleep_on_efd(h, fmin(due - now, fmax(until_deadline, 0.001)));
             continue;
         }
@@ -438,7 +427,7 @@ static void *writer_main(void *arg) {
         long status = post(h, bytes, &retry_after);
         vd_influx_http_verdict v = vd_influx_http_verdict_of(status);
         if (v == VD_IH_SPLIT && n == 1) v = VD_IH_REJECTED; /* one line the server will never take */
-        now = mono_s();
+        now = vd_mono_s();
         switch (v) {
         case VD_IH_WRITTEN:
         case VD_IH_REJECTED:
@@ -641,7 +630,7 @@ static int op_start(void *p, char *err, size_t cap) {
 static void op_drain(void *p) {
     vd_influx_http *h = p;
     if (!h || !h->started) return;
-    atomic_store(&h->deadline_ns, mono_ns() + (int64_t)(h->cfg->influx_http.drain_timeout_s * 1e9));
+    atomic_store(&h->deadline_ns, vd_mono_ns() + (int64_t)(h->cfg->influx_http.drain_timeout_s * 1e9));
     atomic_store(&h->stop, 1);
     atomic_store(&h->sleeping, 1);
     wake(h);

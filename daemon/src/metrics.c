@@ -4,6 +4,7 @@
 #include "textbuf.h"
 
 #include "estimator.h"
+#include "clock.h"
 #include "log.h"
 #include "output.h"
 
@@ -501,13 +502,6 @@ typedef struct vd_metrics_slot {
     char out[512 + VD_METRICS_TEXT_MAX];
 } slot;
 
-static double mono_s(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
-}
-
 int vd_metrics_open(vd_metrics *m, const vd_config *cfg, char *err, size_t cap)
 {
     memset(m, 0, sizeof *m);
@@ -778,7 +772,7 @@ static void *serve(void *arg)
         struct pollfd pfd[2 + VD_METRICS_SLOTS];
         slot *who[2 + VD_METRICS_SLOTS];
         nfds_t n = 0;
-        double now = mono_s();
+        double now = vd_mono_s();
         pfd[n++] = (struct pollfd){.fd = m->stop_fd, .events = POLLIN};
         bool listening = now >= pause_until;
         if (listening)
@@ -803,7 +797,7 @@ static void *serve(void *arg)
         }
         if (pfd[0].revents)
             break; /* vd_metrics_close */
-        now = mono_s();
+        now = vd_mono_s();
         for (nfds_t i = listening ? 2 : 1; rc > 0 && i < n; i++) {
             slot *s = who[i];
             if (s->fd < 0 || !pfd[i].revents)

@@ -2,6 +2,7 @@
 
 #include "mqtt.h"
 
+#include "clock.h"
 #include "log.h"
 #include "textbuf.h"
 #include "writers.h"
@@ -38,12 +39,6 @@
  * draining; a broker that refused vibidd (credentials, client id), TLS that failed, or a peer
  * that did not answer CONNECT will not change before the deadline. */
 typedef enum fail_kind { FAIL_NONE = 0, FAIL_NET, FAIL_REFUSED, FAIL_TLS, FAIL_SILENT } fail_kind;
-
-static double mono_s(void) {
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
-}
 
 /* ------------------------------------------------------------ formatting ---- */
 
@@ -281,7 +276,7 @@ struct vd_mqtt {
     bool connected_local, just_connected, ever_connected;
     bool final_will; /* the drain's last connection: its will is the final status (see pub_main) */
     bool final_up;   /* that connection was made */
-    double attempt_t;    /* when the current attempt began (mono_s) */
+    double attempt_t;    /* when the current attempt began (vd_mono_s) */
     fail_kind last_fail; /* of the last failed attempt or lost connection; FAIL_NONE once connected */
     int refused_rc;      /* CONNACK reason of the current attempt (0 = none) */
     char lib_error[300]; /* the last error libmosquitto logged (OpenSSL's reasons) */
@@ -478,7 +473,7 @@ static void on_publish(struct mosquitto *mosq, void *obj, int mid, int reason,
 /* One failed attempt or a lost connection: logged when the reason differs from the last
  * one logged or RELOG_S passed, counted, the next attempt after the back-off. */
 static void failed(vd_mqtt *m, bool was_connected, const char *why, double *backoff, double *next_try) {
-    double now = mono_s();
+    double now = vd_mono_s();
     char line[600];
     if (was_connected)
         snprintf(line, sizeof line, "connection to %s lost: %s", url_of(m), why);
@@ -671,7 +666,7 @@ static void *pub_main(void *arg) {
     bool stopping = false, first = true, clean = false;
     const char *why_end = NULL; /* why the drain ended before a clean DISCONNECT */
     for (;;) {
-        double now = mono_s();
+        double now = vd_mono_s();
         if (!stopping && atomic_load(&m->stop)) {
             stopping = true;
             drain_until = now + m->cfg->mqtt.drain_timeout_s;

@@ -1,5 +1,6 @@
 /* refine.c: see refine.h. */
 #include "refine.h"
+#include "clock.h"
 #include "log.h"
 
 #include <errno.h>
@@ -11,13 +12,6 @@
 #include <sys/resource.h>
 #include <time.h>
 #include <unistd.h>
-
-static double mono_s(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (double)ts.tv_sec + (double)ts.tv_nsec * 1e-9;
-}
 
 int vd_refine_init(vd_refine *r, const vd_config *cfg, size_t nch, size_t p, char *err, size_t cap)
 {
@@ -89,7 +83,7 @@ static void refine_once(vd_refine *r)
                  "the window's samples were overwritten before the refine thread copied them");
         return;
     }
-    const double t0 = mono_s();
+    const double t0 = vd_mono_s();
     vibid_status st = vibid_oe_fit(r->oe, (size_t)n, r->buf, 1, r->req_theta);
     vibid_oe_fit_info info = {0};
     if (st == VIBID_OK)
@@ -100,7 +94,7 @@ static void refine_once(vd_refine *r)
     res->interp_z = info.interp_z;
     if (st == VIBID_OK && info.input_path_uncovered)
         res->quality |= VIBID_QUALITY_SE_INVALID;
-    res->duration_s = mono_s() - t0;
+    res->duration_s = vd_mono_s() - t0;
     if (st != VIBID_OK) {
         snprintf(res->reason, sizeof res->reason, "%s", vibid_last_error());
         return;

@@ -2,6 +2,7 @@
 
 #include "writers.h"
 
+#include "clock.h"
 #include "log.h"
 
 #include <arpa/inet.h>
@@ -260,13 +261,6 @@ int vd_format_recording_frames(char *buf, size_t cap, const vibid_can_assembler 
     return (int)off;
 }
 
-static double mono_s(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
-}
-
 void vd_writers_failed(vd_writers *w, const char *what, const char *path)
 {
     const int e = errno;
@@ -275,7 +269,7 @@ void vd_writers_failed(vd_writers *w, const char *what, const char *path)
         k++; /* not a file output: the status file */
     w->write_errors++;
     const uint64_t n = ++w->output_errors[k];
-    const double now = mono_s();
+    const double now = vd_mono_s();
     if (n == 1 || now - w->output_report[k] > 60.0) {
         vd_error("writing %s %s failed: %s (%llu failed writes of this output so far, %llu of all; output is being "
                  "lost)",
@@ -617,7 +611,7 @@ static void flush_files(vd_writers *w, int sync)
 int vd_writers_reopen(vd_writers *w)
 {
     flush_files(w, 0);
-    const double now = mono_s();
+    const double now = vd_mono_s();
     unsigned left = 0;
     for (int k = 0; k < VD_OUT_FILES; k++) {
         if (!w->out[k].path[0])
@@ -690,7 +684,7 @@ void vd_writers_alarm(vd_writers *w, const char *param, int raised, const vd_row
 void vd_writers_flush(vd_writers *w, int sync)
 {
     if (vd_writers_closed(w)) {
-        const double now = mono_s();
+        const double now = vd_mono_s();
         for (int k = 0; k < VD_OUT_FILES; k++)
             if (w->out[k].closed && now >= w->out[k].retry_at)
                 reopen_output(w, k, now, false);

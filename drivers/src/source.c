@@ -59,6 +59,16 @@ void vibid_source_close(vibid_source *src)
 
 void vibid_jitter_finish(vibid_jitter_stats *j) { j->std_s = j->n > 1 ? sqrt(j->m2_s2 / (double)(j->n - 1)) : 0.0; }
 
+const char *vibid_fault_name(vibid_fault_code c)
+{
+    static const char *const n[] = {"none",      "bad_line", "unknown_id", "short_frame", "nonfinite",
+                                    "duplicate", "late",     "bus_error",  "dropped",     "poll",
+                                    "link",      "corrupt",  "clock"};
+    /* one name per code: a code added to the enum without a name here fails to compile */
+    _Static_assert(sizeof n / sizeof n[0] == VIBID_FAULT_LAST + 1, "a name for every vibid_fault_code");
+    return (unsigned)c < sizeof n / sizeof n[0] ? n[c] : "fault";
+}
+
 void vibid_source_stats_count(vibid_source_stats *st, const vibid_record *rec, int64_t *last_t_ns)
 {
     switch (rec->kind) {

@@ -58,14 +58,6 @@ void require_c_numeric(const char *what) {
                                   .c_str());
 }
 
-const char *fault_name(vibid_fault_code c) {
-    // as vibidd's status file names them (daemon.c fault_name)
-    static const char *const n[] = {"none",      "bad_line", "unknown_id", "short_frame", "nonfinite",
-                                    "duplicate", "late",     "bus_error",  "dropped",     "poll",
-                                    "link",      "corrupt",  "clock"};
-    return static_cast<unsigned>(c) < sizeof n / sizeof n[0] ? n[c] : "fault";
-}
-
 void copy_name(char *dst, size_t cap, const std::string &s, const char *what) {
     if (s.size() >= cap)
         throw nb::value_error((std::string(what) + " '" + s + "': longer than " + std::to_string(cap - 1) +
@@ -177,7 +169,7 @@ void append_record(const vibid_record &rec, const std::vector<size_t> &col, bool
                    CandumpRows &rows) {
     const size_t nch = col.size();
     if (rec.kind == VIBID_REC_FAULT) {
-        rows.fault_kind.emplace_back(fault_name(rec.fault));
+        rows.fault_kind.emplace_back(vibid_fault_name(rec.fault));
         rows.fault_text.emplace_back(rec.text);
         return;
     }

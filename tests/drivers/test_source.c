@@ -1,5 +1,5 @@
 /* The source abstraction and its test double: batching, EOF/AGAIN, scripted failure,
- * record and jitter statistics, NULL safety. */
+ * record and jitter statistics, NULL safety, the fault kinds' names. */
 #include <math.h>
 #include <setjmp.h>
 #include <stdarg.h>
@@ -113,11 +113,30 @@ static void test_double_endless_and_failure(void **state)
     assert_null(vibid_source_open(NULL, &cfg, &err));
 }
 
+/* The names are an interface (vibidd's status file faults_<name>, its metrics' kind label,
+ * the Python fault tables' "kind"): every one is pinned here, so that a renamed or reordered
+ * code fails this test rather than a user's dashboard. */
+static void test_fault_names(void **state)
+{
+    (void)state;
+    static const char *const want[] = {"none",      "bad_line", "unknown_id", "short_frame", "nonfinite",
+                                       "duplicate", "late",     "bus_error",  "dropped",     "poll",
+                                       "link",      "corrupt",  "clock"};
+    assert_int_equal(sizeof want / sizeof want[0], VIBID_FAULT_LAST + 1);
+    for (unsigned c = 0; c <= VIBID_FAULT_LAST; c++)
+        assert_string_equal(vibid_fault_name((vibid_fault_code)c), want[c]);
+    assert_string_equal(vibid_fault_name(VIBID_FAULT_POLL), "poll");
+    /* a code outside the enum (a newer writer, a corrupt record) gets the fixed "fault" */
+    assert_string_equal(vibid_fault_name((vibid_fault_code)(VIBID_FAULT_LAST + 1)), "fault");
+    assert_string_equal(vibid_fault_name((vibid_fault_code)-1), "fault");
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_double_batches_and_stats),
         cmocka_unit_test(test_double_endless_and_failure),
+        cmocka_unit_test(test_fault_names),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -39,6 +39,15 @@ typedef enum vibid_fault_code {
 } vibid_fault_code;
 #define VIBID_FAULT_LAST VIBID_FAULT_CLOCK
 
+/* The fault's kind as a short lower-case name: "none", "bad_line", "unknown_id",
+ * "short_frame", "nonfinite", "duplicate", "late", "bus_error", "dropped", "poll", "link",
+ * "corrupt", "clock" (in enum order). These are the names vibidd's status file
+ * (faults_<name>), its metrics (vibid_faults_total{kind}) and log lines use, and the "kind"
+ * column of the Python package's fault tables: outside tools match them, so they do not
+ * change. A code outside NONE..VIBID_FAULT_LAST gives "fault". The string is static (never
+ * freed by the caller); safe from any thread. */
+const char *vibid_fault_name(vibid_fault_code c);
+
 typedef struct vibid_record {
     vibid_record_kind kind;
     vibid_fault_code fault;   /* FAULT only */
