@@ -294,3 +294,45 @@ def test_gap_beyond_the_counter(files, tmp_path):
     back = vibid.read_capture(log, vibid.Stand.load(EXAMPLE1), dbc=dbc)
     assert [(g["row"], g["count"]) for g in back.attrs["gaps"]] == [(2, 1998)]
     assert len(back) == 2001 and back["time_s"].iloc[-1] == 1.0
+
+
+REPLAY_CFG = """stand = "{stand}";
+source = {{
+  kind = "replay"; file = "{log}"; dbc = "{dbc}"; counter = "SampleCounter"; paced = false;
+  channels = (
+    {{ name = "x1"; quantity = "displacement"; node = 0; signal = "x1"; }},
+    {{ name = "x2"; quantity = "displacement"; node = 1; signal = "x2"; }},
+    {{ name = "s";  quantity = "base_displacement"; unit = "mm"; signal = "s"; }}
+  );
+}};
+estimator = {{ method = "rls"; decimation = 500; }};
+outputs = {{ tracks = {{ path = "tracks.csv"; }}; }};
+"""
+
+
+@pytest.mark.skipif(not getattr(_core, "HAVE_DAEMON", False), reason="vibid built without vibidd's core")
+def test_vibidd_replays_the_log_and_a_reencoding(files, tmp_path):
+    """vibidd's own pipeline (vibid.replay, in-process) replays the written log and counts its
+    gap; the log re-encoded into vibid-sim's float32 DBC (--out-dbc) reads back as the float32
+    of the values the first log holds."""
+    dbc, csv, df = files
+    stand = vibid.Stand.load(EXAMPLE1)
+    log = tmp_path / "capture.log"
+    assert run("convert", EXAMPLE1, csv, log, "--dbc", dbc).returncode == 0
+    cfg = tmp_path / "vibidd.cfg"
+    cfg.write_text(REPLAY_CFG.format(stand=EXAMPLE1, log=log, dbc=dbc))
+    tracks = vibid.replay(cfg)
+    assert tracks["gap_samples"].sum() == len(MISSING)
+    assert tracks["flags"].str.contains("G").sum() == 1
+    assert tracks["index"].max() == len(df) - 1
+
+    f32 = tmp_path / "f32.log"
+    sim_dbc = REPO / "sim" / "paper_example1.dbc"
+    p = run("convert", EXAMPLE1, log, f32, "--dbc", dbc, "--out-dbc", sim_dbc)
+    assert p.returncode == 0, p.stderr
+    assert "  x1: signal paper_example1_0.x1 (float32, factor 1, offset 0): " in p.stdout and "to float32" in p.stdout
+    ints = vibid.read_capture(log, stand, dbc=dbc)
+    floats = vibid.read_capture(f32, stand, dbc=sim_dbc)
+    assert [(g["row"], g["count"]) for g in floats.attrs["gaps"]] == [(5000, 10)]
+    for c in stand.channels:
+        np.testing.assert_array_equal(floats[c].to_numpy(), ints[c].to_numpy().astype(np.float32).astype(np.float64))
