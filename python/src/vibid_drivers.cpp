@@ -482,7 +482,8 @@ struct FileDel {
 // channel, how many values the frames hold other than given (rounded to the signal's step
 // by more than 1e-9 of it, or to float32) and by how much at most, from decoding each
 // written signal. A value that
-// does not fit its signal stops the writing: "row" (of the arrays) and the encoder's text.
+// does not fit its signal stops the writing: failed_row (of the arrays), failed_channel and
+// the encoder's text.
 nb::dict write_candump(const std::string &out_path, const std::string &dbc_path, const std::vector<std::string> &channels,
                        const std::vector<std::string> &signals, const std::optional<std::string> &chanmap_path,
                        const std::string &hint,
@@ -506,7 +507,7 @@ nb::dict write_candump(const std::string &out_path, const std::string &dbc_path,
     std::vector<uint64_t> rounded(nch, 0);
     std::vector<double> max_err(nch, 0.0);
     uint64_t frames = 0;
-    int64_t fail_row = -1;
+    int64_t fail_row = -1, fail_channel = -1;
     std::string fail_text;
     bool io_error = false;
     int io_errno = 0;
@@ -530,6 +531,11 @@ nb::dict write_candump(const std::string &out_path, const std::string &dbc_path,
             if (vibid_can_assembler_encode(e->enc.get(), &rec, fr.data(), fr.size(), &n, &de) != VIBID_DRV_OK) {
                 fail_row = static_cast<int64_t>(r);
                 fail_text = de.text;
+                // the channel: the first whose value its signal refuses on its own
+                uint8_t scratch[VIBID_CANFD_MAX_DLEN] = {0};
+                for (size_t c = 0; c < nch && fail_channel < 0; ++c)
+                    if (vibid_dbc_signal_encode(e->sig[c], rec.values[c], scratch, sizeof scratch) != VIBID_DRV_OK)
+                        fail_channel = static_cast<int64_t>(c);
                 break;
             }
             for (size_t c = 0; c < nch; ++c) {
@@ -579,6 +585,7 @@ nb::dict write_candump(const std::string &out_path, const std::string &dbc_path,
     out["rounded"] = rounded;
     out["max_error"] = max_err;
     out["failed_row"] = fail_row;
+    out["failed_channel"] = fail_channel;
     out["failed_text"] = fail_text;
     return out;
 }

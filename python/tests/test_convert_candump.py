@@ -267,6 +267,22 @@ def test_bad_input(files, tmp_path):
                  "paper_example1_1.x2 (16-bit signed, factor 1e-06, offset 0: -0.032768 .. 0.032767 m): refused, "
                  "never saturated"), e
     assert not log.exists() and not list(tmp_path.glob(".out.log.*"))  # no partial file either
+    # not finite: no frame carries it
+    bad = df.copy()
+    bad.loc[3, "s"] = np.inf
+    bad.to_csv(path, index=False, float_format="%.17g")
+    e = one_line_error(run("convert", EXAMPLE1, path, log, "--dbc", dbc))
+    assert e == f"vibid convert: error: {path}:5: channel 's' = inf: not a finite number, which no frame carries " \
+        "(a reader drops it as a fault)", e
+    # beyond float32 (vibid-sim's DBC: float32 signals)
+    bad = df.copy()
+    bad.loc[4, "x2"] = 1e39
+    bad.to_csv(path, index=False, float_format="%.17g")
+    e = one_line_error(run("convert", EXAMPLE1, path, log, "--dbc", REPO / "sim" / "paper_example1.dbc"))
+    assert e == (f"vibid convert: error: {path}:6: channel 'x2' = 1e+39 is beyond float32's range in signal "
+                 "paper_example1_1.x2 (float32, factor 1, offset 0); 1 such value(s) of 'x2': refused, never "
+                 "saturated"), e
+    assert not log.exists()
     # --out-dbc is for a candump output
     e = one_line_error(run("convert", EXAMPLE1, csv, tmp_path / "o.csv", "--out-dbc", dbc))
     assert "--out-dbc and --out-channel-map are for a candump output" in e

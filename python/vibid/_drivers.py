@@ -205,6 +205,11 @@ def write_candump(out: str, stand: Stand, block: np.ndarray, t: np.ndarray, *, d
     if not len(rows):
         raise ValueError(f"{where(0)}: no sample to write: all {n} rows are missing (NaN)")
     values = np.ascontiguousarray(block[keep] / k)
+    inf = ~np.isfinite(values)
+    if inf.any():
+        j, i = (int(x) for x in np.argwhere(inf)[0])
+        raise ValueError(f"{where(int(rows[j]))}: channel {chans[i]!r} = {float(block[rows[j], i])!r}: not a finite "
+                         "number, which no frame carries (a reader drops it as a fault)")
     # times, microseconds
     tk = t[keep]
     bad = ~np.isfinite(tk)
@@ -245,7 +250,8 @@ def write_candump(out: str, stand: Stand, block: np.ndarray, t: np.ndarray, *, d
             out_of = (v < lo) | (v > hi)
             why = f"outside the DBC's range [{lo:g}|{hi:g}] of {_describe(ch)}"
         if ch["type"] == "float32":
-            big = np.isfinite(v) & ~np.isfinite(((v - ch["offset"]) / ch["factor"]).astype(np.float32))
+            with np.errstate(over="ignore"):
+                big = ~np.isfinite(((v - ch["offset"]) / ch["factor"]).astype(np.float32))
             if big.any() and (not out_of.any() or np.flatnonzero(big)[0] < np.flatnonzero(out_of)[0]):
                 out_of, why = big, f"beyond float32's range in {_describe(ch)}"
         if out_of.any():
@@ -258,9 +264,8 @@ def write_candump(out: str, stand: Stand, block: np.ndarray, t: np.ndarray, *, d
         res = _core.write_candump(tmp, dbc, chans, chans, channel_map, hint, values, np.ascontiguousarray(index),
                                   np.ascontiguousarray(t_us), str(iface))
         if res["failed_row"] >= 0:
-            j = int(res["failed_row"])
-            i = next((i for i, c in enumerate(chans) if f"channel '{c}' =" in res["failed_text"]), None)
-            if i is None:
+            j, i = int(res["failed_row"]), int(res["failed_channel"])
+            if i < 0:
                 raise ValueError(f"{where(int(rows[j]))}: {res['failed_text']}")
             ch = plan["channels"][i]
             unit = f" {ch['unit']}" if ch["unit"] else ""
