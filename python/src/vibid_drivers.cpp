@@ -4,6 +4,9 @@
 //  read_candump: a candump log decoded through the DBC and the CAN sample assembler by the
 //    drivers' replay source, the very code `vibidd --replay` runs, so the samples are the
 //    daemon's bit for bit. Nothing is decoded here.
+//  candump_plan, write_candump: samples written as a candump log by the drivers' CAN
+//    encoder (vibid_can_assembler_encode, what vibidd's candump recording uses), the inverse
+//    of read_candump through the same channel map; nothing is encoded here.
 //  replay_run: vibidd's pipeline (config reader, replay source, estimator, writers) run
 //    in-process through vd_daemon_init / vd_daemon_run, the functions vibidd's main() calls,
 //    with the tracks written to a file the caller names.
@@ -14,6 +17,8 @@
 #include <nanobind/stl/vector.h>
 
 extern "C" {
+#include <vibid_drivers/can_assembler.h>
+#include <vibid_drivers/candump.h>
 #include <vibid_drivers/channel_map.h>
 #include <vibid_drivers/dbc.h>
 #include <vibid_drivers/sample.h>
@@ -30,6 +35,7 @@ extern "C" {
 
 #include <atomic>
 #include <chrono>
+#include <cerrno>
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
@@ -106,8 +112,11 @@ std::string dbc_signal_list(const vibid_dbc *dbc) {
 // renamed), found in any message, in exactly one. The quantity and node fields are vibidd's
 // check against the stand; the assembler reads only the signal, so they stay zero here.
 // Apart from reading: it decides how samples are assembled (the counter), before any frame.
+// hint: what to do about a missing signal, for the message (read_capture's keywords, or the
+// command line's options).
 void chanmap_from_dbc(const vibid_dbc *dbc, const std::string &dbc_path, const std::vector<std::string> &channels,
-                      const std::vector<std::string> &signals, vibid_chanmap *map, std::vector<size_t> &col) {
+                      const std::vector<std::string> &signals, vibid_chanmap *map, std::vector<size_t> &col,
+                      const char *hint = "rename with channels={stand channel: signal} or give a channel map") {
     map->n = channels.size();
     const vibid_dbc_message *first_msg = nullptr;
     bool one_message = true, all_have_counter = true;
@@ -128,8 +137,7 @@ void chanmap_from_dbc(const vibid_dbc *dbc, const std::string &dbc_path, const s
         if (!sig) {
             std::string have = dbc_signal_list(dbc);
             throw nb::value_error((dbc_path + " has no signal " + called + " (its signals: " +
-                                   (have.empty() ? "none" : have) +
-                                   "); rename with channels={stand channel: signal} or give a channel map")
+                                   (have.empty() ? "none" : have) + "); " + hint)
                                       .c_str());
         }
         if (first_msg && msg != first_msg) one_message = false;
@@ -344,6 +352,236 @@ nb::dict read_candump(const std::string &path, const std::string &dbc_path, cons
     return candump_result(rows, *map, channel_units(dbc.get(), *map, col));
 }
 
+// ---- writing: samples as a candump log (vibid convert --to candump) ----
+
+struct AssemblerDel {
+    void operator()(vibid_can_assembler *a) const noexcept { vibid_can_assembler_destroy(a); }
+};
+
+// What a candump log of the stand's channels is written with: the DBC, the channel map of
+// the stand's channels alone in the stand's order (a channel-map file's other channels carry
+// nothing the capture holds: their signals are not written), each channel's message and
+// signal, and the drivers' assembler, whose encoder writes the frames (the inverse of the
+// reader through the same map: can_assembler.h).
+struct Encoding {
+    std::unique_ptr<vibid_dbc, DbcDel> dbc;
+    std::unique_ptr<vibid_chanmap> map;
+    std::vector<const vibid_dbc_message *> msg;
+    std::vector<const vibid_dbc_signal *> sig;
+    std::vector<std::string> unit;  // the channel map's, else the signal's
+    unsigned counter_bits = 0;      // counter mode: the counter signal's bits
+    std::unique_ptr<vibid_can_assembler, AssemblerDel> enc;
+};
+
+std::unique_ptr<Encoding> encoding(const std::string &dbc_path, const std::vector<std::string> &channels,
+                                   const std::vector<std::string> &signals, const std::optional<std::string> &chanmap_path,
+                                   const std::string &hint) {
+    require_c_numeric(dbc_path.c_str());
+    if (channels.size() != signals.size() || channels.empty() || channels.size() > VIBID_DRV_MAX_CHANNELS)
+        throw nb::value_error("write_candump: channels and signals must be 1..32 names each, as many of both");
+    auto e = std::make_unique<Encoding>();
+    vibid_drv_error de{};
+    e->dbc.reset(vibid_dbc_load(dbc_path.c_str(), &de));
+    if (!e->dbc) throw nb::value_error(de.text);
+    e->map = std::make_unique<vibid_chanmap>();
+    std::memset(e->map.get(), 0, sizeof *e->map);
+    std::vector<size_t> col(channels.size());
+    if (chanmap_path) {
+        auto file = std::make_unique<vibid_chanmap>();
+        std::memset(file.get(), 0, sizeof *file);
+        chanmap_from_file(*chanmap_path, channels, file.get(), col);
+        e->map->n = channels.size();
+        for (size_t i = 0; i < channels.size(); ++i) e->map->ch[i] = file->ch[col[i]];
+        std::memcpy(e->map->counter, file->counter, sizeof file->counter);
+        std::memcpy(e->map->trigger, file->trigger, sizeof file->trigger);
+    } else {
+        chanmap_from_dbc(e->dbc.get(), dbc_path, channels, signals, e->map.get(), col, hint.c_str());
+    }
+    e->enc.reset(vibid_can_assembler_create(e->dbc.get(), e->map.get(), &de));
+    if (!e->enc)
+        throw nb::value_error(((chanmap_path ? *chanmap_path + " with " : std::string()) + dbc_path + ": " + de.text)
+                                  .c_str());
+    for (size_t i = 0; i < channels.size(); ++i) {
+        const vibid_channel &ch = e->map->ch[i];
+        const vibid_dbc_message *m = nullptr, *second = nullptr;
+        const vibid_dbc_signal *s = vibid_dbc_lookup_signal(e->dbc.get(), ch.ref, ch.message, &m, &second);
+        e->msg.push_back(m);  // found: the assembler was created with the same lookup
+        e->sig.push_back(s);
+        e->unit.emplace_back(ch.unit[0] ? ch.unit : (s->unit ? s->unit : ""));
+    }
+    if (e->map->counter[0]) {
+        e->counter_bits = vibid_dbc_find_signal(e->msg[0], e->map->counter)->length;
+    } else if (e->map->trigger[0]) {
+        // The encoder writes the messages that hold channels; a trigger message that holds
+        // none would have to be written with nothing in it, and without it a reader
+        // assembles no sample at all.
+        const vibid_dbc_message *t = vibid_dbc_find_message_by_name(e->dbc.get(), e->map->trigger);
+        bool carries = false;
+        for (const vibid_dbc_message *m : e->msg) carries = carries || m == t;
+        if (!carries)
+            throw nb::value_error((*chanmap_path + ": trigger message " + e->map->trigger +
+                                   " carries none of the stand's channels: a log written without its frames "
+                                   "would hold no sample; give a counter signal or a trigger message that holds a "
+                                   "channel")
+                                      .c_str());
+    }
+    return e;
+}
+
+const char *value_type_name(vibid_dbc_value_type t) {
+    return t == VIBID_DBC_FLOAT32 ? "float32" : t == VIBID_DBC_FLOAT64 ? "float64" : "integer";
+}
+
+// How the stand's channels would be written: per channel its message, signal and the
+// signal's encoding (for the caller's checks and messages); the counter or trigger.
+nb::dict candump_plan(const std::string &dbc_path, const std::vector<std::string> &channels,
+                      const std::vector<std::string> &signals, const std::optional<std::string> &chanmap_path,
+                      const std::string &hint) {
+    auto e = encoding(dbc_path, channels, signals, chanmap_path, hint);
+    nb::list chans;
+    for (size_t i = 0; i < channels.size(); ++i) {
+        const vibid_dbc_signal *s = e->sig[i];
+        nb::dict d;
+        d["message"] = std::string(e->msg[i]->name);
+        d["signal"] = std::string(s->name);
+        d["unit"] = e->unit[i];
+        d["factor"] = s->factor;
+        d["offset"] = s->offset;
+        d["minimum"] = s->minimum;
+        d["maximum"] = s->maximum;
+        d["length"] = static_cast<unsigned>(s->length);
+        d["signed"] = s->is_signed;
+        d["type"] = std::string(value_type_name(s->value_type));
+        chans.append(d);
+    }
+    nb::dict out;
+    out["channels"] = chans;
+    out["counter"] = std::string(e->map->counter);
+    out["counter_bits"] = e->counter_bits;
+    out["trigger"] = std::string(e->map->trigger);
+    out["messages"] = vibid_can_assembler_ids(e->enc.get(), nullptr, 0);
+    return out;
+}
+
+struct FileDel {
+    void operator()(FILE *f) const noexcept { std::fclose(f); }
+};
+
+// Writes the samples (values[row][channel] in the signals' units, rows in time order; their
+// sample indices, which number the counter, and times in microseconds) as a candump -l log
+// at out_path: the frames vibid_can_assembler_encode makes of each sample, formatted by
+// vibid_candump_format, all at the sample's time (as vibidd's candump recording). Per
+// channel, how many values the frames hold other than given (rounded to the signal's step
+// by more than 1e-9 of it, or to float32) and by how much at most, from decoding each
+// written signal. A value that
+// does not fit its signal stops the writing: failed_row (of the arrays), failed_channel and
+// the encoder's text.
+nb::dict write_candump(const std::string &out_path, const std::string &dbc_path, const std::vector<std::string> &channels,
+                       const std::vector<std::string> &signals, const std::optional<std::string> &chanmap_path,
+                       const std::string &hint,
+                       nb::ndarray<const double, nb::ndim<2>, nb::c_contig, nb::device::cpu> values,
+                       nb::ndarray<const uint64_t, nb::ndim<1>, nb::c_contig, nb::device::cpu> index,
+                       nb::ndarray<const int64_t, nb::ndim<1>, nb::c_contig, nb::device::cpu> t_us,
+                       const std::string &iface) {
+    auto e = encoding(dbc_path, channels, signals, chanmap_path, hint);
+    const size_t nch = channels.size(), rows = values.shape(0);
+    if (values.shape(1) != nch || index.shape(0) != rows || t_us.shape(0) != rows)
+        throw nb::value_error("write_candump: values must be rows x channels, index and t_us one per row");
+    if (iface.empty() || iface.size() >= VIBID_CAN_IFNAMSIZ || iface.find_first_of(" \t\r\n()#") != std::string::npos)
+        throw nb::value_error(("interface name '" + iface + "': 1.." + std::to_string(VIBID_CAN_IFNAMSIZ - 1) +
+                               " characters, no blanks, parentheses or '#'")
+                                  .c_str());
+    std::unique_ptr<FILE, FileDel> f(std::fopen(out_path.c_str(), "w"));
+    if (!f) {
+        PyErr_SetFromErrnoWithFilename(PyExc_OSError, out_path.c_str());
+        throw nb::python_error();
+    }
+    std::vector<uint64_t> rounded(nch, 0);
+    std::vector<double> max_err(nch, 0.0);
+    uint64_t frames = 0;
+    int64_t fail_row = -1, fail_channel = -1;
+    std::string fail_text;
+    bool io_error = false;
+    int io_errno = 0;
+    {
+        nb::gil_scoped_release release;
+        const double *v = values.data();
+        std::vector<vibid_can_frame> fr(vibid_can_assembler_ids(e->enc.get(), nullptr, 0) + 1);
+        std::vector<char> line(256);
+        std::vector<double> tol(nch, 0.0);
+        for (size_t c = 0; c < nch; ++c)
+            if (e->sig[c]->value_type == VIBID_DBC_INTEGER) tol[c] = 1e-9 * std::fabs(e->sig[c]->factor);
+        vibid_record rec{};
+        rec.kind = VIBID_REC_SAMPLE;
+        rec.n_values = static_cast<uint32_t>(nch);
+        for (size_t r = 0; r < rows && fail_row < 0 && !io_error; ++r) {
+            rec.index = index.data()[r];
+            rec.t_ns = t_us.data()[r] * 1000;
+            for (size_t c = 0; c < nch; ++c) rec.values[c] = v[r * nch + c];
+            size_t n = 0;
+            vibid_drv_error de{};
+            if (vibid_can_assembler_encode(e->enc.get(), &rec, fr.data(), fr.size(), &n, &de) != VIBID_DRV_OK) {
+                fail_row = static_cast<int64_t>(r);
+                fail_text = de.text;
+                // the channel: the first whose value its signal refuses on its own
+                uint8_t scratch[VIBID_CANFD_MAX_DLEN] = {0};
+                for (size_t c = 0; c < nch && fail_channel < 0; ++c)
+                    if (vibid_dbc_signal_encode(e->sig[c], rec.values[c], scratch, sizeof scratch) != VIBID_DRV_OK)
+                        fail_channel = static_cast<int64_t>(c);
+                break;
+            }
+            for (size_t c = 0; c < nch; ++c) {
+                // the value as a reader decodes it from the frame written
+                for (size_t k = 0; k < n; ++k) {
+                    if (fr[k].id != e->msg[c]->id || ((fr[k].flags & VIBID_CAN_F_EXT) != 0) != e->msg[c]->extended)
+                        continue;
+                    double back = NAN;
+                    vibid_dbc_signal_decode(e->sig[c], fr[k].data, fr[k].len, &back);
+                    // Rounded: moved by more than a billionth of the step (an integer signal; less is
+                    // the double arithmetic of raw * factor + offset on a value that lies on the
+                    // grid), or at all (a float signal: float32's rounding).
+                    double d = std::fabs(back - rec.values[c]);
+                    if (!(d <= tol[c])) {
+                        ++rounded[c];
+                        if (!(d <= max_err[c])) max_err[c] = d;  // NaN (a float NaN sent) kept
+                    }
+                    break;
+                }
+            }
+            for (size_t k = 0; k < n; ++k) {
+                int len = vibid_candump_format(line.data(), line.size(), &fr[k], iface.c_str());
+                if (len < 0 || std::fprintf(f.get(), "%s\n", line.data()) < 0) {
+                    io_errno = len < 0 ? EINVAL : errno;
+                    io_error = true;
+                    break;
+                }
+                ++frames;
+            }
+        }
+        if (!io_error && std::fflush(f.get()) != 0) {
+            io_errno = errno;
+            io_error = true;
+        }
+    }
+    if (std::fclose(f.release()) != 0 && !io_error) {
+        io_errno = errno;
+        io_error = true;
+    }
+    if (io_error) {
+        errno = io_errno;
+        PyErr_SetFromErrnoWithFilename(PyExc_OSError, out_path.c_str());
+        throw nb::python_error();
+    }
+    nb::dict out;
+    out["frames"] = frames;
+    out["rounded"] = rounded;
+    out["max_error"] = max_err;
+    out["failed_row"] = fail_row;
+    out["failed_channel"] = fail_channel;
+    out["failed_text"] = fail_text;
+    return out;
+}
+
 #ifdef VIBID_HAVE_DAEMON
 struct ReplayDel {
     void operator()(vibid_py_replay *r) const noexcept { vibid_py_replay_close(r); }
@@ -427,6 +665,9 @@ int replay_run(const std::string &config, const std::optional<std::string> &capt
 void vibid_register_drivers(nb::module_ &m) {
     m.def("read_candump", &read_candump, "path"_a, "dbc"_a, "channels"_a, "signals"_a, "chanmap"_a.none(),
           "sample_rate"_a);
+    m.def("candump_plan", &candump_plan, "dbc"_a, "channels"_a, "signals"_a, "chanmap"_a.none(), "hint"_a);
+    m.def("write_candump", &write_candump, "path"_a, "dbc"_a, "channels"_a, "signals"_a, "chanmap"_a.none(),
+          "hint"_a, "values"_a, "index"_a, "t_us"_a, "iface"_a);
 #ifdef VIBID_HAVE_DAEMON
     m.def("replay_run", &replay_run, "config"_a, "capture"_a.none(), "tracks"_a, "log_level"_a, "rate_check"_a);
 #endif

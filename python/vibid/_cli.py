@@ -869,16 +869,26 @@ def cmd_check(a: argparse.Namespace) -> int:
 RECORDING_MAGIC = "# vibidd raw recording"
 
 
-def cmd_convert(a: argparse.Namespace) -> int:
-    from ._captures import read_capture
+def _output_format(a: argparse.Namespace) -> str:
+    """csv or candump: --to, else OUT's extension by the capture-format registry (.log:
+    candump), else csv."""
+    from ._captures import _FORMATS, FORMATS
 
-    stand = _load_stand(a.stand)
-    if not os.path.exists(a.capture):
-        raise CliError(f"capture {a.capture!r}: no such file")
-    if os.path.exists(a.out) and os.path.samefile(a.capture, a.out):
-        raise CliError(f"{a.out!r} is the capture itself: give another output file")
-    df = read_capture(a.capture, stand, format=a.format, group=a.group, dbc=a.dbc, channel_map=a.channel_map)
-    fmt = df.attrs["source"]["format"]  # as read_capture resolved it
+    titles = {n: t for n, _, _, t, _, _ in FORMATS}
+    if a.to is not None:
+        fmt = _FORMATS.get(a.to.lower())
+        if fmt is None:
+            raise CliError(f"--to {a.to!r}: one of csv, candump")
+    else:
+        ext = os.path.splitext(a.out)[1].lower()
+        fmt = next((n for n, _, exts, *_ in FORMATS if ext and ext in exts.split()), "csv")
+    if fmt not in ("csv", "candump"):
+        raise CliError(f"{a.out}: vibid convert writes csv or candump, not {titles.get(fmt, fmt)} "
+                       f"({'--to ' + a.to if a.to else 'by its extension'}); give --to csv or --to candump")
+    return fmt
+
+
+def _write_csv(a: argparse.Namespace, stand: Stand, df: pd.DataFrame, fmt: str) -> None:
     block = df[list(stand.channels)]
     t = df["time_s"].to_numpy() if "time_s" in df else np.arange(len(df)) / stand.sample_rate
     # A candump log's missing samples are NaN rows: left out, never written as numbers, so
@@ -899,6 +909,64 @@ def cmd_convert(a: argparse.Namespace) -> int:
     print(f"{a.out}: {int(keep.sum())} samples of {len(stand.channels)} channels ({', '.join(stand.channels)}) "
           f"in {stand.name}'s units, time column t"
           + (f"; {dropped} missing samples left out (gaps in t)" if dropped else ""))
+
+
+def _write_candump(a: argparse.Namespace, stand: Stand, df: pd.DataFrame, fmt: str) -> None:
+    from ._captures import location
+    from ._drivers import _describe, write_candump
+
+    dbc = a.out_dbc or a.dbc
+    cmap = a.out_channel_map or (a.channel_map if not a.out_dbc else None)
+    if dbc is None:
+        raise CliError(f"{a.out}: a candump log is written with a DBC: give --dbc FILE.dbc (and --channel-map MAP "
+                       "where the DBC's signals are not named as the stand's channels)")
+    for path, what in ((dbc, "DBC file"), (cmap, "channel-map file")):
+        if path is not None and not os.path.isfile(path):
+            raise CliError(f"{what} {path!r}: no such file")
+    t = df["time_s"].to_numpy() if "time_s" in df else np.arange(len(df)) / stand.sample_rate
+    where = lambda row: location(a.capture, fmt, row)  # noqa: E731
+    try:
+        res = write_candump(a.out, stand, df[list(stand.channels)].to_numpy(), t, dbc=dbc, channel_map=cmap,
+                            iface=a.interface, start_time_ns=int(df.attrs.get("start_time_ns", 0)), where=where)
+    except OSError as e:
+        raise RunFailure(f"cannot write {a.out}: {e}") from None
+    plan = res["plan"]
+    print(f"{a.out}: {res['samples']} samples of {len(stand.channels)} channels ({', '.join(stand.channels)}) as "
+          f"{res['frames']} frames of {plan['messages']} message{'s' if plan['messages'] != 1 else ''} of "
+          f"{os.path.basename(dbc)} on {a.interface}, {res['counter_note']}"
+          + (f"; {res['missing']} missing samples left out (counter jumps: the log's gaps)" if res["missing"] else ""))
+    for c, ch, n, err in zip(stand.channels, plan["channels"], res["rounded"], res["max_error"]):
+        step = (f"to float32" if ch["type"] == "float32" else "to float64" if ch["type"] == "float64"
+                else f"to the step {abs(ch['factor']):g} {ch['unit'] or ''}".rstrip())
+        print(f"  {c}: {_describe(ch)}: {n} of {res['samples']} values rounded {step}"
+              + (f" (at most {err:.3g} in {stand.name}'s units)" if n else "") + "; none saturated")
+
+
+def cmd_convert(a: argparse.Namespace) -> int:
+    from ._captures import read_capture
+
+    stand = _load_stand(a.stand)
+    if not os.path.exists(a.capture):
+        raise CliError(f"capture {a.capture!r}: no such file")
+    if os.path.exists(a.out) and os.path.samefile(a.capture, a.out):
+        raise CliError(f"{a.out!r} is the capture itself: give another output file")
+    to = _output_format(a)
+    # --dbc and --channel-map are the capture's when it is a candump log (named so, or by
+    # its content; with a DBC, a file neither places), else the output's alone.
+    if a.format is not None:
+        in_candump = a.format.lower() == "candump"
+    else:
+        known = _core.capture_format_of_file(a.capture)
+        in_candump = known == "candump" or (not known and a.dbc is not None)
+    read_dbc = (a.dbc, a.channel_map) if in_candump or to != "candump" else (None, None)
+    df = read_capture(a.capture, stand, format=a.format, group=a.group, dbc=read_dbc[0], channel_map=read_dbc[1])
+    fmt = df.attrs["source"]["format"]  # as read_capture resolved it
+    if to == "candump":
+        _write_candump(a, stand, df, fmt)
+    else:
+        if a.out_dbc or a.out_channel_map:
+            raise CliError("--out-dbc and --out-channel-map are for a candump output (--to candump, or OUT.log)")
+        _write_csv(a, stand, df, fmt)
     return 0
 
 
@@ -963,20 +1031,33 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--tracks", metavar="OUT.csv", help="write the tracks here (overwritten)")
     p.add_argument("--report", metavar="OUT.html", help="write a self-contained HTML report here (needs matplotlib)")
     p.set_defaults(func=cmd_identify)
-    p = sub.add_parser("convert", help="write any capture the package reads as CSV that vibidd replays",
-                       description="Reads CAPTURE (CSV, candump with --dbc, MDF4, TDMS: the drivers' format "
-                       "registry) as identify does (the stand's channels, in its units) and writes OUT.csv: "
-                       "vibidd's raw-recording layout (a '# vibidd raw recording' line, then t and the stand's "
-                       "channels by name, every value in its shortest round-trip form), which `vibidd "
-                       "--replay OUT.csv` reads without a channel map. Missing samples are left out.")
+    p = sub.add_parser("convert", help="write any capture the package reads as CSV that vibidd replays, or as "
+                       "a candump log", description="Reads CAPTURE (CSV, candump with --dbc, MDF4, TDMS: the drivers' "
+                       "format registry) as identify does (the stand's channels, in its units) and writes OUT: as CSV "
+                       "(default), vibid's raw-recording layout (a '# vibidd raw recording' line, then t and the "
+                       "stand's channels by name, every value in its shortest round-trip form), which `vibidd "
+                       "--replay OUT.csv` reads without a channel map; as a candump -l log (--to candump, or OUT.log), "
+                       "each sample encoded into the frames of the DBC (--dbc, signals named as the stand's "
+                       "channels, or --channel-map) by the drivers' encoder, as vibidd's candump recording writes "
+                       "them. Missing samples are left out (a candump log's counter skips them). Values are never "
+                       "saturated: one that does not fit its signal is refused (exit 2); rounded values are counted.")
     p.add_argument("stand", metavar="STAND")
     p.add_argument("capture", metavar="CAPTURE")
-    p.add_argument("out", metavar="OUT.csv")
+    p.add_argument("out", metavar="OUT")
+    p.add_argument("--to", metavar="FORMAT", help="the output's format: csv or candump (default: by OUT's "
+                   "extension, .log candump; else csv)")
     p.add_argument("--format", help="the capture's format when neither its content nor its name tells "
                    "(csv, candump, mdf, tdms)")
     p.add_argument("--group", help="TDMS group or MDF4 data group")
-    p.add_argument("--dbc", help="DBC of a candump log")
-    p.add_argument("--channel-map", dest="channel_map", help="channel map of a candump log")
+    p.add_argument("--dbc", help="DBC of a candump capture, and of a candump output (unless --out-dbc)")
+    p.add_argument("--channel-map", dest="channel_map", help="channel map of a candump capture, and of a candump "
+                   "output (unless --out-dbc or --out-channel-map)")
+    p.add_argument("--out-dbc", dest="out_dbc", metavar="DBC", help="DBC of the candump output when it is not "
+                   "the capture's")
+    p.add_argument("--out-channel-map", dest="out_channel_map", metavar="MAP", help="channel map of the candump "
+                   "output when it is not the capture's")
+    p.add_argument("--interface", default="can0", metavar="NAME", help="CAN interface named in a candump "
+                   "output's lines (default can0)")
     p.set_defaults(func=cmd_convert)
     p = sub.add_parser("check", help="channels, unknowns and identifiability of a stand",
                        description="Exit status 0 when the stand can be identified, 1 when not (the reason on "

@@ -127,3 +127,154 @@ def replay(config: str | os.PathLike, capture: Optional[str | os.PathLike] = Non
         df["flags"] = df["flags"].astype(str)
     df.attrs["config"] = config
     return df
+
+
+# vibid convert's advice when a stand channel has no signal of its name in the DBC
+_CLI_HINT = "give a channel map (--channel-map) naming each channel's signal"
+
+
+def _signal_range(ch: dict) -> tuple[float, float]:
+    """The physical values an integer signal's raw range holds (lowest, highest)."""
+    n, f, o = ch["length"], ch["factor"], ch["offset"]
+    lo, hi = (-(2.0 ** (n - 1)), 2.0 ** (n - 1) - 1) if ch["signed"] else (0.0, 2.0 ** n - 1)
+    a, b = lo * f + o, hi * f + o
+    return min(a, b), max(a, b)
+
+
+def _describe(ch: dict) -> str:
+    """"signal Msg.Sig (12-bit signed, factor 0.01, offset 250: 229.52 .. 270.47 degK)"."""
+    unit = f" {ch['unit']}" if ch["unit"] else ""
+    what = f"signal {ch['message']}.{ch['signal']}"
+    if ch["type"] != "integer":
+        return f"{what} ({ch['type']}, factor {ch['factor']:g}, offset {ch['offset']:g})"
+    lo, hi = _signal_range(ch)
+    return (f"{what} ({ch['length']}-bit {'signed' if ch['signed'] else 'unsigned'}, factor {ch['factor']:g}, "
+            f"offset {ch['offset']:g}: {lo:.10g} .. {hi:.10g}{unit})")
+
+
+def write_candump(out: str, stand: Stand, block: np.ndarray, t: np.ndarray, *, dbc: Any, channel_map: Any = None,
+                  iface: str = "can0", start_time_ns: int = 0, where=None, hint: str = _CLI_HINT) -> dict:
+    """Writes the stand's samples as a candump -l log with the drivers' CAN encoder
+    (vibid_can_assembler_encode, what vibidd's candump recording uses): the inverse of
+    read_capture(out, stand, dbc=dbc, channel_map=channel_map).
+
+    block: rows x the stand's channels, in the stand's units; a row with a NaN is a missing
+        sample: no frame is written for it, and the counter skips its number, so a reader
+        sees the gap (without a counter, a log cannot mark one: refused).
+    t: each row's time in s (NaN allowed in missing rows), plus start_time_ns: the frames'
+        time stamps, to the microsecond. Sample numbers follow the rows and, as vibidd's
+        replay of a CSV counts them, time steps over 1.5 periods.
+    where(row): the capture's place of a row, for messages.
+
+    Values are converted to each signal's unit (the channel map's, else the DBC's) and
+    encoded as raw = round((value - offset) / factor): never saturated (a value outside the
+    signal's raw range, or outside its DBC [min|max] where given, is refused with a
+    ValueError naming the row, channel and signal), and the values rounded are counted.
+    Returns {"samples", "missing", "frames", "plan", "rounded": [per channel],
+    "max_error": [per channel, in the stand's units]}.
+    """
+    from ._captures import _factor
+
+    _need(False, f"writing the candump log {out}")
+    dbc = _exists(os.fspath(dbc), "DBC file")
+    if channel_map is not None:
+        channel_map = _exists(os.fspath(channel_map), "channel-map file")
+    where = where or (lambda row: f"row {row}")
+    chans = list(stand.channels)
+    plan = _core.candump_plan(dbc, chans, chans, channel_map, hint)
+    block = np.asarray(block, dtype=np.float64)
+    t = np.asarray(t, dtype=np.float64)
+    n = len(block)
+    missing = np.isnan(block).any(axis=1)
+    if plan["counter"]:
+        counter_note = f"counter {plan['counter']} ({plan['counter_bits']} bits)"
+    else:
+        counter_note = f"no counter (trigger message {plan['trigger'] or plan['channels'][0]['message']})"
+        if missing.any():
+            first = int(np.flatnonzero(missing)[0])
+            raise ValueError(f"{where(first)}: {int(missing.sum())} missing sample(s), the first here, and the log "
+                             f"has {counter_note}: it cannot mark a gap (a reader would join the samples around it); "
+                             "use a DBC and channel map with a counter signal, or leave the gap out of the capture")
+    # per channel: the stand's unit -> the signal's (the inverse of read_capture's factor)
+    k = np.ones(len(chans))
+    for i, (c, ch) in enumerate(zip(chans, plan["channels"])):
+        if ch["unit"].strip():
+            k[i] = _factor(stand, i, ch["unit"].strip(), f"channel {c!r} ({ch['message']}.{ch['signal']} in {dbc})")
+    keep = ~missing
+    rows = np.flatnonzero(keep)
+    if not len(rows):
+        raise ValueError(f"{where(0)}: no sample to write: all {n} rows are missing (NaN)")
+    values = np.ascontiguousarray(block[keep] / k)
+    inf = ~np.isfinite(values)
+    if inf.any():
+        j, i = (int(x) for x in np.argwhere(inf)[0])
+        raise ValueError(f"{where(int(rows[j]))}: channel {chans[i]!r} = {float(block[rows[j], i])!r}: not a finite "
+                         "number, which no frame carries (a reader drops it as a fault)")
+    # times, microseconds
+    tk = t[keep]
+    bad = ~np.isfinite(tk)
+    if bad.any():
+        r = int(rows[np.flatnonzero(bad)[0]])
+        raise ValueError(f"{where(r)}: time {t[r]!r}: a sample's frames need a time")
+    t_us = start_time_ns // 1000 + np.rint(tk * 1e6).astype(np.int64)
+    if len(t_us) and t_us[0] < 0:
+        raise ValueError(f"{where(int(rows[0]))}: time {t[rows[0]]!r} s: a candump log's times start at 0 (the "
+                         "Unix epoch)")
+    step = np.diff(t_us)
+    if (step <= 0).any():
+        j = int(np.flatnonzero(step <= 0)[0])
+        raise ValueError(f"{where(int(rows[j + 1]))}: time {t[rows[j + 1]]!r} s does not increase (previous "
+                         f"{t[rows[j]]!r} s, to the microsecond a candump log holds)")
+    # sample numbers: the rows, and time steps over 1.5 periods as vibidd's CSV replay counts
+    # them (a CSV converted from a log with gaps has them as time steps)
+    h_us = 1e6 / stand.sample_rate
+    by_rows = np.diff(rows)
+    by_time = np.where(step > 1.5 * h_us, np.rint(step / h_us), 1).astype(np.int64)
+    index = np.concatenate([[0], np.cumsum(np.maximum(by_rows, by_time))]).astype(np.uint64) + np.uint64(rows[0])
+    if plan["counter"] and len(index) > 1:
+        jump = np.diff(index.astype(np.int64))
+        half = 2 ** (plan["counter_bits"] - 1)
+        # the assembler takes a counter step below half the range as newer (can_assembler.h)
+        if (jump >= half).any():
+            j = int(np.flatnonzero(jump >= half)[0])
+            raise ValueError(f"{where(int(rows[j + 1]))}: {int(jump[j]) - 1} samples missing before this one; the "
+                             f"{plan['counter_bits']}-bit counter {plan['counter']} can skip at most {half - 2} "
+                             "(a reader would misplace the samples after the gap)")
+    # the DBC's [min|max] where given ([0|0]: not given), and float32's range
+    for i, (c, ch) in enumerate(zip(chans, plan["channels"])):
+        v = values[:, i]
+        lo, hi = ch["minimum"], ch["maximum"]
+        out_of = np.zeros(len(v), dtype=bool)
+        why = ""
+        if not (lo == 0 and hi == 0) and lo <= hi:
+            out_of = (v < lo) | (v > hi)
+            why = f"outside the DBC's range [{lo:g}|{hi:g}] of {_describe(ch)}"
+        if ch["type"] == "float32":
+            with np.errstate(over="ignore"):
+                big = ~np.isfinite(((v - ch["offset"]) / ch["factor"]).astype(np.float32))
+            if big.any() and (not out_of.any() or np.flatnonzero(big)[0] < np.flatnonzero(out_of)[0]):
+                out_of, why = big, f"beyond float32's range in {_describe(ch)}"
+        if out_of.any():
+            j = int(np.flatnonzero(out_of)[0])
+            unit = f" {ch['unit']}" if ch["unit"] else ""
+            raise ValueError(f"{where(int(rows[j]))}: channel {c!r} = {float(v[j])!r}{unit} is {why}; "
+                             f"{int(out_of.sum())} such value(s) of {c!r}: refused, never saturated")
+    tmp = os.path.join(os.path.dirname(os.path.abspath(out)), f".{os.path.basename(out)}.{os.getpid()}.tmp")
+    try:
+        res = _core.write_candump(tmp, dbc, chans, chans, channel_map, hint, values, np.ascontiguousarray(index),
+                                  np.ascontiguousarray(t_us), str(iface))
+        if res["failed_row"] >= 0:
+            j, i = int(res["failed_row"]), int(res["failed_channel"])
+            if i < 0:
+                raise ValueError(f"{where(int(rows[j]))}: {res['failed_text']}")
+            ch = plan["channels"][i]
+            unit = f" {ch['unit']}" if ch["unit"] else ""
+            raise ValueError(f"{where(int(rows[j]))}: channel {chans[i]!r} = {float(values[j, i])!r}{unit} does not "
+                             f"fit {_describe(ch)}: refused, never saturated")
+        os.replace(tmp, out)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+    return {"samples": int(keep.sum()), "missing": int(missing.sum()), "frames": int(res["frames"]), "plan": plan,
+            "counter_note": counter_note, "rounded": [int(x) for x in res["rounded"]],
+            "max_error": [float(e) * float(f) for e, f in zip(res["max_error"], k)]}
