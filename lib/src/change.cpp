@@ -1,0 +1,419 @@
+// change.cpp: see vibid/change.h.
+#include <vibid/change.h>
+
+#include "api_guard.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <limits>
+#include <vector>
+
+namespace {
+
+constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+constexpr double kInf = std::numeric_limits<double>::infinity();
+constexpr double kClip = 5.0;               // |u_k| beyond this is taken as 5 (one wild block)
+constexpr double kMaxAllowance = 3.0;
+constexpr double kSiegmund = 1.166;         // the overshoot correction of b = h + 1.166
+constexpr double kSecondsPerYear = 365.25 * 86400.0;
+
+// Siegmund's average run length of a one-sided CUSUM whose increments have mean -kappa
+// (allowance minus drift) and unit variance, threshold h.
+double siegmund_arl(double kappa, double h) {
+    const double b = h + kSiegmund;
+    if (std::fabs(kappa) < 1e-9) return b * b;
+    const double x = 2.0 * kappa * b;
+    if (x > 700.0) return kInf;
+    return (std::exp(x) - x - 1.0) / (2.0 * kappa * kappa);
+}
+
+// Standard normal quantile (Acklam's rational approximation, relative error < 1.2e-9).
+double normal_quantile(double p) {
+    static const double a[] = {-3.969683028665376e+01, 2.209460984245205e+02, -2.759285104469687e+02,
+                               1.383577518672690e+02,  -3.066479806614716e+01, 2.506628277459239e+00};
+    static const double b[] = {-5.447609879822406e+01, 1.615858368580409e+02, -1.556989798598866e+02,
+                               6.680131188771972e+01,  -1.328068155288572e+01};
+    static const double c[] = {-7.784894002430293e-03, -3.223964580411365e-01, -2.400758277161838e+00,
+                               -2.549671010349356e+00, 4.374664141464968e+00,  2.938163982698783e+00};
+    static const double d[] = {7.784695709041462e-03, 3.224671290700398e-01, 2.445134137142996e+00,
+                               3.754408661907416e+00};
+    const double lo = 0.02425;
+    if (p < lo) {
+        const double q = std::sqrt(-2.0 * std::log(p));
+        return (((((c[0] * q + c[1]) * q + c[2]) * q + c[3]) * q + c[4]) * q + c[5]) /
+               ((((d[0] * q + d[1]) * q + d[2]) * q + d[3]) * q + 1.0);
+    }
+    if (p > 1.0 - lo) return -normal_quantile(1.0 - p);
+    const double q = p - 0.5, r = q * q;
+    return (((((a[0] * r + a[1]) * r + a[2]) * r + a[3]) * r + a[4]) * r + a[5]) * q /
+           (((((b[0] * r + b[1]) * r + b[2]) * r + b[3]) * r + b[4]) * r + 1.0);
+}
+
+// The false-alarm rate per row of one two-sided CUSUM pair (allowance k, threshold h) for
+// a reference whose errors lie at the edge of their confidence regions: the mean off by
+// kMeanZ / sqrt(n_mean) standard deviations (one side faster, the other slower), the scale
+// underestimated to its kScaleZ quantile (chi2(n_sd - 1), Wilson-Hilferty). Half the
+// pair's rate, so that it compares with one CUSUM's 1 / ARL.
+constexpr double kMeanZ = 1.96;    // the mean's 95 % interval
+constexpr double kScaleZ = -1.645; // the scale's 5 % quantile
+double pair_rate(double k, double h, double n_mean, double n_sd) {
+    const double shift = std::isfinite(n_mean) ? kMeanZ / std::sqrt(n_mean) : 0.0;
+    double w = 1.0;
+    if (std::isfinite(n_sd)) {
+        const double nu = n_sd - 1.0;
+        const double c = std::max(0.05, 1.0 - 2.0 / (9.0 * nu) + kScaleZ * std::sqrt(2.0 / (9.0 * nu)));
+        w = std::sqrt(c * c * c);
+    }
+    // increments (z +- shift) / w against allowance k: in units of z the allowance is
+    // k w -+ shift and the threshold h w
+    auto rate = [&](double kappa) { return std::min(1.0, 1.0 / std::max(1.0, siegmund_arl(kappa, h * w))); };
+    return 0.5 * (rate(k * w - shift) + rate(k * w + shift));
+}
+
+// h with the rate 1 / arl (bisection on h; the rate falls with h).
+double threshold_for(double k, double arl, double n_mean, double n_sd) {
+    const double target = 1.0 / arl;
+    double lo = 0.0, hi = 1.0;
+    while (pair_rate(k, hi, n_mean, n_sd) > target && hi < 1e7) hi *= 2.0;
+    for (int it = 0; it < 60 && hi - lo > 1e-9 * hi; ++it) {
+        const double mid = 0.5 * (lo + hi);
+        if (pair_rate(k, mid, n_mean, n_sd) > target)
+            lo = mid;
+        else
+            hi = mid;
+    }
+    return hi;
+}
+
+struct Param {
+    // chain
+    double prev = kNaN;
+    uint64_t prev_index = 0;
+    bool have_prev = false;
+    // learning (Welford)
+    uint64_t n_learn = 0;
+    double l_mean = 0.0, l_m2 = 0.0;
+    // reference
+    bool have_ref = false;
+    vibid_change_reference ref{};
+    double h = 0.0, k = 0.0;  // the CUSUMs' threshold and allowance (units of sigma_b)
+    double mdc = kNaN;
+    // the CUSUMs: side 0 up, 1 down. sum/n: b_k - m over the current run, which began at onset
+    double S[2] = {}, sum[2] = {};
+    uint64_t n[2] = {}, onset[2] = {};
+    // a raised alarm and its recovery CUSUM
+    bool active = false;
+    double change = 0.0, stat_at_raise = 0.0, T = 0.0, k_clear = 0.0, h_clear = 0.0;
+    double last_block = kNaN;
+    uint64_t tested = 0;
+
+    void restart_cusums() {
+        std::memset(S, 0, sizeof S);
+        std::memset(sum, 0, sizeof sum);
+        std::memset(n, 0, sizeof n);
+    }
+};
+
+}  // namespace
+
+struct vibid_change {
+    vibid_change_config cfg{};
+    double arl = 0.0;       // rows per CUSUM per false alarm
+    double rows_horizon = 0.0;
+    double z_p = 0.0;
+    std::vector<Param> par;
+    bool have_last = false;  // a row was pushed; its sample index:
+    uint64_t last_index = 0;
+
+    // W of a row at sample index n (weight of the samples 0..n)
+    double weight(uint64_t n) const {
+        const double g = cfg.forgetting, m = (double)n + 1.0;
+        return g >= 1.0 ? m : -std::expm1(m * std::log(g)) / (1.0 - g);
+    }
+
+    // The allowance, threshold and MDC of one parameter from its reference.
+    void design(Param &p) const {
+        const double nm = p.ref.n_mean, ns = p.ref.n_sd, n = rows_horizon;
+        const double spread = std::sqrt(n + (std::isfinite(nm) ? n * n / nm : 0.0));
+        auto mdc_of = [&](double k, double h) { return k + (h + z_p * spread) / n; };
+        // k: the allowance with the smallest MDC at the horizon (golden section in log k)
+        double a = std::log(1e-3), b = std::log(kMaxAllowance);
+        const double gr = 0.5 * (std::sqrt(5.0) - 1.0);
+        auto f = [&](double lk) {
+            const double k = std::exp(lk);
+            return mdc_of(k, threshold_for(k, arl, nm, ns));
+        };
+        double c = b - gr * (b - a), d = a + gr * (b - a), fc = f(c), fd = f(d);
+        for (int it = 0; it < 16; ++it) {
+            if (fc < fd) {
+                b = d, d = c, fd = fc, c = b - gr * (b - a), fc = f(c);
+            } else {
+                a = c, c = d, fc = fd, d = a + gr * (b - a), fd = f(d);
+            }
+        }
+        p.k = std::exp(0.5 * (a + b));
+        p.h = threshold_for(p.k, arl, nm, ns);
+        p.mdc = mdc_of(p.k, p.h) * p.ref.block_sd;
+        p.restart_cusums();
+        p.active = false;
+    }
+
+    // h of the recovery CUSUM for allowance k (reference taken as exact: a clearing
+    // decision, not a false alarm of the service)
+    double clear_threshold(double k) const {
+        double lo = 0.0, hi = 1.0;
+        while (siegmund_arl(k, hi) < arl && hi < 1e7) hi *= 2.0;
+        for (int it = 0; it < 60; ++it) {
+            const double mid = 0.5 * (lo + hi);
+            (siegmund_arl(k, mid) < arl ? lo : hi) = mid;
+        }
+        return hi;
+    }
+
+    // One block of parameter i; returns true with *ev filled on an event.
+    bool test(size_t i, uint64_t index, double blk, vibid_change_event *ev) {
+        Param &p = par[i];
+        const double m = p.ref.mean, sb = p.ref.block_sd;
+        const double u = std::clamp((blk - m) / sb, -kClip, kClip);
+        ++p.tested;
+        if (p.active) {
+            const double s = p.change >= 0.0 ? 1.0 : -1.0;
+            p.T = std::max(0.0, p.T + p.k_clear - s * u);
+            if (p.T < p.h_clear) return false;
+            *ev = vibid_change_event{i, VIBID_CHANGE_CLEARED, index, index, p.T, p.h_clear, p.change, kNaN, m};
+            p.active = false;
+            p.T = 0.0;
+            p.restart_cusums();
+            return true;
+        }
+        int fired = -1;
+        double best = 0.0;
+        for (int side = 0; side < 2; ++side) {
+            const double x = side == 0 ? u : -u;
+            double &S = p.S[side];
+            if (S == 0.0) {  // a new run begins with this row
+                p.sum[side] = 0.0;
+                p.n[side] = 0;
+                p.onset[side] = index;
+            }
+            S = std::max(0.0, S + x - p.k);
+            if (S > 0.0) {
+                p.sum[side] += blk - m;
+                ++p.n[side];
+            }
+            S = std::min(S, 10.0 * p.h);  // bounded while a dead band holds it back
+            const double r = S / p.h;
+            if (r >= 1.0 && r > best) best = r, fired = side;
+        }
+        if (fired < 0) return false;
+        const double nrun = (double)p.n[fired];
+        const double change = p.sum[fired] / nrun;
+        if (!(std::fabs(change) > cfg.min_relative * std::fabs(m))) return false;
+        const double nm = p.ref.n_mean;
+        const double se = sb * std::sqrt(1.0 / nrun + (std::isfinite(nm) ? 1.0 / nm : 0.0));
+        *ev = vibid_change_event{i, VIBID_CHANGE_RAISED, index, p.onset[fired], p.S[fired], p.h, change, se, m};
+        p.active = true;
+        p.change = change;
+        p.stat_at_raise = best;
+        const double d = std::max(std::fabs(change) / sb, 1e-3);
+        p.k_clear = 0.5 * d;
+        p.h_clear = clear_threshold(p.k_clear);
+        p.T = 0.0;
+        return true;
+    }
+};
+
+VIBID_API void vibid_change_config_init(vibid_change_config *cfg, size_t n_params) {
+    if (!cfg) return;
+    std::memset(cfg, 0, sizeof *cfg);
+    cfg->n_params = n_params;
+    cfg->sample_rate_hz = 1.0;
+    cfg->forgetting = 1.0;
+    cfg->row_interval = 1.0;
+    cfg->false_alarms_per_year = VIBID_CHANGE_ALARMS_PER_YEAR_DEFAULT;
+    cfg->horizon_s = VIBID_CHANGE_HORIZON_DEFAULT;
+    cfg->detection_probability = VIBID_CHANGE_DETECTION_DEFAULT;
+    cfg->min_relative = 0.0;
+}
+
+VIBID_API vibid_change *vibid_change_create(const vibid_change_config *cfg) {
+    return vibid::guard_create<vibid_change>(__func__, [&]() -> vibid_change * {
+        using vibid::throw_error;
+        if (!cfg) throw_error(VIBID_E_NULL_ARGUMENT, "cfg is NULL");
+        if (cfg->n_params < 1 || cfg->n_params > 4096)
+            throw_error(VIBID_E_DIMENSION, "n_params = %zu outside [1, 4096]", cfg->n_params);
+        auto in = [](double v, double lo, double hi) { return std::isfinite(v) && v >= lo && v <= hi; };
+        if (!in(cfg->sample_rate_hz, 1e-9, 1e12) || cfg->sample_rate_hz <= 0.0)
+            throw_error(VIBID_E_OUT_OF_RANGE, "sample_rate_hz = %g must be finite and > 0", cfg->sample_rate_hz);
+        if (!in(cfg->forgetting, 0.0, 1.0) || cfg->forgetting <= 0.0)
+            throw_error(VIBID_E_OUT_OF_RANGE, "forgetting = %g outside (0, 1]", cfg->forgetting);
+        if (!in(cfg->row_interval, 1.0, 1e12))
+            throw_error(VIBID_E_OUT_OF_RANGE, "row_interval = %g samples outside [1, 1e12]", cfg->row_interval);
+        if (!in(cfg->false_alarms_per_year, 1e-9, 1e12) )
+            throw_error(VIBID_E_OUT_OF_RANGE, "false_alarms_per_year = %g outside [1e-9, 1e12]",
+                        cfg->false_alarms_per_year);
+        if (!in(cfg->horizon_s, 1e-9, 1e12))
+            throw_error(VIBID_E_OUT_OF_RANGE, "horizon_s = %g must be finite and > 0", cfg->horizon_s);
+        if (!in(cfg->detection_probability, 0.5, 0.999))
+            throw_error(VIBID_E_OUT_OF_RANGE, "detection_probability = %g outside [0.5, 0.999]",
+                        cfg->detection_probability);
+        if (!in(cfg->min_relative, 0.0, 1e6))
+            throw_error(VIBID_E_OUT_OF_RANGE, "min_relative = %g outside [0, 1e6]", cfg->min_relative);
+        auto *d = new vibid_change;
+        d->cfg = *cfg;
+        const double rows_per_year = kSecondsPerYear * cfg->sample_rate_hz / cfg->row_interval;
+        const double cusums = 2.0 * (double)cfg->n_params;
+        d->arl = std::max(2.0, rows_per_year * cusums / cfg->false_alarms_per_year);
+        d->rows_horizon = std::max(1.0, cfg->horizon_s * cfg->sample_rate_hz / cfg->row_interval);
+        d->z_p = normal_quantile(cfg->detection_probability);
+        try {
+            d->par.assign(cfg->n_params, Param{});
+        } catch (...) {
+            delete d;
+            throw;
+        }
+        return d;
+    });
+}
+
+VIBID_API void vibid_change_destroy(vibid_change *det) { delete det; }
+
+VIBID_API vibid_status vibid_change_reset(vibid_change *det) {
+    if (!det) return VIBID_FAIL(VIBID_E_NULL_ARGUMENT, "det is NULL");
+    std::fill(det->par.begin(), det->par.end(), Param{});
+    det->have_last = false;
+    det->last_index = 0;
+    return VIBID_OK;
+}
+
+VIBID_API vibid_status vibid_change_push(vibid_change *det, uint64_t index, const double *theta, int use,
+                                         vibid_change_phase phase, vibid_change_event *events, size_t cap,
+                                         size_t *n_events) {
+    if (!det || !theta || !n_events || (cap > 0 && !events))
+        return VIBID_FAIL(VIBID_E_NULL_ARGUMENT, "det, theta, n_events (and events when cap > 0) are required");
+    const int ph = vibid::enum_value(phase);
+    if (ph != VIBID_CHANGE_LEARN && ph != VIBID_CHANGE_TEST)
+        return VIBID_FAIL(VIBID_E_OUT_OF_RANGE, "phase = %d is neither VIBID_CHANGE_LEARN nor VIBID_CHANGE_TEST", ph);
+    *n_events = 0;
+    if (det->have_last && index <= det->last_index)
+        return VIBID_FAIL(VIBID_E_OUT_OF_RANGE, "index %llu does not follow the previous row's %llu",
+                          (unsigned long long)index, (unsigned long long)det->last_index);
+    det->have_last = true;
+    det->last_index = index;
+    const double wk = det->weight(index);
+    for (size_t i = 0; i < det->par.size(); ++i) {
+        Param &p = det->par[i];
+        const double th = theta[i];
+        if (!std::isfinite(th)) {  // the chain breaks
+            p.have_prev = false;
+            p.prev_index = index;
+            continue;
+        }
+        double blk = kNaN;
+        if (p.have_prev) {
+            const double g = det->cfg.forgetting;
+            const double dn = (double)(index - p.prev_index);
+            const double decay = g >= 1.0 ? 1.0 : std::exp(dn * std::log(g));
+            const double phi = decay * det->weight(p.prev_index) / wk;
+            if (phi < 1.0) blk = (th - phi * p.prev) / (1.0 - phi);
+        }
+        p.prev = th;
+        p.prev_index = index;
+        p.have_prev = true;
+        if (!use || !std::isfinite(blk)) continue;
+        p.last_block = blk;
+        if (ph == VIBID_CHANGE_LEARN) {
+            ++p.n_learn;
+            const double delta = blk - p.l_mean;
+            p.l_mean += delta / (double)p.n_learn;
+            p.l_m2 += delta * (blk - p.l_mean);
+        } else if (p.have_ref) {
+            vibid_change_event ev;
+            if (det->test(i, index, blk, &ev)) {
+                if (*n_events < cap) events[*n_events] = ev;
+                ++*n_events;
+            }
+        }
+    }
+    if (*n_events > cap) *n_events = cap;
+    return VIBID_OK;
+}
+
+VIBID_API vibid_status vibid_change_end_learning(vibid_change *det) {
+    if (!det) return VIBID_FAIL(VIBID_E_NULL_ARGUMENT, "det is NULL");
+    for (size_t i = 0; i < det->par.size(); ++i) {
+        const Param &p = det->par[i];
+        if (p.n_learn < VIBID_CHANGE_MIN_BLOCKS || !(p.l_m2 > 0.0))
+            return VIBID_FAIL(VIBID_E_INSUFFICIENT_DATA,
+                              "parameter %zu: %llu blocks learned%s; a reference needs %d with a spread > 0", i,
+                              (unsigned long long)p.n_learn, p.n_learn >= 2 ? " (all equal)" : "",
+                              VIBID_CHANGE_MIN_BLOCKS);
+    }
+    for (Param &p : det->par) {
+        const double nl = (double)p.n_learn;
+        p.ref = vibid_change_reference{p.l_mean, std::sqrt(p.l_m2 / (nl - 1.0)), nl, nl};
+        p.have_ref = true;
+        det->design(p);
+    }
+    return VIBID_OK;
+}
+
+VIBID_API vibid_status vibid_change_set_reference(vibid_change *det, const vibid_change_reference *ref) {
+    if (!det || !ref) return VIBID_FAIL(VIBID_E_NULL_ARGUMENT, "det and ref are required");
+    for (size_t i = 0; i < det->par.size(); ++i) {
+        const vibid_change_reference &r = ref[i];
+        if (!std::isfinite(r.mean) || !std::isfinite(r.block_sd) || !(r.block_sd > 0.0) || !(r.n_mean >= 1.0) ||
+            !(r.n_sd >= 2.0))
+            return VIBID_FAIL(VIBID_E_OUT_OF_RANGE,
+                              "ref[%zu]: mean %g, block_sd %g, n_mean %g, n_sd %g (need finite mean, "
+                              "block_sd > 0, n_mean >= 1, n_sd >= 2)",
+                              i, r.mean, r.block_sd, r.n_mean, r.n_sd);
+    }
+    for (size_t i = 0; i < det->par.size(); ++i) {
+        Param &p = det->par[i];
+        p.ref = ref[i];
+        p.have_ref = true;
+        det->design(p);
+    }
+    return VIBID_OK;
+}
+
+VIBID_API vibid_status vibid_change_get_reference(const vibid_change *det, vibid_change_reference *ref) {
+    if (!det || !ref) return VIBID_FAIL(VIBID_E_NULL_ARGUMENT, "det and ref are required");
+    for (const Param &p : det->par)
+        if (!p.have_ref) return VIBID_FAIL(VIBID_E_STATE, "no reference yet");
+    for (size_t i = 0; i < det->par.size(); ++i) ref[i] = det->par[i].ref;
+    return VIBID_OK;
+}
+
+VIBID_API vibid_status vibid_change_get_state(const vibid_change *det, size_t param, vibid_change_state *state) {
+    if (!det || !state) return VIBID_FAIL(VIBID_E_NULL_ARGUMENT, "det and state are required");
+    if (param >= det->par.size())
+        return VIBID_FAIL(VIBID_E_OUT_OF_RANGE, "param = %zu, the detector has %zu", param, det->par.size());
+    const Param &p = det->par[param];
+    vibid_change_state s{};
+    s.have_reference = p.have_ref;
+    s.active = p.active;
+    double r = 0.0;
+    if (p.have_ref) r = std::max(p.S[0], p.S[1]) / p.h;
+    s.statistic = p.active ? p.stat_at_raise : r;
+    s.mdc = p.have_ref ? p.mdc : kNaN;
+    s.mdc_relative = p.have_ref && p.ref.mean != 0.0 ? p.mdc / std::fabs(p.ref.mean) : kNaN;
+    s.last_block = p.last_block;
+    s.blocks_learned = p.n_learn;
+    s.blocks_tested = p.tested;
+    *state = s;
+    return VIBID_OK;
+}
+
+VIBID_API vibid_status vibid_change_threshold(double k, double arl, double n_mean, double n_sd, double *h) {
+    if (!h) return VIBID_FAIL(VIBID_E_NULL_ARGUMENT, "h is NULL");
+    if (!(k > 0.0) || !std::isfinite(k) || !(arl >= 2.0) || !std::isfinite(arl) || !(n_mean >= 1.0) ||
+        !(n_sd >= 2.0))
+        return VIBID_FAIL(VIBID_E_OUT_OF_RANGE, "k = %g, arl = %g, n_mean = %g, n_sd = %g (need k > 0, arl >= 2, "
+                                                "n_mean >= 1, n_sd >= 2)",
+                          k, arl, n_mean, n_sd);
+    *h = threshold_for(k, arl, n_mean, n_sd);
+    return VIBID_OK;
+}

@@ -1,0 +1,335 @@
+/* lib.test_change: vibid/change.h, the change test on a recursive estimator's track.
+ *
+ * What is asserted and why (each tolerance is stated where it is used):
+ *  - the threshold: without reference error it is Siegmund's (round trip to 1e-6), and a
+ *    CUSUM simulated on N(0,1) increments with it runs that long on average (within 10 %:
+ *    the mean of 4000 run lengths has a standard error of 1.6 %, Siegmund's approximation
+ *    is within about 3 % at k = 0.5); a learned reference raises it, more for a shorter one;
+ *  - block estimates: without forgetting, the block of a cumulative mean is exactly the mean
+ *    of the samples between the rows (1e-9 relative);
+ *  - the false-alarm rate on a simulated recursive estimator (exponentially weighted LS with
+ *    two correlated regressors, memory 1000 samples, a row every 100: neighbouring rows share
+ *    90 % of their data), 60 runs of 6000 rows: with the exact reference the count of false
+ *    alarms inside the two-sided 99 % Poisson interval of the count the configured rate
+ *    gives over the rows tested; with references learned from 300 blocks at most its upper
+ *    end (the threshold holds the rate for 90 % of references);
+ *  - detection: a step of one parameter by its reported minimum detectable change is raised
+ *    within the horizon in at least 90 % of 40 runs (minus the binomial allowance: >= 33,
+ *    P(X <= 32 | p = 0.9) = 0.04; the MDC is conservative), on that parameter, with the
+ *    onset and the change estimated (within the horizon; within 4 standard errors);
+ *    restoring it clears the alarm;
+ *  - bad arguments are refused naming what. */
+#include <math.h>
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <cmocka.h>
+
+#include <vibid/change.h>
+
+#include "test_rng.h"
+
+static double siegmund(double k, double h)
+{
+    double b = h + 1.166, x = 2.0 * k * b;
+    return (exp(x) - x - 1.0) / (2.0 * k * k);
+}
+
+static void test_threshold(void **state)
+{
+    (void)state;
+    double h;
+    assert_int_equal(vibid_change_threshold(0.5, 1e4, INFINITY, INFINITY, &h), VIBID_OK);
+    assert_true(fabs(siegmund(0.5, h) / 1e4 - 1.0) < 1e-6);
+
+    /* Monte Carlo run length at ARL 500 */
+    assert_int_equal(vibid_change_threshold(0.5, 500.0, INFINITY, INFINITY, &h), VIBID_OK);
+    test_rng rng;
+    test_rng_seed(&rng, 11);
+    double total = 0.0;
+    const int runs = 4000;
+    for (int r = 0; r < runs; ++r) {
+        double S = 0.0;
+        long n = 0;
+        while (S < h) {
+            S = fmax(0.0, S + test_rng_normal(&rng) - 0.5);
+            ++n;
+        }
+        total += (double)n;
+    }
+    double mean = total / runs;
+    printf("ARL 500: h = %.4f, simulated mean run length %.1f\n", h, mean);
+    assert_true(fabs(mean / 500.0 - 1.0) < 0.10);
+
+    /* a learned reference costs threshold: more for fewer blocks */
+    double h_inf, h_1000, h_100;
+    assert_int_equal(vibid_change_threshold(0.3, 1e8, INFINITY, INFINITY, &h_inf), VIBID_OK);
+    assert_int_equal(vibid_change_threshold(0.3, 1e8, 1000.0, 1000.0, &h_1000), VIBID_OK);
+    assert_int_equal(vibid_change_threshold(0.3, 1e8, 100.0, 100.0, &h_100), VIBID_OK);
+    printf("k = 0.3, ARL 1e8: h = %.2f exact reference, %.2f from 1000 blocks, %.2f from 100\n", h_inf, h_1000,
+           h_100);
+    assert_true(h_inf < h_1000 && h_1000 < h_100);
+}
+
+static void test_block_cumulative(void **state)
+{
+    (void)state;
+    vibid_change_config cfg;
+    vibid_change_config_init(&cfg, 1);
+    cfg.sample_rate_hz = 100.0;
+    cfg.row_interval = 10.0;
+    vibid_change *det = vibid_change_create(&cfg);
+    assert_non_null(det);
+    test_rng rng;
+    test_rng_seed(&rng, 3);
+    double sum = 0.0, block_sum = 0.0;
+    uint64_t n = 0;
+    for (int row = 0; row < 50; ++row) {
+        block_sum = 0.0;
+        for (int j = 0; j < 10; ++j, ++n) {
+            double x = 3.0 + test_rng_normal(&rng);
+            sum += x;
+            block_sum += x;
+        }
+        double theta = sum / (double)n;
+        size_t ne;
+        assert_int_equal(vibid_change_push(det, n - 1, &theta, 1, VIBID_CHANGE_LEARN, NULL, 0, &ne), VIBID_OK);
+        vibid_change_state st;
+        assert_int_equal(vibid_change_get_state(det, 0, &st), VIBID_OK);
+        if (row > 0) assert_true(fabs(st.last_block / (block_sum / 10.0) - 1.0) < 1e-9);
+    }
+    vibid_change_destroy(det);
+}
+
+/* A two-parameter exponentially weighted LS estimator y = t1 x1 + t2 x2 + e, x1, x2 with
+ * correlation 0.5, e ~ N(0, 1): rows every 100 samples with forgetting 1 - 1/1000. */
+typedef struct ewls {
+    double lambda, R11, R12, R22, r1, r2;
+} ewls;
+
+static void ewls_rows(ewls *e, test_rng *rng, double t1, double t2, int samples, double theta[2])
+{
+    for (int j = 0; j < samples; ++j) {
+        double z1 = test_rng_normal(rng), z2 = test_rng_normal(rng);
+        double x1 = z1, x2 = 0.5 * z1 + sqrt(0.75) * z2;
+        double y = t1 * x1 + t2 * x2 + test_rng_normal(rng);
+        double l = e->lambda;
+        e->R11 = l * e->R11 + x1 * x1;
+        e->R12 = l * e->R12 + x1 * x2;
+        e->R22 = l * e->R22 + x2 * x2;
+        e->r1 = l * e->r1 + x1 * y;
+        e->r2 = l * e->r2 + x2 * y;
+    }
+    double det = e->R11 * e->R22 - e->R12 * e->R12;
+    theta[0] = (e->R22 * e->r1 - e->R12 * e->r2) / det;
+    theta[1] = (e->R11 * e->r2 - e->R12 * e->r1) / det;
+}
+
+enum { kRowSamples = 100, kLearnRows = 300 };
+
+static vibid_change *make_detector(double per_year)
+{
+    vibid_change_config cfg;
+    vibid_change_config_init(&cfg, 2);
+    cfg.sample_rate_hz = 1000.0;
+    cfg.forgetting = 1.0 - 1.0 / 1000.0;
+    cfg.row_interval = kRowSamples;
+    cfg.false_alarms_per_year = per_year;
+    cfg.horizon_s = 60.0;
+    vibid_change *det = vibid_change_create(&cfg);
+    assert_non_null(det);
+    return det;
+}
+
+/* Runs the estimator from rest: 20 rows of start-up, kLearnRows learned, the reference. */
+static uint64_t learn(vibid_change *det, ewls *e, test_rng *rng, double t1, double t2)
+{
+    memset(e, 0, sizeof *e);
+    e->lambda = 1.0 - 1.0 / 1000.0;
+    uint64_t index = 0;
+    double theta[2];
+    size_t ne;
+    for (int row = 0; row < 20 + kLearnRows; ++row) {
+        ewls_rows(e, rng, t1, t2, kRowSamples, theta);
+        index += kRowSamples;
+        if (row >= 20)
+            assert_int_equal(vibid_change_push(det, index - 1, theta, 1, VIBID_CHANGE_LEARN, NULL, 0, &ne), VIBID_OK);
+    }
+    assert_int_equal(vibid_change_end_learning(det), VIBID_OK);
+    return index;
+}
+
+/* False alarms over runs x rows rows, each run with its own reference: learned (300
+ * blocks) or exact (the true values; sigma_b of a 100-sample LS block with these regressors:
+ * sqrt(1 / (100 x 0.75))). Returns the count; *expected: what the configured rate gives over
+ * the parameter-rows without an active alarm. */
+static int count_false_alarms(int learned, double *expected)
+{
+    const double rows_per_year = 365.25 * 86400.0 * 10.0;
+    const int runs = 60, rows = 6000;
+    const double per_year = 25.0 / (runs * (double)rows) * rows_per_year;
+    test_rng rng;
+    test_rng_seed(&rng, learned ? 2026 : 2027);
+    double exposure = 0.0;
+    int raised = 0;
+    for (int r = 0; r < runs; ++r) {
+        vibid_change *det = make_detector(per_year);
+        ewls e;
+        uint64_t index = learn(det, &e, &rng, 1.0, -2.0);
+        if (!learned) {
+            const double sb = sqrt(1.0 / 75.0);
+            vibid_change_reference ref[2] = {{1.0, sb, INFINITY, INFINITY}, {-2.0, sb, INFINITY, INFINITY}};
+            assert_int_equal(vibid_change_set_reference(det, ref), VIBID_OK);
+        }
+        for (int row = 0; row < rows; ++row) {
+            double theta[2];
+            ewls_rows(&e, &rng, 1.0, -2.0, kRowSamples, theta);
+            index += kRowSamples;
+            vibid_change_state s0, s1;
+            assert_int_equal(vibid_change_get_state(det, 0, &s0), VIBID_OK);
+            assert_int_equal(vibid_change_get_state(det, 1, &s1), VIBID_OK);
+            exposure += (double)!s0.active + (double)!s1.active;
+            vibid_change_event ev[2];
+            size_t ne;
+            assert_int_equal(vibid_change_push(det, index - 1, theta, 1, VIBID_CHANGE_TEST, ev, 2, &ne), VIBID_OK);
+            for (size_t i = 0; i < ne; ++i) raised += ev[i].kind == VIBID_CHANGE_RAISED;
+        }
+        vibid_change_destroy(det);
+    }
+    /* the rate is split over 2 parameters: exposure counts parameter-rows */
+    *expected = exposure / 2.0 * per_year / rows_per_year;
+    return raised;
+}
+
+static void test_false_alarm_rate(void **state)
+{
+    (void)state;
+    double expected;
+    /* exact reference: the rate as configured. Two-sided 99 % Poisson interval of the
+       expected count (about 25: [13.3, 39.3]; normal approximation with continuity) */
+    int raised = count_false_alarms(0, &expected);
+    printf("false alarms, exact reference: %d raised, %.1f expected at the configured rate\n", raised, expected);
+    assert_true(raised >= expected - 2.576 * sqrt(expected) - 0.5 && raised <= expected + 2.576 * sqrt(expected) + 2.0);
+    /* learned references: at or below the rate for 90 % of them, so the count over 60 of
+       them at most the upper end of the same interval */
+    raised = count_false_alarms(1, &expected);
+    printf("false alarms, learned references (300 blocks): %d raised, at most %.1f expected\n", raised, expected);
+    assert_true(raised <= expected + 2.576 * sqrt(expected) + 2.0);
+}
+
+static void test_detection(void **state)
+{
+    (void)state;
+    test_rng rng;
+    test_rng_seed(&rng, 77);
+    const int runs = 40, horizon_rows = 600;
+    int detected = 0, wrong_param = 0, cleared = 0;
+    for (int r = 0; r < runs; ++r) {
+        vibid_change *det = make_detector(1.0);
+        ewls e;
+        uint64_t index = learn(det, &e, &rng, 1.0, -2.0);
+        vibid_change_state st;
+        assert_int_equal(vibid_change_get_state(det, 0, &st), VIBID_OK);
+        const double delta = st.mdc;
+        if (r == 0) printf("MDC of t1 in 60 s at 1 false alarm a year: %.4f (%.2f %%)\n", st.mdc, 100 * st.mdc_relative);
+        /* 100 rows unchanged, then t1 + delta */
+        const uint64_t step_index = index + 100 * kRowSamples;
+        int raised_at = -1;
+        for (int row = 0; row < 100 + horizon_rows; ++row) {
+            double theta[2];
+            double t1 = row < 100 ? 1.0 : 1.0 + delta;
+            ewls_rows(&e, &rng, t1, -2.0, kRowSamples, theta);
+            index += kRowSamples;
+            vibid_change_event ev[2];
+            size_t ne;
+            assert_int_equal(vibid_change_push(det, index - 1, theta, 1, VIBID_CHANGE_TEST, ev, 2, &ne), VIBID_OK);
+            for (size_t i = 0; i < ne; ++i) {
+                if (ev[i].kind != VIBID_CHANGE_RAISED) continue;
+                if (ev[i].param != 0 || row < 100) {
+                    ++wrong_param;
+                    continue;
+                }
+                if (raised_at < 0) {
+                    raised_at = row;
+                    /* onset: the CUSUM's last zero, which the noise before the step can move
+                       earlier (small allowance): within half the horizon before the step */
+                    assert_true(ev[i].onset_index + 300 * kRowSamples >= step_index);
+                    assert_true(ev[i].onset_index <= ev[i].index);
+                    assert_true(fabs(ev[i].change - delta) < 4.0 * ev[i].change_se);
+                    assert_true(ev[i].statistic >= ev[i].threshold);
+                }
+            }
+        }
+        if (raised_at >= 0) {
+            ++detected;
+            /* back to the reference: the alarm clears */
+            for (int row = 0; row < 3000; ++row) {
+                double theta[2];
+                ewls_rows(&e, &rng, 1.0, -2.0, kRowSamples, theta);
+                index += kRowSamples;
+                vibid_change_event ev[2];
+                size_t ne;
+                assert_int_equal(vibid_change_push(det, index - 1, theta, 1, VIBID_CHANGE_TEST, ev, 2, &ne),
+                                 VIBID_OK);
+                if (ne == 1 && ev[0].kind == VIBID_CHANGE_CLEARED && ev[0].param == 0) {
+                    ++cleared;
+                    break;
+                }
+            }
+        }
+        vibid_change_destroy(det);
+    }
+    printf("a step of the MDC: detected within 60 s in %d of %d runs, cleared in %d; %d wrong alarms\n", detected,
+           runs, cleared, wrong_param);
+    assert_true(detected >= 33);
+    assert_int_equal(cleared, detected);
+    assert_true(wrong_param <= 1); /* one false alarm in 40 x 700 rows at 1 a year is not expected */
+}
+
+static void test_bad_arguments(void **state)
+{
+    (void)state;
+    vibid_change_config cfg;
+    vibid_change_config_init(&cfg, 2);
+    cfg.forgetting = 0.0;
+    assert_null(vibid_change_create(&cfg));
+    assert_non_null(strstr(vibid_last_error(), "forgetting"));
+    vibid_change_config_init(&cfg, 2);
+    cfg.false_alarms_per_year = -1.0;
+    assert_null(vibid_change_create(&cfg));
+    assert_non_null(strstr(vibid_last_error(), "false_alarms_per_year"));
+    vibid_change_config_init(&cfg, 1);
+    vibid_change *det = vibid_change_create(&cfg);
+    assert_non_null(det);
+    double th = 1.0;
+    size_t ne;
+    assert_int_equal(vibid_change_push(det, 5, &th, 1, VIBID_CHANGE_LEARN, NULL, 0, &ne), VIBID_OK);
+    assert_int_equal(vibid_change_push(det, 5, &th, 1, VIBID_CHANGE_LEARN, NULL, 0, &ne), VIBID_E_OUT_OF_RANGE);
+    assert_non_null(strstr(vibid_last_error(), "does not follow"));
+    assert_int_equal(vibid_change_end_learning(det), VIBID_E_INSUFFICIENT_DATA);
+    assert_non_null(strstr(vibid_last_error(), "parameter 0"));
+    vibid_change_reference ref;
+    assert_int_equal(vibid_change_get_reference(det, &ref), VIBID_E_STATE);
+    ref = (vibid_change_reference){1.0, 0.0, 10.0, 10.0};
+    assert_int_equal(vibid_change_set_reference(det, &ref), VIBID_E_OUT_OF_RANGE);
+    assert_non_null(strstr(vibid_last_error(), "block_sd"));
+    ref.block_sd = 0.1;
+    assert_int_equal(vibid_change_set_reference(det, &ref), VIBID_OK);
+    vibid_change_state st;
+    assert_int_equal(vibid_change_get_state(det, 1, &st), VIBID_E_OUT_OF_RANGE);
+    vibid_change_destroy(det);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_threshold),       cmocka_unit_test(test_block_cumulative),
+        cmocka_unit_test(test_false_alarm_rate), cmocka_unit_test(test_detection),
+        cmocka_unit_test(test_bad_arguments),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}
