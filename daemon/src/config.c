@@ -6,6 +6,7 @@
  */
 #include "config.h"
 
+#include <vibid/change.h>
 #include <vibid/output_error.h>
 
 #include "log.h"
@@ -517,8 +518,10 @@ static const char *const est_known[] = {"method",         "forgetting",       "p
                                         "iv_lag",         "difference_order", "decimation",   "warmup_samples",
                                         "start_values",   "outlier_threshold", "refine_every", "refine_window", NULL};
 static const char *const out_known[] = {"tracks", "influx", "record", "status", "prometheus", "mqtt", NULL};
-static const char *const alarm_known[] = {"enabled", "threshold", "min_relative", "hold", "learn_start",
-                                          "learn_duration", "parameters", NULL};
+static const char *const alarm_known[] = {"enabled",       "test",           "false_alarms_per_year",
+                                          "horizon",       "detection_probability",
+                                          "threshold",     "min_relative",   "hold",
+                                          "learn_start",   "learn_duration", "parameters", NULL};
 static const char *const log_known[] = {"level", "status_interval", NULL};
 static const char *const top_known[] = {"stand", "source", "acquisition", "estimator", "outputs", "alarms", "log",
                                         NULL};
@@ -1061,9 +1064,34 @@ static int load_alarms(ctx *c, config_t *cf)
     config_setting_t *g = config_lookup(cf, "alarms");
     if (check_known(c, g, "alarms", alarm_known))
         return -1;
+    static const char *const tests[] = {"cusum", "threshold", NULL};
+    int test;
     if (get_bool(c, g, "alarms", "enabled", g != NULL, &cfg->alarms_enabled) ||
+        get_enum(c, g, "alarms", "test", (int)VD_ALARM_CUSUM, tests, &test))
+        return -1;
+    cfg->alarm_test = (vd_alarm_test)test;
+    /* the settings of the other test are errors, not silently ignored */
+    static const char *const cusum_only[] = {"false_alarms_per_year", "horizon", "detection_probability", NULL};
+    static const char *const threshold_only[] = {"threshold", "hold", NULL};
+    const char *const *wrong = test == VD_ALARM_CUSUM ? threshold_only : cusum_only;
+    for (size_t i = 0; g && wrong[i]; i++) {
+        const config_setting_t *w = config_setting_get_member(g, wrong[i]);
+        if (w) {
+            char f[64];
+            snprintf(f, sizeof f, "alarms.%s", wrong[i]);
+            return vibid_cfg_fail(&c->r, w, f, "belongs to test = \"%s\", and this file's test is \"%s\"%s",
+                                  test == VD_ALARM_CUSUM ? "threshold" : "cusum", tests[test],
+                                  config_setting_get_member(g, "test") ? "" : " (the default)");
+        }
+    }
+    if (get_double(c, g, "alarms", "false_alarms_per_year", VIBID_CHANGE_ALARMS_PER_YEAR_DEFAULT, 1e-6, 1e9,
+                   &cfg->alarm_false_per_year) ||
+        get_double(c, g, "alarms", "horizon", VIBID_CHANGE_HORIZON_DEFAULT, 0.001, 1e9, &cfg->alarm_horizon_s) ||
+        get_double(c, g, "alarms", "detection_probability", VIBID_CHANGE_DETECTION_DEFAULT, 0.5, 0.999,
+                   &cfg->alarm_detection_probability) ||
         get_double(c, g, "alarms", "threshold", 5.0, 0.1, 1e6, &cfg->alarm_threshold) ||
-        get_double(c, g, "alarms", "min_relative", 0.02, 0.0, 10.0, &cfg->alarm_min_relative) ||
+        get_double(c, g, "alarms", "min_relative", test == VD_ALARM_CUSUM ? 0.0 : 0.02, 0.0, 10.0,
+                   &cfg->alarm_min_relative) ||
         get_double(c, g, "alarms", "hold", 2.0, 0.0, 86400.0, &cfg->alarm_hold_s) ||
         get_double(c, g, "alarms", "learn_start", 5.0, 0.0, 1e9, &cfg->learn_start_s) ||
         get_double(c, g, "alarms", "learn_duration", 10.0, 0.001, 1e9, &cfg->learn_duration_s))
@@ -1464,11 +1492,15 @@ void vd_config_print(const vd_config *cfg, FILE *o)
                 esc(cfg->mqtt.client_id), esc(cfg->mqtt.username), esc(cfg->mqtt.password_file),
                 esc(cfg->mqtt.ca_file), esc(cfg->mqtt.cert_file), esc(cfg->mqtt.key_file), cfg->mqtt.qos, cfg->mqtt.queue_size, cfg->mqtt.format ? "line" : "json",
                 cfg->mqtt.keepalive, cfg->mqtt.protocol == 5 ? "5" : "3.1.1", num(cfg->mqtt.drain_timeout_s));
-    fprintf(o,
-            "alarms = {\n  enabled = %s;\n  threshold = %s;\n  min_relative = %s;\n  hold = %s;\n"
-            "  learn_start = %s;\n  learn_duration = %s;\n  parameters = (",
-            yes(cfg->alarms_enabled), num(cfg->alarm_threshold), num(cfg->alarm_min_relative), num(cfg->alarm_hold_s),
-            num(cfg->learn_start_s), num(cfg->learn_duration_s));
+    fprintf(o, "alarms = {\n  enabled = %s;\n", yes(cfg->alarms_enabled));
+    if (cfg->alarm_test == VD_ALARM_CUSUM)
+        fprintf(o, "  test = \"cusum\";\n  false_alarms_per_year = %s;\n  horizon = %s;\n  detection_probability = %s;\n",
+                num(cfg->alarm_false_per_year), num(cfg->alarm_horizon_s), num(cfg->alarm_detection_probability));
+    else
+        fprintf(o, "  test = \"threshold\";\n  threshold = %s;\n  hold = %s;\n", num(cfg->alarm_threshold),
+                num(cfg->alarm_hold_s));
+    fprintf(o, "  min_relative = %s;\n  learn_start = %s;\n  learn_duration = %s;\n  parameters = (",
+            num(cfg->alarm_min_relative), num(cfg->learn_start_s), num(cfg->learn_duration_s));
     bool first = true;
     for (size_t k = 0; k < cfg->n_params; k++) {
         const vd_alarm_param *a = &cfg->alarm_param[k];

@@ -34,6 +34,10 @@ typedef vibid_cfg_error vd_config_error;
 typedef enum vd_source_kind { VD_SRC_SOCKETCAN = 0, VD_SRC_MODBUS = 1, VD_SRC_REPLAY = 2 } vd_source_kind;
 typedef enum vd_record_format { VD_REC_CSV = 0, VD_REC_CANDUMP = 1 } vd_record_format;
 
+/* The alarms' test (docs/vibidd.md, alarms): the change test of vibid/change.h with a
+ * stated false-alarm rate, or the rule z > threshold held for `hold` seconds. */
+typedef enum vd_alarm_test { VD_ALARM_CUSUM = 0, VD_ALARM_THRESHOLD = 1 } vd_alarm_test;
+
 /* Per-parameter alarm settings (after defaults). */
 typedef struct vd_alarm_param {
     char name[64];
@@ -176,7 +180,11 @@ typedef struct vd_config {
 
     /* alarms */
     bool alarms_enabled;
-    double alarm_threshold, alarm_min_relative, alarm_hold_s;
+    vd_alarm_test alarm_test;        /* the change test (default) or the old threshold rule */
+    double alarm_false_per_year;     /* cusum: false alarms a year, all parameters together */
+    double alarm_horizon_s;          /* cusum: horizon of the minimum detectable change */
+    double alarm_detection_probability; /* cusum: of the minimum detectable change */
+    double alarm_threshold, alarm_min_relative, alarm_hold_s; /* threshold, hold: the threshold rule */
     double learn_start_s, learn_duration_s;
     vd_alarm_param alarm_param[VD_MAX_PARAMS];
 

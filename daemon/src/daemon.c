@@ -19,6 +19,7 @@
 #include <time.h>
 #include <unistd.h>
 
+#include <vibid/change.h>
 #include <vibid_drivers/source_modbus.h>
 #include <vibid_drivers/source_replay.h>
 #include <vibid_drivers/source_socketcan.h>
@@ -368,19 +369,87 @@ static void note_plausibility(vd_daemon *d, const vd_row *row)
 }
 
 /* An alarm event to every open output. */
-static void outputs_alarm(vd_daemon *d, const char *param, int raised, const vd_row *row, double value,
-                          double baseline, double z)
+static void outputs_alarm(vd_daemon *d, const vd_output_alarm *ev)
 {
-    const vd_output_alarm ev = {param, raised, row, value, baseline, z};
     for (size_t i = 0; i < d->n_out; i++)
         if (d->out[i].ops->alarm)
-            d->out[i].ops->alarm(d->out[i].o, &ev);
+            d->out[i].ops->alarm(d->out[i].o, ev);
+}
+
+/* alarms.test = "cusum": the change test (alarm.h, vibid/change.h). Rows of the output-error
+ * refinement (W) are not part of the recursive track and are not pushed. */
+static void run_cusum(vd_daemon *d, vd_row *row)
+{
+    if (row->flags & VD_FLAG_REFINED)
+        return;
+    const vibid_model *m = vibid_stand_model(d->cfg->stand);
+    /* a block is used when its row has a possible estimate (no E, P), is excited (no I) and
+       no sample between the rows is missing or taken out (no G, O) */
+    const bool use = vd_row_usable(row->flags) &&
+                     !(row->flags & (VD_FLAG_NOT_EXCITED | VD_FLAG_GAP | VD_FLAG_OUTLIER));
+    vd_cusum_event ev[VD_MAX_PARAMS];
+    bool reference_now;
+    size_t ne = vd_cusum_row(&d->cusum, row->index, row->run_s, row->theta, use, ev, &reference_now);
+    if (reference_now) {
+        for (size_t i = 0; i < d->cusum.n; i++) {
+            size_t k = d->cusum.param[i];
+            double stat, mdc, mdc_rel;
+            bool active;
+            vibid_param_info pi;
+            vibid_model_param_info(m, k, &pi);
+            vibid_change_reference ref;
+            if (vd_cusum_state(&d->cusum, k, &stat, &mdc, &mdc_rel, &active) &&
+                vd_cusum_reference(&d->cusum, k, &ref))
+                vd_info("alarm reference of %s: %.9g (%s), block estimates' standard deviation %.3g from %.0f blocks; "
+                        "detectable change %.3g (%.3g %%) within %g s with probability %g at %g false alarms a year",
+                        pi.name, ref.mean, d->cusum.have_given[i] ? "given" : "learned", ref.block_sd, ref.n_sd, mdc,
+                        100.0 * mdc_rel, d->cfg->alarm_horizon_s, d->cfg->alarm_detection_probability,
+                        d->cfg->alarm_false_per_year);
+        }
+    } else if (d->cusum.learning_extended && !d->cusum_extended_reported) {
+        vd_warning("alarm reference not complete after [%g, %g) s of sample time: %s; learning goes on",
+                   d->cfg->learn_start_s, d->cfg->learn_start_s + d->cfg->learn_duration_s, d->cusum.why);
+        d->cusum_extended_reported = true;
+    }
+    for (size_t j = 0; j < ne; j++) {
+        const size_t k = ev[j].param;
+        vibid_param_info pi;
+        vibid_model_param_info(m, k, &pi);
+        const double z = ev[j].change_se > 0.0 ? ev[j].change / ev[j].change_se : NAN;
+        const vd_output_alarm a = {pi.name,         ev[j].raised,    row,         "cusum",
+                                   row->theta[k],   ev[j].reference, z,           ev[j].statistic,
+                                   ev[j].threshold, ev[j].change,    ev[j].raised ? ev[j].change_se : NAN,
+                                   ev[j].raised ? ev[j].onset_index : row->index};
+        if (ev[j].raised) {
+            d->alarms_raised++;
+            vd_warning("ALARM %s: changed by %.4g +- %.2g from its reference %.6g (CUSUM %.1f >= %.1f), since sample "
+                       "%llu (estimated onset); at sample %llu, t = %.3f s",
+                       pi.name, ev[j].change, ev[j].change_se, ev[j].reference, ev[j].statistic, ev[j].threshold,
+                       (unsigned long long)ev[j].onset_index, (unsigned long long)row->index, row->run_s);
+        } else {
+            vd_notice("alarm %s cleared: the data favour its reference %.6g over the change %.4g again at sample %llu",
+                      pi.name, ev[j].reference, ev[j].change, (unsigned long long)row->index);
+        }
+        outputs_alarm(d, &a);
+    }
+    for (size_t i = 0; i < d->cusum.n; i++) {
+        double stat, mdc, mdc_rel;
+        bool active;
+        if (vd_cusum_state(&d->cusum, d->cusum.param[i], &stat, &mdc, &mdc_rel, &active) && active) {
+            row->flags |= VD_FLAG_ALARM;
+            break;
+        }
+    }
 }
 
 static void run_alarms(vd_daemon *d, vd_row *row)
 {
     if (!d->cfg->alarms_enabled)
         return;
+    if (d->cfg->alarm_test == VD_ALARM_CUSUM) {
+        run_cusum(d, row);
+        return;
+    }
     const vibid_model *m = vibid_stand_model(d->cfg->stand);
     /* rows without an estimate (E) or with an impossible one (P) change no alarm */
     const bool usable = vd_row_usable(row->flags);
@@ -398,11 +467,15 @@ static void run_alarms(vd_daemon *d, vd_row *row)
                        "%g s) at sample %llu, t = %.3f s",
                        pi.name, row->theta[k], a->base, a->last_z, a->cfg.threshold, a->cfg.hold_s,
                        (unsigned long long)row->index, row->run_s);
-            outputs_alarm(d, pi.name, 1, row, row->theta[k], a->base, a->last_z);
+            const vd_output_alarm out = {pi.name, 1, row, "threshold", row->theta[k], a->base, a->last_z, a->last_z,
+                                        a->cfg.threshold, row->theta[k] - a->base, NAN, row->index};
+            outputs_alarm(d, &out);
         } else if (ev == VD_ALARM_CLEARED) {
             vd_notice("alarm %s cleared: %.6g is back within %g standard errors of %.6g at sample %llu", pi.name,
                       row->theta[k], a->cfg.threshold, a->base, (unsigned long long)row->index);
-            outputs_alarm(d, pi.name, 0, row, row->theta[k], a->base, a->last_z);
+            const vd_output_alarm out = {pi.name, 0, row, "threshold", row->theta[k], a->base, a->last_z, a->last_z,
+                                        a->cfg.threshold, row->theta[k] - a->base, NAN, row->index};
+            outputs_alarm(d, &out);
         } else if (a->have_baseline && a->cfg.learn && !d->base_reported[k]) {
             vd_info("alarm baseline of %s learned: %.9g (mean standard error %.3g, %llu estimates)", pi.name,
                     a->base, a->base_se, (unsigned long long)a->n_learn);
@@ -508,6 +581,12 @@ static void take_snapshot(vd_daemon *d, const char *state, double now)
         s->param[k] = cfg->alarm_param[k].name; /* the parameter's name (config.c) */
         s->alarm_enabled[k] = cfg->alarms_enabled && cfg->alarm_param[k].enabled;
         s->alarm_active[k] = d->alarm[k].active;
+        bool active;
+        s->have_change[k] = s->alarm_enabled[k] &&
+                            vd_cusum_state(&d->cusum, k, &s->change_statistic[k], &s->change_mdc[k],
+                                           &s->change_mdc_relative[k], &active);
+        if (s->have_change[k])
+            s->alarm_active[k] = active;
     }
     if (d->est.have_last) {
         const vd_row *r = &d->est.last;
@@ -588,6 +667,10 @@ static void format_status(vd_daemon *d, const vd_snapshot *sn)
             first = false;
         }
     S("\n");
+    for (size_t k = 0; k < sn->n_params; k++)
+        if (sn->have_change[k])
+            S("change.%s.statistic=%.4g\nchange.%s.mdc=%.4g\nchange.%s.mdc_relative=%.4g\n", sn->param[k],
+              sn->change_statistic[k], sn->param[k], sn->change_mdc[k], sn->param[k], sn->change_mdc_relative[k]);
     if (sn->have_last) {
         S("last_index=%llu\nlast_time_s=%lld.%06lld\n", (unsigned long long)sn->last_index,
           (long long)(sn->last_t_us / 1000000), (long long)(sn->last_t_us % 1000000));
@@ -1002,6 +1085,30 @@ int vd_daemon_init(vd_daemon *d, vd_config *cfg, const vd_options *opt, char *er
                               cfg->learn_duration_s};
         vd_alarm_init(&d->alarm[k], &ac);
     }
+    if (cfg->alarms_enabled && cfg->alarm_test == VD_ALARM_CUSUM) {
+        bool enabled[VD_MAX_PARAMS], given[VD_MAX_PARAMS];
+        double baseline[VD_MAX_PARAMS];
+        for (size_t k = 0; k < cfg->n_params; k++) {
+            enabled[k] = cfg->alarm_param[k].enabled;
+            given[k] = cfg->alarm_param[k].has_baseline;
+            baseline[k] = cfg->alarm_param[k].baseline;
+        }
+        const vd_cusum_config cc = {cfg->sample_rate,
+                                    cfg->forgetting,
+                                    (double)cfg->decimation,
+                                    cfg->alarm_false_per_year,
+                                    cfg->alarm_horizon_s,
+                                    cfg->alarm_detection_probability,
+                                    cfg->alarm_min_relative,
+                                    cfg->learn_start_s,
+                                    cfg->learn_duration_s,
+                                    cfg->n_params,
+                                    enabled,
+                                    given,
+                                    baseline};
+        if (vd_cusum_init(&d->cusum, &cc, err, cap))
+            return -1;
+    }
     if (open_source(d, err, cap))
         return -1;
     /* Live CAN: receive stamps measure the device's rate (rate_check.h). Modbus needs none:
@@ -1193,6 +1300,7 @@ void vd_daemon_fini(vd_daemon *d)
     d->rate = NULL;
     vd_refine_fini(&d->refine);
     vd_est_free(&d->est);
+    vd_cusum_free(&d->cusum);
     vd_ring_destroy(d->ring);
     d->ring = NULL;
     free(d->lat_hist);

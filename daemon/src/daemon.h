@@ -94,7 +94,9 @@ typedef struct vd_daemon {
     bool refine_waits;         /* an unpaced replay waits for each refinement (reproducible rows) */
     uint64_t refine_gaps_seen; /* est.gaps at the last look: a new gap ends the clean window */
     bool row_pending;
-    vd_alarm alarm[VD_MAX_PARAMS];
+    vd_alarm alarm[VD_MAX_PARAMS];       /* alarms.test = "threshold" */
+    vd_cusum cusum;                      /* alarms.test = "cusum" */
+    bool cusum_extended_reported;
     bool base_reported[VD_MAX_PARAMS];
     vd_notify notify;
     vd_rate_check *rate;       /* live SocketCAN: the sample-rate check until it decided */

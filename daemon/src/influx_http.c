@@ -220,13 +220,7 @@ static void op_row(void *p, const vd_row *row) {
 
 static void op_alarm(void *p, const vd_output_alarm *a) {
     vd_influx_http *h = p;
-    const char *param = a->param;
-    const int raised = a->raised;
-    const vd_row *row = a->row;
-    const double value = a->value, baseline = a->baseline, z = a->z;
-    push_line(h, h->fmt,
-              vd_format_influx_alarm(h->fmt, sizeof h->fmt - 1, h->cfg, h->stand, param, raised, row, value,
-                                     baseline, z));
+    push_line(h, h->fmt, vd_format_influx_alarm(h->fmt, sizeof h->fmt - 1, h->cfg, h->stand, a));
 }
 
 static void op_counters(void *p, vd_snapshot *s) {

@@ -263,6 +263,28 @@ int vd_metrics_render(char *buf, size_t cap, const vd_snapshot *s)
         snprintf(a, sizeof a, "parameter=\"%s\"", b);
         u64(&o, "vibid_alarm_active", a, s->alarm_active[k]);
     }
+    /* the change test (alarms.test = "cusum"), once its reference exists */
+    static const struct {
+        const char *name, *help;
+    } change_families[] = {
+        {"vibid_change_statistic", "The change test's statistic of the parameter: the CUSUM over its threshold (>= 1 raises)."},
+        {"vibid_min_detectable_change", "The smallest change of the parameter the test detects within alarms.horizon "
+                                        "(alarms.detection_probability, alarms.false_alarms_per_year), its unit."},
+        {"vibid_min_detectable_change_ratio", "The minimum detectable change relative to the reference value."}};
+    bool any_change = false;
+    for (size_t k = 0; k < s->n_params; k++)
+        any_change |= s->have_change[k];
+    for (size_t f = 0; any_change && f < 3; f++) {
+        family(&o, change_families[f].name, "gauge", change_families[f].help);
+        for (size_t k = 0; k < s->n_params; k++) {
+            if (!s->have_change[k])
+                continue;
+            vd_metrics_escape_label(b, sizeof b, s->param[k]);
+            snprintf(a, sizeof a, "parameter=\"%s\"", b);
+            const double v = f == 0 ? s->change_statistic[k] : f == 1 ? s->change_mdc[k] : s->change_mdc_relative[k];
+            dbl(&o, change_families[f].name, a, v);
+        }
+    }
     if (s->have_last) {
         gauge(&o, "vibid_last_row_index", "Sample index (from the run's start) of the latest row.",
               (double)s->last_index);

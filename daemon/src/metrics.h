@@ -119,6 +119,10 @@ typedef struct vd_snapshot {
     size_t n_params, n_modes;
     const char *param[VD_MAX_PARAMS];
     bool alarm_enabled[VD_MAX_PARAMS], alarm_active[VD_MAX_PARAMS];
+    /* alarms.test = "cusum" once the reference exists (have_change): the statistic (>= 1 raises)
+       and the minimum detectable change (the parameter's unit, and relative to the reference) */
+    bool have_change[VD_MAX_PARAMS];
+    double change_statistic[VD_MAX_PARAMS], change_mdc[VD_MAX_PARAMS], change_mdc_relative[VD_MAX_PARAMS];
     /* the latest row (when have_last) */
     bool have_last;
     uint64_t last_index;

@@ -126,20 +126,21 @@ int vd_mqtt_format_track(char *buf, size_t cap, const vd_config *cfg, const char
 }
 
 int vd_mqtt_format_alarm(char *buf, size_t cap, const vd_config *cfg, const char *stand, uint64_t seq,
-                         uint64_t dropped_before, const char *param, int raised, const vd_row *row,
-                         double value, double baseline, double z) {
+                         uint64_t dropped_before, const vd_output_alarm *a) {
     vd_text o = {buf, cap, 0, cap == 0};
     put_header(&o, cfg, stand, seq);
-    vd_text_put(&o, ",\"index\":%llu,\"time_s\":", (unsigned long long)row->index);
-    put_time(&o, row->t_us);
+    vd_text_put(&o, ",\"index\":%llu,\"time_s\":", (unsigned long long)a->row->index);
+    put_time(&o, a->row->t_us);
     vd_text_put(&o, ",\"parameter\":");
-    put_str(&o, param);
-    vd_text_put(&o, ",\"state\":\"%s\",\"value\":", raised ? "raised" : "cleared");
-    put_num(&o, value);
-    vd_text_put(&o, ",\"baseline\":");
-    put_num(&o, baseline);
-    vd_text_put(&o, ",\"z\":");
-    put_num(&o, z);
+    put_str(&o, a->param);
+    vd_text_put(&o, ",\"state\":\"%s\",\"test\":\"%s\",\"onset_index\":%llu", a->raised ? "raised" : "cleared",
+                a->test, (unsigned long long)a->onset_index);
+    static const char *const names[] = {"value", "baseline", "z", "statistic", "threshold", "change", "change_se"};
+    const double values[] = {a->value, a->baseline, a->z, a->statistic, a->threshold, a->change, a->change_se};
+    for (size_t i = 0; i < sizeof values / sizeof values[0]; i++) {
+        vd_text_put(&o, ",\"%s\":", names[i]);
+        put_num(&o, values[i]);
+    }
     vd_text_put(&o, ",\"dropped_before\":%llu}", (unsigned long long)dropped_before);
     return o.full ? -1 : (int)o.off;
 }
@@ -347,12 +348,9 @@ static int format_track(vd_mqtt *m, char *buf, size_t cap, uint64_t seq, uint64_
     return n < 0 ? -1 : splice_seq(buf, cap, n, seq, dropped);
 }
 
-static int format_alarm(vd_mqtt *m, char *buf, size_t cap, uint64_t seq, uint64_t dropped, const char *param,
-                        int raised, const vd_row *row, double value, double baseline, double z) {
-    if (m->cfg->mqtt.format == 0)
-        return vd_mqtt_format_alarm(buf, cap, m->cfg, m->stand, seq, dropped, param, raised, row, value,
-                                    baseline, z);
-    int n = vd_format_influx_alarm(buf, cap, m->cfg, m->stand, param, raised, row, value, baseline, z);
+static int format_alarm(vd_mqtt *m, char *buf, size_t cap, uint64_t seq, uint64_t dropped, const vd_output_alarm *a) {
+    if (m->cfg->mqtt.format == 0) return vd_mqtt_format_alarm(buf, cap, m->cfg, m->stand, seq, dropped, a);
+    int n = vd_format_influx_alarm(buf, cap, m->cfg, m->stand, a);
     return n < 0 ? -1 : splice_seq(buf, cap, n, seq, dropped);
 }
 
@@ -367,22 +365,17 @@ static void op_track(void *p, const vd_row *row) {
 
 static void op_alarm(void *p, const vd_output_alarm *a) {
     vd_mqtt *m = p;
-    const char *param = a->param;
-    const int raised = a->raised;
-    const vd_row *row = a->row;
-    const double value = a->value, baseline = a->baseline, z = a->z;
     uint64_t seq = ++m->seq[VD_MQTT_ALARMS];
     uint16_t k = 0;
     const vibid_model *mod = vibid_stand_model(m->cfg->stand);
     for (size_t i = 0; i < m->cfg->n_params; i++) {
         vibid_param_info pi;
         vibid_model_param_info(mod, i, &pi);
-        if (!strcmp(pi.name, param)) k = (uint16_t)i;
+        if (!strcmp(pi.name, a->param)) k = (uint16_t)i;
     }
     slot_hdr *s = claim(m, VD_MQTT_ALARMS);
     if (!s) return;
-    int n = format_alarm(m, (char *)(s + 1), m->payload_max, seq, m->pending_drop[VD_MQTT_ALARMS], param,
-                         raised, row, value, baseline, z);
+    int n = format_alarm(m, (char *)(s + 1), m->payload_max, seq, m->pending_drop[VD_MQTT_ALARMS], a);
     commit(m, s, VD_MQTT_ALARMS, k, n);
 }
 
@@ -866,8 +859,9 @@ static void *op_open(const vd_output_ctx *ctx, char *err, size_t cap) {
         pname[longest_name] = '\0';
         static char probe[1 << 20];
         int a = format_track(m, probe, sizeof probe, UINT64_MAX, UINT64_MAX, &w);
-        int b = format_alarm(m, probe, sizeof probe, UINT64_MAX, UINT64_MAX, pname, 0, &w, -2.225073859e-308,
-                             -2.225073859e-308, -2.225073859e-308);
+        const double x = -2.225073859e-308; /* the longest %.17g */
+        const vd_output_alarm probe_alarm = {pname, 0, &w, "threshold", x, x, x, x, x, x, x, UINT64_MAX};
+        int b = format_alarm(m, probe, sizeof probe, UINT64_MAX, UINT64_MAX, &probe_alarm);
         if (a < 0 || b < 0) {
             snprintf(err, cap, "outputs.mqtt: the stand's messages do not fit 1 MiB");
             goto fail;

@@ -80,8 +80,7 @@ int vd_mqtt_check(const vd_config *cfg, char *note, size_t note_cap, char *err, 
 int vd_mqtt_format_track(char *buf, size_t cap, const vd_config *cfg, const char *stand, uint64_t seq,
                          uint64_t dropped_before, const vd_row *row);
 int vd_mqtt_format_alarm(char *buf, size_t cap, const vd_config *cfg, const char *stand, uint64_t seq,
-                         uint64_t dropped_before, const char *param, int raised, const vd_row *row,
-                         double value, double baseline, double z);
+                         uint64_t dropped_before, const vd_output_alarm *a);
 /* The status file's text (key=value lines) as a JSON object: "stand", "site", "seq",
  * "index" (last_index, or null before the first row) first, then every key in the file's
  * order; a value that is a JSON number stays a number, nan/inf become null, anything else

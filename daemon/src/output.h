@@ -41,6 +41,7 @@
 #include <vibid_drivers/channel_map.h>
 #include <vibid_drivers/source.h>
 
+#include "alarm.h"
 #include "config.h"
 #include "estimator.h"
 #include "metrics.h"
@@ -55,13 +56,8 @@ typedef struct vd_output_ctx {
                                          NULL: every configured output */
 } vd_output_ctx;
 
-/* An alarm event (alarm.h), as every output gets it. */
-typedef struct vd_output_alarm {
-    const char *param; /* the parameter's name */
-    int raised;        /* 1 raised, 0 cleared */
-    const vd_row *row; /* the row that raised or cleared it */
-    double value, baseline, z;
-} vd_output_alarm;
+/* An alarm event, as every output gets it (alarm.h). */
+typedef vd_alarm_report vd_output_alarm;
 
 enum {
     /* status at every status interval (outputs.status.interval; otherwise status_period) */

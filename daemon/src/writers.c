@@ -192,22 +192,27 @@ int vd_influx_add_fields(char *buf, size_t cap, int n, const char *fields)
     return (int)(at + 1 + fl + tl);
 }
 
-int vd_format_influx_alarm(char *buf, size_t cap, const vd_config *cfg, const char *stand, const char *param,
-                           int raised, const vd_row *row, double value, double baseline, double z)
+int vd_format_influx_alarm(char *buf, size_t cap, const vd_config *cfg, const char *stand, const vd_output_alarm *a)
 {
     size_t off = 0;
     char tag[256], ptag[160], site[256];
     vd_influx_escape_tag(tag, sizeof tag, stand);
-    vd_influx_escape_tag(ptag, sizeof ptag, param);
+    vd_influx_escape_tag(ptag, sizeof ptag, a->param);
     vd_influx_escape_tag(site, sizeof site, cfg->influx_site);
-    if (put(buf, cap, &off, "%s_alarm,parameter=%s%s%s,stand=%s state=\"%s\",index=%llui", cfg->influx_measurement,
-            ptag, site[0] ? ",site=" : "", site, tag, raised ? "raised" : "cleared", (unsigned long long)row->index))
+    if (put(buf, cap, &off, "%s_alarm,parameter=%s%s%s,stand=%s state=\"%s\",test=\"%s\",onset_index=%llui,index=%llui",
+            cfg->influx_measurement, ptag, site[0] ? ",site=" : "", site, tag, a->raised ? "raised" : "cleared",
+            a->test, (unsigned long long)a->onset_index, (unsigned long long)a->row->index))
         return -1;
     int first = 0;
-    if (put_field(buf, cap, &off, &first, "value", "", value) ||
-        put_field(buf, cap, &off, &first, "baseline", "", baseline) || put_field(buf, cap, &off, &first, "z", "", z))
+    if (put_field(buf, cap, &off, &first, "value", "", a->value) ||
+        put_field(buf, cap, &off, &first, "baseline", "", a->baseline) ||
+        put_field(buf, cap, &off, &first, "z", "", a->z) ||
+        put_field(buf, cap, &off, &first, "statistic", "", a->statistic) ||
+        put_field(buf, cap, &off, &first, "threshold", "", a->threshold) ||
+        put_field(buf, cap, &off, &first, "change", "", a->change) ||
+        put_field(buf, cap, &off, &first, "change_se", "", a->change_se))
         return -1;
-    if (put(buf, cap, &off, " %lld\n", ns_of_us(row->t_us)))
+    if (put(buf, cap, &off, " %lld\n", ns_of_us(a->row->t_us)))
         return -1;
     return (int)off;
 }
@@ -670,12 +675,10 @@ void vd_writers_sample(vd_writers *w, const vibid_record *rec)
     emit(w, VD_OUT_RECORD, w->linebuf, n);
 }
 
-void vd_writers_alarm(vd_writers *w, const char *param, int raised, const vd_row *row, double value,
-                      double baseline, double z)
+void vd_writers_alarm(vd_writers *w, const vd_output_alarm *a)
 {
     if (wants(w, VD_OUT_INFLUX) || w->udp_fd >= 0) {
-        int n = vd_format_influx_alarm(w->linebuf, sizeof w->linebuf, w->cfg, w->stand_name, param, raised, row,
-                                       value, baseline, z);
+        int n = vd_format_influx_alarm(w->linebuf, sizeof w->linebuf, w->cfg, w->stand_name, a);
         emit(w, VD_OUT_INFLUX, w->linebuf, n);
         send_udp(w, w->linebuf, n);
     }
@@ -780,7 +783,7 @@ static void files_row(void *o, const vd_row *row) { vd_writers_row(o, row); }
 
 static void files_alarm(void *o, const vd_output_alarm *a)
 {
-    vd_writers_alarm(o, a->param, a->raised, a->row, a->value, a->baseline, a->z);
+    vd_writers_alarm(o, a);
 }
 
 static bool files_status(void *o, const vd_snapshot *s, const char *text, size_t len, bool final)

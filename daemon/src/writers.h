@@ -124,8 +124,7 @@ int vd_writers_reopen(vd_writers *w);
 unsigned vd_writers_closed(const vd_writers *w);
 void vd_writers_row(vd_writers *w, const vd_row *row);
 void vd_writers_sample(vd_writers *w, const vibid_record *rec);
-void vd_writers_alarm(vd_writers *w, const char *param, int raised, const vd_row *row, double value,
-                      double baseline, double z);
+void vd_writers_alarm(vd_writers *w, const vd_output_alarm *a);
 /* fflush (and fdatasync when sync) every open file; first, every closed output whose retry
  * is due is opened again (back-off 1 s doubling to 30 s; logged when it fails, at most once
  * a minute, and when it succeeds, with the records lost meanwhile). */
@@ -137,8 +136,8 @@ void vd_writers_close(vd_writers *w);
 int vd_format_tracks_header(char *buf, size_t cap, const vd_config *cfg);
 int vd_format_track_row(char *buf, size_t cap, const vd_config *cfg, const vd_row *row);
 int vd_format_influx_row(char *buf, size_t cap, const vd_config *cfg, const char *stand, const vd_row *row);
-int vd_format_influx_alarm(char *buf, size_t cap, const vd_config *cfg, const char *stand, const char *param,
-                           int raised, const vd_row *row, double value, double baseline, double z);
+/* The alarm event a (docs/vibidd.md, InfluxDB schema). */
+int vd_format_influx_alarm(char *buf, size_t cap, const vd_config *cfg, const char *stand, const vd_output_alarm *a);
 int vd_format_recording_header(char *buf, size_t cap, const char *stand, double rate, const vibid_chanmap *map);
 int vd_format_recording_row(char *buf, size_t cap, const vibid_record *rec);
 /* candump recording: the frames of one sample (vibid_can_assembler_encode), one candump -l

@@ -57,14 +57,21 @@ double normal_quantile(double p) {
 // pair's rate, so that it compares with one CUSUM's 1 / ARL.
 constexpr double kMeanZ = 1.96;    // the mean's 95 % interval
 constexpr double kScaleZ = -1.645; // the scale's 5 % quantile
-double pair_rate(double k, double h, double n_mean, double n_sd) {
-    const double shift = std::isfinite(n_mean) ? kMeanZ / std::sqrt(n_mean) : 0.0;
-    double w = 1.0;
+// The reference at the edge of its errors: the mean's shift (units of sigma_b) and the
+// scale's factor w.
+void reference_edge(double n_mean, double n_sd, double *shift, double *w) {
+    *shift = std::isfinite(n_mean) ? kMeanZ / std::sqrt(n_mean) : 0.0;
+    *w = 1.0;
     if (std::isfinite(n_sd)) {
         const double nu = n_sd - 1.0;
         const double c = std::max(0.05, 1.0 - 2.0 / (9.0 * nu) + kScaleZ * std::sqrt(2.0 / (9.0 * nu)));
-        w = std::sqrt(c * c * c);
+        *w = std::sqrt(c * c * c);
     }
+}
+
+double pair_rate(double k, double h, double n_mean, double n_sd) {
+    double shift, w;
+    reference_edge(n_mean, n_sd, &shift, &w);
     // increments (z +- shift) / w against allowance k: in units of z the allowance is
     // k w -+ shift and the threshold h w
     auto rate = [&](double kappa) { return std::min(1.0, 1.0 / std::max(1.0, siegmund_arl(kappa, h * w))); };
@@ -137,8 +144,13 @@ struct vibid_change {
         const double nm = p.ref.n_mean, ns = p.ref.n_sd, n = rows_horizon;
         const double spread = std::sqrt(n + (std::isfinite(nm) ? n * n / nm : 0.0));
         auto mdc_of = [&](double k, double h) { return k + (h + z_p * spread) / n; };
-        // k: the allowance with the smallest MDC at the horizon (golden section in log k)
-        double a = std::log(1e-3), b = std::log(kMaxAllowance);
+        // k: the allowance with the smallest MDC at the horizon (golden section in log k),
+        // above the one at which the edge reference's CUSUM would drift up (k w <= shift:
+        // alarms at any threshold)
+        double shift, w;
+        reference_edge(nm, ns, &shift, &w);
+        const double k_lo = std::max(1e-3, 1.25 * shift / w);
+        double a = std::log(k_lo), b = std::log(std::max(kMaxAllowance, 2.0 * k_lo));
         const double gr = 0.5 * (std::sqrt(5.0) - 1.0);
         auto f = [&](double lk) {
             const double k = std::exp(lk);
@@ -216,7 +228,8 @@ struct vibid_change {
         p.active = true;
         p.change = change;
         p.stat_at_raise = best;
-        const double d = std::max(std::fabs(change) / sb, 1e-3);
+        // the change as the clipped increments see it: beyond the clip they show at most kClip
+        const double d = std::clamp(std::fabs(change) / sb, 1e-3, kClip);
         p.k_clear = 0.5 * d;
         p.h_clear = clear_threshold(p.k_clear);
         p.T = 0.0;

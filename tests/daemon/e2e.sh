@@ -275,7 +275,7 @@ truncated)
     ;;
 bad_config)
     config_csv v.cfg "alarms = {
-  threshold = -1.0;
+  test = \"threshold\"; threshold = -1.0;
 };"
     timeout 10 "$VIBIDD" -c v.cfg 2> log; rc=$?
     [ $rc -eq 2 ] || fail "exit status $rc, expected 2"
@@ -390,7 +390,7 @@ diagnostics)
     # samples = 0.5 s) tracks it; the alarm (baseline learned over 10..25 s, 5 standard
     # errors and 3 %, held 1 s) must fire after 40 s and not before.
     $GEN "$STAND" --duration 60 --noise 0.002 --seed 9 --step c2:0.9:40 --csv cap.csv 2>/dev/null || fail "generator"
-    config_csv v.cfg 'alarms = { threshold = 5.0; min_relative = 0.03; hold = 1.0; learn_start = 10.0;
+    config_csv v.cfg 'alarms = { test = "threshold"; threshold = 5.0; min_relative = 0.03; hold = 1.0; learn_start = 10.0;
   learn_duration = 15.0; parameters = ( { name = "c1"; }, { name = "d"; }, { name = "c2"; } ); };'
     sed -i 's/method = "rls";/method = "rls"; forgetting = 0.999;/' v.cfg
     sed -i 's/tracks = { path = "tracks.csv"; };/tracks = { path = "tracks.csv"; }; influx = { path = "alarms.influx"; };/' v.cfg
@@ -847,7 +847,7 @@ sim_diagnostics)
     [ -x "$SIM" ] || fail "vibid-sim not built"
     "$SIM" -c "$STAND" -s "$SRC/tests/daemon/data/sim_crack.cfg" --duration 60 --csv cap.csv --epoch 1700000000 \
         --fast -q 2> sim.err || fail "vibid-sim: $(cat sim.err)"
-    config_csv v.cfg 'alarms = { threshold = 5.0; min_relative = 0.03; hold = 1.0; learn_start = 10.0;
+    config_csv v.cfg 'alarms = { test = "threshold"; threshold = 5.0; min_relative = 0.03; hold = 1.0; learn_start = 10.0;
   learn_duration = 15.0; };'
     sed -i 's/method = "rls";/method = "rls"; forgetting = 0.999;/;
             s/tracks = { path = "tracks.csv"; };/tracks = { path = "tracks.csv"; }; influx = { path = "alarms.influx"; };/' v.cfg
@@ -971,7 +971,7 @@ implausible)
     # given baselines (the truth) with hold 0, so that any row counted would raise at once;
     # "all": c1's baseline is to be learned over 0..1 s, where every row is P
     given='{ name = "d"; baseline = 300.0; }, { name = "c2"; baseline = 1.5e6; } ); };'
-    run_case all 40 2 "alarms = { threshold = 5.0; min_relative = 0.02; hold = 0.0; learn_start = 0.0;
+    run_case all 40 2 "alarms = { test = \"threshold\"; threshold = 5.0; min_relative = 0.02; hold = 0.0; learn_start = 0.0;
   learn_duration = 1.0; parameters = ( { name = \"c1\"; }, $given"
     [ "$nimp" -eq "$rows" ] || fail "all: expected every row impossible at 1 % noise, $nimp of $rows"
     [ "$would" -gt 0 ] || fail "all: no P row would raise an alarm: the alarm check below proves nothing"
@@ -979,7 +979,7 @@ implausible)
     grep -q 'c2 = -[0-9.e+]* N/m <= 0 (stiffness must be positive)' log_all || fail "all: the warning does not name c2"
     grep -q 'alarm baseline of c1 not learned: no usable estimate' log_all ||
         fail "all: no warning that c1's baseline could not be learned"
-    run_case mixed 50 4 "alarms = { threshold = 5.0; min_relative = 0.02; hold = 0.0;
+    run_case mixed 50 4 "alarms = { test = \"threshold\"; threshold = 5.0; min_relative = 0.02; hold = 0.0;
   parameters = ( { name = \"c1\"; baseline = 2.5e5; }, $given"
     [ "$ep" -ge 2 ] && [ "$ends" -ge 1 ] ||
         fail "mixed: expected P episodes interrupted by plausible rows, got $ep episodes and $ends ends"

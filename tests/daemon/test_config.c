@@ -354,6 +354,31 @@ static void test_alarm_param(void **state)
                  ":13: alarms.parameters.[0].name:", "'c3' is not an unknown parameter");
 }
 
+/* alarms.test: the change test by default with its defaults (min_relative 0), the threshold
+ * rule on request (min_relative 0.02); the other test's settings are errors naming the test. */
+static void test_alarm_test(void **state)
+{
+    (void)state;
+    vd_config cfg;
+    vd_config_error err;
+    assert_int_equal(vd_config_load(write_cfg("at0.cfg", STAND SOURCE "alarms = { };\n"), &cfg, &err), 0);
+    assert_int_equal(cfg.alarm_test, VD_ALARM_CUSUM);
+    assert_true(cfg.alarm_false_per_year == 1.0 && cfg.alarm_horizon_s == 60.0 &&
+                cfg.alarm_detection_probability == 0.9 && cfg.alarm_min_relative == 0.0);
+    vd_config_free(&cfg);
+    assert_int_equal(vd_config_load(write_cfg("at1.cfg", STAND SOURCE "alarms = { test = \"threshold\"; hold = 1.0; };\n"),
+                                    &cfg, &err),
+                     0);
+    assert_true(cfg.alarm_test == VD_ALARM_THRESHOLD && cfg.alarm_hold_s == 1.0 && cfg.alarm_min_relative == 0.02);
+    vd_config_free(&cfg);
+    expect_error("at2.cfg", STAND SOURCE "alarms = {\n threshold = 5.0;\n};\n", ":13: alarms.threshold:",
+                 "belongs to test = \"threshold\", and this file's test is \"cusum\" (the default)");
+    expect_error("at3.cfg", STAND SOURCE "alarms = { test = \"threshold\";\n horizon = 10.0; };\n", ":13: alarms.horizon:",
+                 "belongs to test = \"cusum\"");
+    expect_error("at4.cfg", STAND SOURCE "alarms = {\n false_alarms_per_year = 0.0; };\n",
+                 ":13: alarms.false_alarms_per_year:", "outside");
+}
+
 /* Issue 30, item 3: the names vibidd writes into its outputs unescaped are of the safe set
  * (vibid/cfgread.h), and so are the references to the stand's names; each is refused with
  * file:line: field and the character, in one line. (The stand's own names: model.test_stand_file;
@@ -482,7 +507,7 @@ int main(void)
         cmocka_unit_test(test_type_error),        cmocka_unit_test(test_unknown_directive),
         cmocka_unit_test(test_ring_power_of_two), cmocka_unit_test(test_missing_parts),
         cmocka_unit_test(test_stand_errors),      cmocka_unit_test(test_channel_missing),
-        cmocka_unit_test(test_alarm_param), cmocka_unit_test(test_hostile_names),       cmocka_unit_test(test_modbus_url),
+        cmocka_unit_test(test_alarm_param), cmocka_unit_test(test_alarm_test), cmocka_unit_test(test_hostile_names),       cmocka_unit_test(test_modbus_url),
         cmocka_unit_test(test_defaults_and_roundtrip),
         cmocka_unit_test(test_start_values),      cmocka_unit_test(test_prometheus),
         cmocka_unit_test(test_channel_units),     cmocka_unit_test(test_channel_units_dbc),

@@ -197,12 +197,15 @@ static void test_alarm_json(void **state) {
     (void)state;
     char buf[1024];
     vd_row r = sample_row();
-    int n = vd_mqtt_format_alarm(buf, sizeof buf, &cfg, "rig1", 3, 0, "c2", 1, &r, 1.35e6, 1.5e6, NAN);
+    const vd_output_alarm a = {"c2", 1, &r, "cusum", 1.35e6, 1.5e6, NAN, 31.5, 30.25, -1.5e5, 1.25e4, 40};
+    int n = vd_mqtt_format_alarm(buf, sizeof buf, &cfg, "rig1", 3, 0, &a);
     assert_true(n > 0);
     assert_string_equal(buf,
                         "{\"stand\":\"rig1\",\"site\":\"plant \\\"1\\\"\",\"seq\":3,\"index\":42,"
                         "\"time_s\":1700000000.123456,\"parameter\":\"c2\",\"state\":\"raised\","
-                        "\"value\":1350000,\"baseline\":1500000,\"z\":null,\"dropped_before\":0}");
+                        "\"test\":\"cusum\",\"onset_index\":40,\"value\":1350000,\"baseline\":1500000,"
+                        "\"z\":null,\"statistic\":31.5,\"threshold\":30.25,\"change\":-150000,"
+                        "\"change_se\":12500,\"dropped_before\":0}");
     char s[64];
     assert_int_equal(vd_mqtt_json_string(s, sizeof s, "a\"b\\c\nd\x01"), 22);
     assert_string_equal(s, "\"a\\\"b\\\\c\\u000ad\\u0001\"");
@@ -252,7 +255,7 @@ static void test_queue_drops(void **state) {
         r.index = (uint64_t)i * 10;
         vd_mqtt_libmosquitto.row(m, &r);
     }
-    vd_mqtt_libmosquitto.alarm(m, &(vd_output_alarm){"c2", 1, &r, 1.0, 2.0, 3.0});
+    vd_mqtt_libmosquitto.alarm(m, &(vd_output_alarm){"c2", 1, &r, "threshold", 1.0, 2.0, 3.0, 3.0, 5.0, -1.0, NAN, 42});
     clock_gettime(CLOCK_MONOTONIC, &t1);
     double dt = (double)(t1.tv_sec - t0.tv_sec) + 1e-9 * (double)(t1.tv_nsec - t0.tv_nsec);
     assert_int_equal(dropped(m, &s), 8); /* 7 rows and the alarm */

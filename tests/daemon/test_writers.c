@@ -118,15 +118,20 @@ static void test_influx(void **state)
                              "f1_hz=22.7,f1_hz_se=0.01,zeta1=0.065,zeta1_se=0.0001,f2_hz=48.3,f2_hz_se=0.01,"
                              "zeta2=0.0435,zeta2_se=0.0001,index=42i,gap_samples=3i,flags=\"GA\" "
                              "1700000000123456000\n");
-    assert_true(vd_format_influx_alarm(buf, sizeof buf, &cfg, "s", "c2", 1, &r, 1.35e6, 1.5e6, 12.0) > 0);
-    assert_string_equal(buf, "vibid_alarm,parameter=c2,stand=s state=\"raised\",index=42i,value=1350000,"
-                             "baseline=1500000,z=12 1700000000123456000\n");
+    /* a change-test event: every field; a threshold-rule event leaves change_se (NaN) out */
+    const vd_output_alarm raised = {"c2", 1, &r, "cusum", 1.35e6, 1.5e6, -12.0, 31.5, 30.25, -1.5e5, 1.25e4, 40};
+    assert_true(vd_format_influx_alarm(buf, sizeof buf, &cfg, "s", &raised) > 0);
+    assert_string_equal(buf, "vibid_alarm,parameter=c2,stand=s state=\"raised\",test=\"cusum\",onset_index=40i,"
+                             "index=42i,value=1350000,baseline=1500000,z=-12,statistic=31.5,threshold=30.25,"
+                             "change=-150000,change_se=12500 1700000000123456000\n");
     /* outputs.influx.site: a tag of its own, escaped, tags in key order */
     vd_config with_site = cfg;
     snprintf(with_site.influx_site, sizeof with_site.influx_site, "plant 1");
     assert_true(vd_format_influx_row(buf, sizeof buf, &with_site, "s", &r) > 0);
     assert_true(!strncmp(buf, "vibid,site=plant\\ 1,stand=s c1=250000,", 38));
-    assert_true(vd_format_influx_alarm(buf, sizeof buf, &with_site, "s", "c2", 0, &r, 1.35e6, 1.5e6, 12.0) > 0);
+    const vd_output_alarm cleared = {"c2", 0, &r, "threshold", 1.35e6, 1.5e6, 12.0, 12.0, 5.0, -1.5e5, NAN, 42};
+    assert_true(vd_format_influx_alarm(buf, sizeof buf, &with_site, "s", &cleared) > 0);
+    assert_non_null(strstr(buf, "z=12,statistic=12,threshold=5,change=-150000 1700000000123456000"));
     assert_true(!strncmp(buf, "vibid_alarm,parameter=c2,site=plant\\ 1,stand=s state=\"cleared\",", 63));
     /* a refinement's row: a series of its own (estimate=refined, tags in key order), so that it
      * does not overwrite a recursive row of the same sample */

@@ -59,7 +59,8 @@
  *    for changes too small to matter; 0 by default).
  * 6. Clearing: a raised alarm stays until the data favour the reference again: a CUSUM of
  *    the log-likelihood ratio of "at the reference" against "changed by the estimated
- *    change d" (allowance d / 2, threshold for the same rate) CLEARS it; then the test
+ *    change d" (d in units of sigma_b, at most the clip 5; allowance d / 2, threshold for the
+ *    same rate) CLEARS it; then the test
  *    restarts at 0. A crack does not heal, so a persistent change stays raised.
  *
  * Rows. Every recursive row is pushed in order with its sample index: rows whose estimate
