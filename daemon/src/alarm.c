@@ -156,8 +156,9 @@ size_t vd_cusum_row(vd_cusum *c, uint64_t index, double t_s, const double *theta
     vibid_change_event e[VD_MAX_PARAMS];
     size_t ne = 0;
     const vibid_change_phase phase = c->have_reference ? VIBID_CHANGE_TEST : VIBID_CHANGE_LEARN;
-    /* before the window: chained only (use = 0) */
-    const int use = usable && (c->have_reference || learn);
+    /* before learn_start: chained only (use = 0): the estimator's start transient is neither
+       learned nor tested, also with a reference read from a file */
+    const int use = usable && t_s >= c->learn_start_s;
     if (vibid_change_push(c->det, index, th, use, phase, e, c->n, &ne) != VIBID_OK)
         return 0; /* an index that does not increase: the row is not tested */
     for (size_t j = 0; j < ne; j++) {
@@ -202,4 +203,22 @@ bool vd_cusum_reference(const vd_cusum *c, size_t k, vibid_change_reference *ref
             return true;
         }
     return false;
+}
+
+int vd_cusum_set_reference(vd_cusum *c, const vibid_change_reference *ref, char *err, size_t cap)
+{
+    vibid_change_reference r[VD_MAX_PARAMS];
+    for (size_t i = 0; i < c->n; i++) {
+        r[i] = ref[i];
+        if (c->have_given[i]) {
+            r[i].mean = c->given[i];
+            r[i].n_mean = INFINITY;
+        }
+    }
+    if (!c->det || vibid_change_set_reference(c->det, r) != VIBID_OK) {
+        snprintf(err, cap, "%s", c->det ? vibid_last_error() : "no alarmed parameter");
+        return -1;
+    }
+    c->have_reference = true;
+    return 0;
 }

@@ -35,6 +35,8 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include <vibid/change.h>
+
 #include "config.h" /* VD_MAX_PARAMS */
 
 typedef struct vd_alarm_config {
@@ -92,7 +94,6 @@ typedef struct vd_alarm_report {
  * order, the reference learned over [learn_start, learn_start + learn_duration) of sample
  * time (extended until every parameter has VIBID_CHANGE_MIN_BLOCKS blocks), a given
  * baseline replacing the learned mean (then known exactly). */
-typedef struct vibid_change vibid_change;
 typedef struct vd_cusum {
     vibid_change *det;
     size_t n;                 /* alarmed parameters */
@@ -129,8 +130,10 @@ typedef struct vd_cusum_event {
 } vd_cusum_event;
 size_t vd_cusum_row(vd_cusum *c, uint64_t index, double t_s, const double *theta, bool usable,
                     vd_cusum_event *ev, bool *reference_now);
+/* A reference from elsewhere (a saved one, reference.h), ref[0 .. c->n) in the alarmed
+ * parameters' order; a given baseline still replaces its mean. 0, or -1 with err. */
+int vd_cusum_set_reference(vd_cusum *c, const vibid_change_reference *ref, char *err, size_t cap);
 /* The reference of the stand's parameter k (false when k is not alarmed or no reference). */
-typedef struct vibid_change_reference vibid_change_reference;
 bool vd_cusum_reference(const vd_cusum *c, size_t k, vibid_change_reference *ref);
 /* The live state of the stand's parameter k (NULL when k is not alarmed or no reference). */
 bool vd_cusum_state(const vd_cusum *c, size_t k, double *statistic, double *mdc, double *mdc_relative,

@@ -14,6 +14,7 @@
 
 #include <vibid/outlier.h>
 
+#include <ctype.h>
 #include <errno.h>
 #include <libconfig.h>
 #include <limits.h>
@@ -521,7 +522,8 @@ static const char *const out_known[] = {"tracks", "influx", "record", "status", 
 static const char *const alarm_known[] = {"enabled",       "test",           "false_alarms_per_year",
                                           "horizon",       "detection_probability",
                                           "threshold",     "min_relative",   "hold",
-                                          "learn_start",   "learn_duration", "parameters", NULL};
+                                          "learn_start",   "learn_duration", "parameters",
+                                          "reference_file", NULL};
 static const char *const log_known[] = {"level", "status_interval", NULL};
 static const char *const top_known[] = {"stand", "source", "acquisition", "estimator", "outputs", "alarms", "log",
                                         NULL};
@@ -1071,7 +1073,8 @@ static int load_alarms(ctx *c, config_t *cf)
         return -1;
     cfg->alarm_test = (vd_alarm_test)test;
     /* the settings of the other test are errors, not silently ignored */
-    static const char *const cusum_only[] = {"false_alarms_per_year", "horizon", "detection_probability", NULL};
+    static const char *const cusum_only[] = {"false_alarms_per_year", "horizon", "detection_probability",
+                                             "reference_file", NULL};
     static const char *const threshold_only[] = {"threshold", "hold", NULL};
     const char *const *wrong = test == VD_ALARM_CUSUM ? threshold_only : cusum_only;
     for (size_t i = 0; g && wrong[i]; i++) {
@@ -1094,8 +1097,23 @@ static int load_alarms(ctx *c, config_t *cf)
                    &cfg->alarm_min_relative) ||
         get_double(c, g, "alarms", "hold", 2.0, 0.0, 86400.0, &cfg->alarm_hold_s) ||
         get_double(c, g, "alarms", "learn_start", 5.0, 0.0, 1e9, &cfg->learn_start_s) ||
-        get_double(c, g, "alarms", "learn_duration", 10.0, 0.001, 1e9, &cfg->learn_duration_s))
+        get_double(c, g, "alarms", "learn_duration", 10.0, 0.001, 1e9, &cfg->learn_duration_s) ||
+        get_path(c, g, "alarms", "reference_file", cfg->alarm_reference_file, sizeof cfg->alarm_reference_file))
         return -1;
+    /* under systemd (StateDirectory=, which sets STATE_DIRECTORY) the reference is kept there
+       by default; the first directory of a list */
+    const char *state = getenv("STATE_DIRECTORY");
+    if (!cfg->alarm_reference_file[0] && state && state[0] == '/' && test == VD_ALARM_CUSUM) {
+        size_t n = strcspn(state, ":");
+        char stand[64];
+        snprintf(stand, sizeof stand, "%s", vibid_stand_name(cfg->stand));
+        for (char *p = stand; *p; p++) /* a file name whatever the stand is called */
+            if (!(isalnum((unsigned char)*p) || *p == '_' || *p == '-' || *p == '.'))
+                *p = '_';
+        if (n + strlen(stand) + 32 < sizeof cfg->alarm_reference_file)
+            snprintf(cfg->alarm_reference_file, sizeof cfg->alarm_reference_file, "%.*s/%s.alarm-reference",
+                     (int)n, state, stand);
+    }
     const vibid_model *m = vibid_stand_model(cfg->stand);
     const config_setting_t *plist = g ? config_setting_get_member(g, "parameters") : NULL;
     for (size_t k = 0; k < cfg->n_params; k++) {
@@ -1499,8 +1517,12 @@ void vd_config_print(const vd_config *cfg, FILE *o)
     else
         fprintf(o, "  test = \"threshold\";\n  threshold = %s;\n  hold = %s;\n", num(cfg->alarm_threshold),
                 num(cfg->alarm_hold_s));
-    fprintf(o, "  min_relative = %s;\n  learn_start = %s;\n  learn_duration = %s;\n  parameters = (",
+    fprintf(o, "  min_relative = %s;\n  learn_start = %s;\n  learn_duration = %s;\n",
             num(cfg->alarm_min_relative), num(cfg->learn_start_s), num(cfg->learn_duration_s));
+    if (cfg->alarm_test == VD_ALARM_CUSUM)
+        fprintf(o, "  reference_file = \"%s\";%s\n", esc(cfg->alarm_reference_file),
+                cfg->alarm_reference_file[0] ? "" : "  # not kept: learned at every start");
+    fprintf(o, "  parameters = (");
     bool first = true;
     for (size_t k = 0; k < cfg->n_params; k++) {
         const vd_alarm_param *a = &cfg->alarm_param[k];

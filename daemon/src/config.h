@@ -186,6 +186,8 @@ typedef struct vd_config {
     double alarm_detection_probability; /* cusum: of the minimum detectable change */
     double alarm_threshold, alarm_min_relative, alarm_hold_s; /* threshold, hold: the threshold rule */
     double learn_start_s, learn_duration_s;
+    char alarm_reference_file[VD_PATH_MAX]; /* cusum: the reference kept across restarts
+                                               (reference.h); "" = learned at every start */
     vd_alarm_param alarm_param[VD_MAX_PARAMS];
 
     /* log */

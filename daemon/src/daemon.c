@@ -3,6 +3,7 @@
 #include "daemon.h"
 
 #include "clock.h"
+#include "reference.h"
 #include "log.h"
 
 #include <errno.h>
@@ -390,6 +391,14 @@ static void run_cusum(vd_daemon *d, vd_row *row)
     vd_cusum_event ev[VD_MAX_PARAMS];
     bool reference_now;
     size_t ne = vd_cusum_row(&d->cusum, row->index, row->run_s, row->theta, use, ev, &reference_now);
+    if (reference_now && d->cfg->alarm_reference_file[0]) {
+        char err[VD_PATH_MAX + 256];
+        if (vd_reference_save(d->cfg->alarm_reference_file, d->cfg, &d->cusum, row->index, (double)row->t_us / 1e6,
+                              err, sizeof err))
+            vd_error("alarm reference not saved: %s; the alarms go on with it in this run", err);
+        else
+            vd_notice("alarm reference learned and saved to %s", d->cfg->alarm_reference_file);
+    }
     if (reference_now) {
         for (size_t i = 0; i < d->cusum.n; i++) {
             size_t k = d->cusum.param[i];
@@ -1108,6 +1117,26 @@ int vd_daemon_init(vd_daemon *d, vd_config *cfg, const vd_options *opt, char *er
                                     baseline};
         if (vd_cusum_init(&d->cusum, &cc, err, cap))
             return -1;
+        const char *rf = cfg->alarm_reference_file;
+        vibid_change_reference ref[VD_MAX_PARAMS];
+        const int lr = rf[0] && d->cusum.det ? vd_reference_load(rf, cfg, &d->cusum, ref, err, cap) : 0;
+        if (lr < 0)
+            return -1;
+        if (lr > 0) {
+            if (vd_cusum_set_reference(&d->cusum, ref, err, cap)) {
+                char e2[512];
+                snprintf(e2, sizeof e2, "%s", err);
+                snprintf(err, cap, "%s: %s", rf, e2);
+                return -1;
+            }
+            vd_notice("alarm reference read from %s (kept across restarts; vibidd --reference learn replaces it)", rf);
+        } else if (rf[0]) {
+            vd_info("alarm reference: none in %s yet; learned over [%g, %g) s of sample time and saved there",
+                    rf, cfg->learn_start_s, cfg->learn_start_s + cfg->learn_duration_s);
+        } else {
+            vd_info("alarm reference: learned over [%g, %g) s of sample time, not kept (alarms.reference_file)",
+                    cfg->learn_start_s, cfg->learn_start_s + cfg->learn_duration_s);
+        }
     }
     if (open_source(d, err, cap))
         return -1;

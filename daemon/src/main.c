@@ -11,11 +11,13 @@
 #include "influx_http.h"
 #include "mqtt.h"
 
+#include <errno.h>
 #include <getopt.h>
 #include <locale.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 
 #include <vibid/common.h>
 
@@ -24,7 +26,7 @@ static void usage(FILE *o)
     fprintf(o,
             "usage: vibidd -c FILE [--check] [--replay CAPTURE [--pace] [--speed X]]\n"
             "              [--tracks F] [--influx F] [--record F] [--status F] [--log-level L]\n"
-            "              [--rate-check error|warn|off]\n"
+            "              [--rate-check error|warn|off] [--reference learn|show|forget]\n"
             "  -c, --config FILE   configuration (libconfig; docs/vibidd.md)\n"
             "  --check             validate, print the effective configuration, exit\n"
             "  --replay CAPTURE    run the same pipeline on a capture (candump .log or CSV,\n"
@@ -35,11 +37,49 @@ static void usage(FILE *o)
             "  --log-level L       error, warning, notice, info, debug (overrides log.level)\n"
             "  --rate-check M      the capture's or device's sample rate more than 1 %% off the\n"
             "                      stand's: error (default: exit 2), warn (go on), off\n"
+            "  --reference A       the alarms' saved reference (alarms.reference_file): show it,\n"
+            "                      forget it (remove the file), or learn a new one in this run\n"
             "  -h, --help          this text;  --version  version\n"
             "Options take their value as the next argument or after '=' (--replay=FILE).\n"
             "Signals: SIGTERM/SIGINT drain, flush and exit 0; SIGHUP reopens the output files.\n"
             "Exit status: 0 normal end (signal, end of a replay), 1 run-time failure (source\n"
             "failed, outputs could not be written), 2 bad command line or configuration.\n");
+}
+
+/* --reference learn|show|forget: show and forget act and return the exit status; learn
+ * removes the saved reference (this run learns a new one) and returns -1 (go on). */
+static int reference_command(const vd_config *cfg, const char *action)
+{
+    const char *rf = cfg->alarm_reference_file;
+    if (!cfg->alarms_enabled || cfg->alarm_test != VD_ALARM_CUSUM || !rf[0]) {
+        vd_error("--reference %s: no saved reference in this configuration (it needs alarms with test = \"cusum\" "
+                 "and alarms.reference_file, or STATE_DIRECTORY under systemd)",
+                 action);
+        return 2;
+    }
+    if (!strcmp(action, "show")) {
+        FILE *f = fopen(rf, "re");
+        if (!f) {
+            printf("# no alarm reference in %s (%s): the next run learns one\n", rf, strerror(errno));
+            return 0;
+        }
+        char buf[4096];
+        size_t n;
+        while ((n = fread(buf, 1, sizeof buf, f)) > 0)
+            fwrite(buf, 1, n, stdout);
+        fclose(f);
+        return 0;
+    }
+    if (unlink(rf) == 0)
+        vd_notice("alarm reference %s removed (--reference %s)%s", rf, action,
+                  strcmp(action, "learn") ? "" : ": this run learns a new one");
+    else if (errno == ENOENT)
+        vd_notice("alarm reference %s: none saved (--reference %s)", rf, action);
+    else {
+        vd_error("--reference %s: cannot remove %s: %s", action, rf, strerror(errno));
+        return 1;
+    }
+    return strcmp(action, "learn") ? 0 : -1;
 }
 
 static int set_override(char *dst, size_t cap, const char *val, const char *opt)
@@ -56,18 +96,18 @@ int main(int argc, char **argv)
 {
     setlocale(LC_NUMERIC, "C"); /* strtod in the DBC/CSV parsers needs the C locale */
     const char *cfg_path = NULL, *tracks = NULL, *influx = NULL, *record = NULL, *status = NULL, *level = NULL;
-    const char *rate_check = NULL;
+    const char *rate_check = NULL, *reference = NULL;
     bool check = false;
     vd_options opt = {NULL, false, 1.0, VD_RATE_MODE_ERROR, NULL}; /* every configured output */
     enum { O_CHECK = 256, O_REPLAY, O_PACE, O_SPEED, O_TRACKS, O_INFLUX, O_RECORD, O_STATUS, O_LOG_LEVEL,
-           O_RATE_CHECK, O_VERSION };
+           O_RATE_CHECK, O_REFERENCE, O_VERSION };
     static const struct option lopts[] = {
         {"config", required_argument, NULL, 'c'},        {"check", no_argument, NULL, O_CHECK},
         {"replay", required_argument, NULL, O_REPLAY},   {"pace", no_argument, NULL, O_PACE},
         {"speed", required_argument, NULL, O_SPEED},     {"tracks", required_argument, NULL, O_TRACKS},
         {"influx", required_argument, NULL, O_INFLUX},   {"record", required_argument, NULL, O_RECORD},
         {"status", required_argument, NULL, O_STATUS},   {"log-level", required_argument, NULL, O_LOG_LEVEL},
-        {"rate-check", required_argument, NULL, O_RATE_CHECK},
+        {"rate-check", required_argument, NULL, O_RATE_CHECK}, {"reference", required_argument, NULL, O_REFERENCE},
         {"help", no_argument, NULL, 'h'},                {"version", no_argument, NULL, O_VERSION},
         {NULL, 0, NULL, 0}};
     opterr = 0; /* our own messages, naming the option as given */
@@ -93,6 +133,13 @@ int main(int argc, char **argv)
         case O_STATUS: status = optarg; break;
         case O_LOG_LEVEL: level = optarg; break;
         case O_RATE_CHECK: rate_check = optarg; break;
+        case O_REFERENCE:
+            if (strcmp(optarg, "learn") && strcmp(optarg, "show") && strcmp(optarg, "forget")) {
+                fprintf(stderr, "vibidd: --reference '%s': expected learn, show or forget\n", optarg);
+                return 2;
+            }
+            reference = optarg;
+            break;
         case 'h': usage(stdout); return 0;
         case O_VERSION: printf("vibidd %s (libvibid %s)\n", VIBID_VERSION_STRING, vibid_version_string()); return 0;
         case ':': fprintf(stderr, "vibidd: option %s needs a value (see --help)\n", argv[optind - 1]); return 2;
@@ -147,6 +194,13 @@ int main(int argc, char **argv)
             return 2;
         }
         vd_log_set_level((vd_log_level)l);
+    }
+    if (reference) {
+        int r = reference_command(&cfg, reference);
+        if (r >= 0) {
+            vd_config_free(&cfg);
+            return r;
+        }
     }
     vd_daemon_use_output(&vd_mqtt_libmosquitto); /* outputs.mqtt (mqtt.h) */
     vd_daemon_use_output(&vd_influx_http_curl);  /* outputs.influx.http (influx_http.h) */
