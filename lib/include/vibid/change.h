@@ -156,8 +156,9 @@ VIBID_API vibid_status vibid_change_reset(vibid_change *det);
 
 /* One recursive row: its sample index (increasing; from the estimator's first sample),
  * its estimate theta (n_params values, the parameters' units), whether its block may be
- * used, and the phase. Events (at most one per parameter) go to events[0 .. *n_events);
- * events may be NULL when cap is 0 (they are then counted but lost: pass n_params).
+ * used, and the phase. Events (at most one per parameter) go to events[0 .. *n_events),
+ * *n_events <= cap; events may be NULL when cap is 0. Events beyond cap are lost: pass
+ * cap = n_params.
  * VIBID_E_NULL_ARGUMENT, VIBID_E_OUT_OF_RANGE (an index that does not increase: nothing
  * changes). */
 VIBID_API vibid_status vibid_change_push(vibid_change *det, uint64_t index, const double *theta, int use,
