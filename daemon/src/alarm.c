@@ -96,6 +96,7 @@ int vd_cusum_init(vd_cusum *c, const vd_cusum_config *cfg, char *err, size_t cap
     cc.horizon_s = cfg->horizon_s;
     cc.detection_probability = cfg->detection_probability;
     cc.min_relative = cfg->min_relative;
+    cc.n_covariates = cfg->n_covariates;
     c->det = vibid_change_create(&cc);
     if (!c->det) {
         snprintf(err, cap, "alarms: %s", vibid_last_error());
@@ -134,10 +135,11 @@ static bool cusum_end_learning(vd_cusum *c)
     return true;
 }
 
-size_t vd_cusum_row(vd_cusum *c, uint64_t index, double t_s, const double *theta, bool usable,
-                    vd_cusum_event *ev, bool *reference_now)
+size_t vd_cusum_row(vd_cusum *c, uint64_t index, double t_s, const double *theta, const double *cov, bool usable,
+                    vd_cusum_event *ev, bool *reference_now, bool *out_of_range)
 {
     *reference_now = false;
+    *out_of_range = false;
     if (!c->det)
         return 0;
     double th[VD_MAX_PARAMS];
@@ -159,8 +161,12 @@ size_t vd_cusum_row(vd_cusum *c, uint64_t index, double t_s, const double *theta
     /* before learn_start: chained only (use = 0): the estimator's start transient is neither
        learned nor tested, also with a reference read from a file */
     const int use = usable && t_s >= c->learn_start_s;
-    if (vibid_change_push(c->det, index, th, use, phase, e, c->n, &ne) != VIBID_OK)
+    if (vibid_change_push(c->det, index, th, cov, use, phase, e, c->n, &ne) != VIBID_OK)
         return 0; /* an index that does not increase: the row is not tested */
+    for (size_t i = 0; use && phase == VIBID_CHANGE_TEST && i < c->n && !*out_of_range; i++) {
+        vibid_change_state st;
+        *out_of_range = vibid_change_get_state(c->det, i, &st) == VIBID_OK && st.out_of_range;
+    }
     for (size_t j = 0; j < ne; j++) {
         ev[j].param = c->param[e[j].param];
         ev[j].raised = e[j].kind == VIBID_CHANGE_RAISED;

@@ -111,6 +111,7 @@ typedef struct vd_cusum_config {
     double false_alarms_per_year, horizon_s, detection_probability, min_relative;
     double learn_start_s, learn_duration_s;
     size_t n_params;                            /* the stand's */
+    size_t n_covariates;                        /* per row (vd_row.cov), 0 .. VD_MAX_COVARIATES */
     const bool *enabled;                        /* [n_params] */
     const bool *has_baseline;                   /* [n_params] */
     const double *baseline;                     /* [n_params] */
@@ -119,17 +120,20 @@ typedef struct vd_cusum_config {
 /* 0, or -1 with err (a configuration the library refuses). No alarmed parameter: det NULL. */
 int vd_cusum_init(vd_cusum *c, const vd_cusum_config *cfg, char *err, size_t cap);
 void vd_cusum_free(vd_cusum *c);
-/* One recursive row: theta of the stand's parameters at sample index, its block usable or
- * not, at run time t_s. Events into ev[0 .. return value), param = the stand's index, at most
- * n events (ev holds VD_MAX_PARAMS). *reference_now: this row completed the reference. */
+/* One recursive row: theta of the stand's parameters at sample index, the covariates' means
+ * over its block (n_covariates values; may be NULL without), its block usable or not, at run
+ * time t_s. Events into ev[0 .. return value), param = the stand's index, at most n events (ev
+ * holds VD_MAX_PARAMS). *reference_now: this row completed the reference. *out_of_range: the
+ * row was tested with covariates outside the reference's range (vibid/change.h point 6: it
+ * is weighed down, the row is flagged C). */
 typedef struct vd_cusum_event {
     size_t param;
     int raised;
     double statistic, threshold, change, change_se, reference;
     uint64_t onset_index;
 } vd_cusum_event;
-size_t vd_cusum_row(vd_cusum *c, uint64_t index, double t_s, const double *theta, bool usable,
-                    vd_cusum_event *ev, bool *reference_now);
+size_t vd_cusum_row(vd_cusum *c, uint64_t index, double t_s, const double *theta, const double *cov, bool usable,
+                    vd_cusum_event *ev, bool *reference_now, bool *out_of_range);
 /* A reference from elsewhere (a saved one, reference.h), ref[0 .. c->n) in the alarmed
  * parameters' order; a given baseline still replaces its mean. 0, or -1 with err. */
 int vd_cusum_set_reference(vd_cusum *c, const vibid_change_reference *ref, char *err, size_t cap);

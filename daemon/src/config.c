@@ -242,6 +242,33 @@ static int load_chanmap(ctx *c, const config_setting_t *src)
             return -1;
         snprintf(dst[i], VIBID_CHAN_NAME_LEN, "%s", tmp);
     }
+    /* The covariates: every `covariate` channel of the map, in its order. */
+    cfg->n_covariates = 0;
+    for (size_t k = 0; k < cfg->chanmap.n; k++) {
+        if (cfg->chanmap.ch[k].quantity != VIBID_Q_COVARIATE)
+            continue;
+        if (cfg->n_covariates == VD_MAX_COVARIATES)
+            return vibid_cfg_fail_at(&c->r, cfg->chanmap_file[0] ? cfg->chanmap_file : c->r.file,
+                                     (int)cfg->chanmap.ch[k].line, "source.channels",
+                                     "covariate '%s': at most %d covariate channels", cfg->chanmap.ch[k].name,
+                                     VD_MAX_COVARIATES);
+        /* its name heads a column of the tracks: it must not be another column's */
+        const char *name = cfg->chanmap.ch[k].name;
+        bool clash = !strcmp(name, "time_s") || !strcmp(name, "index") || !strcmp(name, "gap_samples") ||
+                     !strcmp(name, "flags");
+        for (size_t p = 0; p < cfg->n_params && !clash; p++) {
+            vibid_param_info pi;
+            vibid_model_param_info(vibid_stand_model(cfg->stand), p, &pi);
+            clash = !strcmp(name, pi.name);
+        }
+        if (clash)
+            return vibid_cfg_fail_at(&c->r, cfg->chanmap_file[0] ? cfg->chanmap_file : c->r.file,
+                                     (int)cfg->chanmap.ch[k].line, "source.channels",
+                                     "covariate '%s' has the name of a column of the tracks (a parameter, time_s, "
+                                     "index, gap_samples or flags): rename it",
+                                     name);
+        cfg->cov_chan[cfg->n_covariates++] = k;
+    }
     /* Every model channel must come from the source: map by name. */
     const vibid_model *m = vibid_stand_model(cfg->stand);
     for (size_t i = 0; i < cfg->n_channels; i++) {
@@ -274,7 +301,8 @@ static int quantity_dim(vibid_quantity q)
     case VIBID_Q_ACCELERATION:
     case VIBID_Q_BASE_ACCELERATION: return VIBID_DIM_ACCELERATION;
     case VIBID_Q_FORCE: return VIBID_DIM_FORCE;
-    case VIBID_Q_INPUT: return -1;
+    case VIBID_Q_INPUT:
+    case VIBID_Q_COVARIATE: return -1;
     }
     return -1;
 }
@@ -333,6 +361,13 @@ static int check_channels(ctx *c)
     for (size_t k = 0; k < cfg->chanmap.n; k++)
         if (channel_scale(c, map_file, k))
             return -1;
+    for (size_t j = 0; j < cfg->n_covariates; j++) {
+        const vibid_channel *ch = &cfg->chanmap.ch[cfg->cov_chan[j]];
+        const vibid_dbc_signal *sig = NULL;
+        if (ch->source == VIBID_CHAN_SIGNAL && cfg->dbc)
+            sig = vibid_dbc_lookup_signal(cfg->dbc, ch->ref, ch->message, NULL, NULL);
+        snprintf(cfg->cov_unit[j], sizeof cfg->cov_unit[j], "%s", ch->unit[0] ? ch->unit : sig ? sig->unit : "");
+    }
     const vibid_model *m = vibid_stand_model(cfg->stand);
     for (size_t i = 0; i < cfg->n_channels; i++) {
         const vibid_channel *ch = &cfg->chanmap.ch[cfg->model_to_chan[i]];

@@ -25,6 +25,7 @@
 
 #define VD_PATH_MAX 1024
 #define VD_MAX_PARAMS 64
+#define VD_MAX_COVARIATES 4 /* = VIBID_CHANGE_MAX_COVARIATES (vibid/change.h) */
 
 /* The configuration reader's error (vibid/cfgread.h): file, line (0 if not known), field
  * (setting path, "" for syntax errors), message, and text "file:line: field: message",
@@ -109,6 +110,11 @@ typedef struct vd_config {
     size_t model_to_chan[VIBID_DRV_MAX_CHANNELS]; /* model channel i -> chanmap index */
     double chan_scale[VIBID_DRV_MAX_CHANNELS];    /* chanmap channel k: its unit -> the stand's units (> 0) */
     double model_scale[VIBID_DRV_MAX_CHANNELS];   /* model channel i: chan_scale of its chanmap channel */
+    /* covariates: the channel map's `covariate` channels in map order (operating conditions
+     * the change test compensates for; written in the tracks) */
+    size_t n_covariates;                          /* 0 .. VD_MAX_COVARIATES */
+    size_t cov_chan[VD_MAX_COVARIATES];           /* covariate j -> chanmap index */
+    char cov_unit[VD_MAX_COVARIATES][32];         /* its unit label (map, else DBC; "" none) */
     /* socketcan */
     char iface[32];
     int rcvbuf_bytes;

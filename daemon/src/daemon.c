@@ -389,8 +389,17 @@ static void run_cusum(vd_daemon *d, vd_row *row)
     const bool use = vd_row_usable(row->flags) &&
                      !(row->flags & (VD_FLAG_NOT_EXCITED | VD_FLAG_GAP | VD_FLAG_OUTLIER));
     vd_cusum_event ev[VD_MAX_PARAMS];
-    bool reference_now;
-    size_t ne = vd_cusum_row(&d->cusum, row->index, row->run_s, row->theta, use, ev, &reference_now);
+    bool reference_now, out_of_range;
+    size_t ne = vd_cusum_row(&d->cusum, row->index, row->run_s, row->theta, row->cov, use, ev, &reference_now,
+                             &out_of_range);
+    if (out_of_range) {
+        row->flags |= VD_FLAG_COVARIATE;
+        if (d->covariate_rows++ == 0)
+            vd_warning("covariates outside the range the alarm reference saw (from sample %llu): those rows are "
+                       "flagged C and weighed down in the change test (extrapolating the reference's dependence is "
+                       "not trusted); learn the reference over the operating conditions of service",
+                       (unsigned long long)row->index);
+    }
     if (reference_now && d->cfg->alarm_reference_file[0]) {
         char err[VD_PATH_MAX + 256];
         if (vd_reference_save(d->cfg->alarm_reference_file, d->cfg, &d->cusum, row->index, (double)row->t_us / 1e6,
@@ -414,6 +423,15 @@ static void run_cusum(vd_daemon *d, vd_row *row)
                         pi.name, ref.mean, d->cusum.have_given[i] ? "given" : "learned", ref.block_sd, ref.n_sd, mdc,
                         100.0 * mdc_rel, d->cfg->alarm_horizon_s, d->cfg->alarm_detection_probability,
                         d->cfg->alarm_false_per_year);
+            for (size_t j = 0; j < d->cfg->n_covariates; j++) {
+                const size_t q = d->cfg->n_covariates;
+                const double g = ref.gram_inv[j * q + j];
+                vd_info("alarm reference of %s against covariate %s: slope %.4g +- %.2g per %s, learned over [%.6g, "
+                        "%.6g]%s",
+                        pi.name, d->cfg->chanmap.ch[d->cfg->cov_chan[j]].name, ref.slope[j],
+                        ref.block_sd * sqrt(g), d->cfg->cov_unit[j][0] ? d->cfg->cov_unit[j] : "unit", ref.low[j],
+                        ref.high[j], g > 0.0 ? "" : " (did not vary: not modelled)");
+            }
         }
     } else if (d->cusum.learning_extended && !d->cusum_extended_reported) {
         vd_warning("alarm reference not complete after [%g, %g) s of sample time: %s; learning goes on",
@@ -597,6 +615,12 @@ static void take_snapshot(vd_daemon *d, const char *state, double now)
         if (s->have_change[k])
             s->alarm_active[k] = active;
     }
+    s->n_covariates = cfg->n_covariates;
+    s->covariate_rows = d->covariate_rows;
+    for (size_t j = 0; j < cfg->n_covariates; j++) {
+        s->cov_name[j] = cfg->chanmap.ch[cfg->cov_chan[j]].name;
+        s->cov_value[j] = d->est.have_last ? d->est.last.cov[j] : NAN;
+    }
     if (d->est.have_last) {
         const vd_row *r = &d->est.last;
         s->have_last = true;
@@ -680,6 +704,10 @@ static void format_status(vd_daemon *d, const vd_snapshot *sn)
         if (sn->have_change[k])
             S("change.%s.statistic=%.4g\nchange.%s.mdc=%.4g\nchange.%s.mdc_relative=%.4g\n", sn->param[k],
               sn->change_statistic[k], sn->param[k], sn->change_mdc[k], sn->param[k], sn->change_mdc_relative[k]);
+    if (sn->n_covariates)
+        S("covariates.out_of_range_rows=%llu\n", (unsigned long long)sn->covariate_rows);
+    for (size_t j = 0; j < sn->n_covariates; j++)
+        S("covariate.%s=%.10g\n", sn->cov_name[j], sn->cov_value[j]);
     if (sn->have_last) {
         S("last_index=%llu\nlast_time_s=%lld.%06lld\n", (unsigned long long)sn->last_index,
           (long long)(sn->last_t_us / 1000000), (long long)(sn->last_t_us % 1000000));
@@ -1112,6 +1140,7 @@ int vd_daemon_init(vd_daemon *d, vd_config *cfg, const vd_options *opt, char *er
                                     cfg->learn_start_s,
                                     cfg->learn_duration_s,
                                     cfg->n_params,
+                                    cfg->n_covariates,
                                     enabled,
                                     given,
                                     baseline};

@@ -97,6 +97,7 @@ typedef struct vd_daemon {
     vd_alarm alarm[VD_MAX_PARAMS];       /* alarms.test = "threshold" */
     vd_cusum cusum;                      /* alarms.test = "cusum" */
     bool cusum_extended_reported;
+    uint64_t covariate_rows;      /* rows flagged C (covariates outside the reference's range) */
     bool base_reported[VD_MAX_PARAMS];
     vd_notify notify;
     vd_rate_check *rate;       /* live SocketCAN: the sample-rate check until it decided */

@@ -142,7 +142,7 @@ void vd_flag_letters(unsigned flags, char out[VD_FLAG_LETTERS_MAX])
         char letter;
     } order[] = {{VD_FLAG_GAP, 'G'},        {VD_FLAG_OUTLIER, 'O'},     {VD_FLAG_NOEST, 'E'}, {VD_FLAG_IMPLAUSIBLE, 'P'},
                  {VD_FLAG_SE_INVALID, 'U'}, {VD_FLAG_NOT_EXCITED, 'I'}, {VD_FLAG_ALARM, 'A'},
-                 {VD_FLAG_REFINED, 'W'}};
+                 {VD_FLAG_COVARIATE, 'C'},  {VD_FLAG_REFINED, 'W'}};
     int n = 0;
     for (size_t i = 0; i < sizeof order / sizeof order[0]; i++)
         if (flags & order[i].bit)
@@ -292,6 +292,11 @@ static void start_row(vd_est *e, const vibid_record *rec, uint64_t rel, vd_row *
     e->outlier_since_row = 0;
     for (size_t k = 0; k < VD_MAX_PARAMS; k++)
         row->theta[k] = row->se[k] = row->freq[k] = row->freq_se[k] = row->zeta[k] = row->zeta_se[k] = NAN;
+    for (size_t j = 0; j < VD_MAX_COVARIATES; j++) {
+        row->cov[j] = e->cov_n[j] ? e->cov_sum[j] / (double)e->cov_n[j] : NAN;
+        e->cov_sum[j] = 0.0;
+        e->cov_n[j] = 0;
+    }
     /* a failure cannot happen (twin_create checked the form); if it did, the row says E */
     e->sync_status = e->twin ? vibid_ident_twin_sync(e->twin, e->ident) : VIBID_OK;
 }
@@ -341,6 +346,8 @@ void vd_est_refined_row(vd_est *e, vd_row *row, uint64_t index, int64_t t_us, co
     row->index = index;
     row->run_s = (double)index / e->cfg->sample_rate;
     row->flags = VD_FLAG_REFINED;
+    for (size_t j = 0; j < VD_MAX_COVARIATES; j++)
+        row->cov[j] = NAN;
     /* the library's row checks (vibid/report.h), as for every recursive row */
     vibid_report_row_out out = report_out(row);
     for (size_t k = 0; k < VD_MAX_PARAMS; k++)
@@ -378,6 +385,13 @@ int vd_est_record(vd_est *e, const vibid_record *rec, vd_row *row)
         return 0;
     }
     e->next_index = rec->index + 1;
+    for (size_t j = 0; j < e->cfg->n_covariates; j++) { /* the row's covariates: their block mean */
+        double v = rec->values[e->cfg->cov_chan[j]];
+        if (isfinite(v)) {
+            e->cov_sum[j] += v;
+            e->cov_n[j]++;
+        }
+    }
     if (!e->outl)
         model_values(e, rec, e->chan); /* else vd_est_next put them there, glitches as NaN */
     else if (e->rel_outliers)

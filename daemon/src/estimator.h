@@ -72,11 +72,14 @@ enum {
                                   the data (its standard error is written as inf) */
     VD_FLAG_OUTLIER = 64u,     /* O: a sample since the previous row had a glitch taken out
                                   (vibid/outlier.h): the estimator saw it as a gap */
-    VD_FLAG_REFINED = 128u     /* R: the output-error refinement over the window ending at the
+    VD_FLAG_REFINED = 128u,    /* W: the output-error refinement over the window ending at the
                                   row's sample (refine.h), not the recursive estimate */
+    VD_FLAG_COVARIATE = 256u   /* C: the change test met covariates outside the range its
+                                  reference saw (vibid/change.h point 6): the row is weighed
+                                  down, not judged on an extrapolated dependence */
 };
 
-/* The row's flags as letters, in the order G O E P U I A W (docs/vibidd.md): the one
+/* The row's flags as letters, in the order G O E P U I A C W (docs/vibidd.md): the one
  * spelling of the tracks, InfluxDB, MQTT and the metrics. out holds at least
  * VD_FLAG_LETTERS_MAX bytes. */
 #define VD_FLAG_LETTERS_MAX 12
@@ -96,6 +99,8 @@ typedef struct vd_row {
     uint64_t gap_samples;   /* missing samples since the previous row */
     double theta[VD_MAX_PARAMS], se[VD_MAX_PARAMS];
     double freq[VD_MAX_PARAMS], freq_se[VD_MAX_PARAMS], zeta[VD_MAX_PARAMS], zeta_se[VD_MAX_PARAMS];
+    double cov[VD_MAX_COVARIATES]; /* the covariates' means over the samples since the previous
+                               row (their channels' units; NaN: none finite; refined rows NaN) */
     int est_status;         /* vibid_status of the estimate */
     unsigned implausible;   /* VIBID_IMPLAUSIBLE_* bits found (flag P), 0 = plausible */
 } vd_row;
@@ -128,6 +133,8 @@ typedef struct vd_est {
     uint64_t first_index, next_index, next_emit;
     uint64_t samples, gaps, missing, push_errors, est_errors, rows;
     uint64_t gap_since_row;
+    double cov_sum[VD_MAX_COVARIATES]; /* the covariates' finite values since the last row */
+    uint64_t cov_n[VD_MAX_COVARIATES];
     double chan[VIBID_DRV_MAX_CHANNELS];
     vibid_report *report;   /* the row's checks (vibid/report.h) */
     vd_row last;            /* the latest row (for the status) */

@@ -285,6 +285,20 @@ int vd_metrics_render(char *buf, size_t cap, const vd_snapshot *s)
             dbl(&o, change_families[f].name, a, v);
         }
     }
+    if (s->n_covariates) {
+        counter(&o, "vibid_covariate_out_of_range_rows_total",
+                "Rows whose covariates lay outside the range the alarm reference saw (flag C: weighed down in the "
+                "change test).",
+                s->covariate_rows);
+        family(&o, "vibid_covariate", "gauge",
+               "The covariate (an operating condition: source.channels with quantity covariate), its mean over the "
+               "latest row's samples, in its channel's unit.");
+        for (size_t j = 0; j < s->n_covariates; j++) {
+            vd_metrics_escape_label(b, sizeof b, s->cov_name[j]);
+            snprintf(a, sizeof a, "covariate=\"%s\"", b);
+            dbl(&o, "vibid_covariate", a, s->cov_value[j]);
+        }
+    }
     if (s->have_last) {
         gauge(&o, "vibid_last_row_index", "Sample index (from the run's start) of the latest row.",
               (double)s->last_index);
@@ -309,13 +323,14 @@ int vd_metrics_render(char *buf, size_t cap, const vd_snapshot *s)
                "Flags of the latest row as in the tracks, 1 if set: G samples missing since the previous row, O "
                "a single-sample glitch taken out since the previous row, E "
                "no estimate, P physically impossible, U standard errors do not hold, I a parameter hardly "
-               "informed, A an alarm active, R an output-error refinement.");
+               "informed, A an alarm active, C covariates outside the alarm reference's range, W an "
+               "output-error refinement.");
         static const struct {
             const char *letter;
             unsigned bit;
         } fl[] = {{"G", VD_FLAG_GAP},        {"O", VD_FLAG_OUTLIER},     {"E", VD_FLAG_NOEST},
                   {"P", VD_FLAG_IMPLAUSIBLE}, {"U", VD_FLAG_SE_INVALID}, {"I", VD_FLAG_NOT_EXCITED},
-                  {"A", VD_FLAG_ALARM},       {"W", VD_FLAG_REFINED}};
+                  {"A", VD_FLAG_ALARM},       {"C", VD_FLAG_COVARIATE},   {"W", VD_FLAG_REFINED}};
         for (size_t i = 0; i < sizeof fl / sizeof fl[0]; i++) {
             snprintf(a, sizeof a, "flag=\"%s\"", fl[i].letter);
             u64(&o, "vibid_row_flag", a, (s->last_flags & fl[i].bit) ? 1 : 0);

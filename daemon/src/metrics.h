@@ -123,6 +123,12 @@ typedef struct vd_snapshot {
        and the minimum detectable change (the parameter's unit, and relative to the reference) */
     bool have_change[VD_MAX_PARAMS];
     double change_statistic[VD_MAX_PARAMS], change_mdc[VD_MAX_PARAMS], change_mdc_relative[VD_MAX_PARAMS];
+    /* covariates (source.channels with quantity covariate): names, the latest row's values
+       (their block means; NaN none), rows flagged C (outside the alarm reference's range) */
+    size_t n_covariates;
+    const char *cov_name[VD_MAX_COVARIATES];
+    double cov_value[VD_MAX_COVARIATES];
+    uint64_t covariate_rows;
     /* the latest row (when have_last) */
     bool have_last;
     uint64_t last_index;

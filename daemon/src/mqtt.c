@@ -118,9 +118,20 @@ int vd_mqtt_format_track(char *buf, size_t cap, const vd_config *cfg, const char
         put_num(&o, row->zeta_se[i]);
         vd_text_put(&o, "}");
     }
+    vd_text_put(&o, "]");
+    if (cfg->n_covariates) {
+        vd_text_put(&o, ",\"covariates\":{");
+        for (size_t j = 0; j < cfg->n_covariates; j++) {
+            if (j) vd_text_put(&o, ",");
+            put_str(&o, cfg->chanmap.ch[cfg->cov_chan[j]].name);
+            vd_text_put(&o, ":");
+            put_num(&o, row->cov[j]);
+        }
+        vd_text_put(&o, "}");
+    }
     char fl[VD_FLAG_LETTERS_MAX];
     vd_flag_letters(row->flags, fl);
-    vd_text_put(&o, "],\"gap_samples\":%llu,\"flags\":\"%s\",\"dropped_before\":%llu}",
+    vd_text_put(&o, ",\"gap_samples\":%llu,\"flags\":\"%s\",\"dropped_before\":%llu}",
         (unsigned long long)row->gap_samples, fl, (unsigned long long)dropped_before);
     return o.full ? -1 : (int)o.off;
 }
@@ -850,9 +861,11 @@ static void *op_open(const vd_output_ctx *ctx, char *err, size_t cap) {
         w.t_us = INT64_MIN;
         w.index = UINT64_MAX;
         w.gap_samples = UINT64_MAX;
-        w.flags = 0xffu;
+        w.flags = 0x1ffu;
         for (size_t k = 0; k < VD_MAX_PARAMS; k++)
             w.theta[k] = w.se[k] = w.freq[k] = w.freq_se[k] = w.zeta[k] = w.zeta_se[k] = -2.225073859e-308;
+        for (size_t j = 0; j < VD_MAX_COVARIATES; j++)
+            w.cov[j] = -2.225073859e-308;
         char pname[256];
         if (longest_name > sizeof pname - 1) longest_name = sizeof pname - 1;
         memset(pname, '"', longest_name); /* escaped: twice as long */

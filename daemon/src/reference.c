@@ -54,6 +54,9 @@ uint64_t vd_reference_key(const vd_config *cfg, const vd_cusum *c)
     h = fnv_num(h, (double)cfg->difference_order);
     for (size_t i = 0; i < c->n; i++)
         h = fnv_str(h, param_name(cfg, c->param[i]));
+    /* the covariates the reference depends on (none: the key of a reference without them) */
+    for (size_t j = 0; j < cfg->n_covariates; j++)
+        h = fnv_str(h, cfg->chanmap.ch[cfg->cov_chan[j]].name);
     return h;
 }
 
@@ -81,6 +84,13 @@ int vd_reference_save(const char *path, const vd_config *cfg, const vd_cusum *c,
         const char *p = param_name(cfg, c->param[i]);
         fprintf(f, "%s.mean=%.17g\n%s.block_sd=%.17g\n%s.n_mean=%.17g\n%s.n_sd=%.17g\n", p, ref[i].mean, p,
                 ref[i].block_sd, p, ref[i].n_mean, p, ref[i].n_sd);
+        const size_t q = cfg->n_covariates;
+        for (size_t j = 0; j < q; j++) {
+            fprintf(f, "%s.slope_%zu=%.17g\n%s.centre_%zu=%.17g\n%s.low_%zu=%.17g\n%s.high_%zu=%.17g\n", p, j,
+                    ref[i].slope[j], p, j, ref[i].centre[j], p, j, ref[i].low[j], p, j, ref[i].high[j]);
+            for (size_t l = 0; l < q; l++)
+                fprintf(f, "%s.gram_inv_%zu%zu=%.17g\n", p, j, l, ref[i].gram_inv[j * q + l]);
+        }
     }
     bool ok = fflush(f) == 0 && fsync(fileno(f)) == 0;
     const int e = errno;
@@ -99,6 +109,37 @@ int vd_reference_save(const char *path, const vd_config *cfg, const vd_cusum *c,
         close(dfd);
     }
     return 0;
+}
+
+/* A field of a parameter's saved reference: mean, block_sd, n_mean, n_sd (bits 0-3), and per
+ * covariate j < q slope_j, centre_j, low_j, high_j (bits 4 + 4 j ..), gram_inv_jl (bits
+ * 4 + 4 q + j q + l). NULL for another name. */
+static double *ref_field(vibid_change_reference *r, size_t q, const char *fld, unsigned *bit)
+{
+    static const char *const base[] = {"mean", "block_sd", "n_mean", "n_sd"};
+    double *const base_dst[] = {&r->mean, &r->block_sd, &r->n_mean, &r->n_sd};
+    for (unsigned b = 0; b < 4; b++)
+        if (!strcmp(fld, base[b])) {
+            *bit = b;
+            return base_dst[b];
+        }
+    static const char *const per[] = {"slope_", "centre_", "low_", "high_"};
+    for (unsigned b = 0; b < 4; b++) {
+        size_t n = strlen(per[b]);
+        if (!strncmp(fld, per[b], n) && fld[n] >= '0' && (size_t)(fld[n] - '0') < q && !fld[n + 1]) {
+            size_t j = (size_t)(fld[n] - '0');
+            double *const dst[] = {&r->slope[j], &r->centre[j], &r->low[j], &r->high[j]};
+            *bit = (unsigned)(4 + 4 * j + b);
+            return dst[b];
+        }
+    }
+    if (!strncmp(fld, "gram_inv_", 9) && fld[9] >= '0' && (size_t)(fld[9] - '0') < q && fld[10] >= '0' &&
+        (size_t)(fld[10] - '0') < q && !fld[11]) {
+        size_t j = (size_t)(fld[9] - '0'), l = (size_t)(fld[10] - '0');
+        *bit = (unsigned)(4 + 4 * q + j * q + l);
+        return &r->gram_inv[j * q + l];
+    }
+    return NULL;
 }
 
 /* "a.mean" -> k of the alarmed parameter a and the field; -1 if no such parameter. */
@@ -128,7 +169,8 @@ int vd_reference_load(const char *path, const vd_config *cfg, const vd_cusum *c,
         snprintf(err, cap, "%s: cannot read: %s", path, strerror(errno));
         return -1;
     }
-    unsigned have[VD_MAX_PARAMS] = {0};
+    uint64_t have[VD_MAX_PARAMS] = {0};
+    memset(ref, 0, c->n * sizeof *ref);
     bool have_key = false, have_format = false;
     char line[1024];
     int ln = 0, rc = 0;
@@ -188,18 +230,18 @@ int vd_reference_load(const char *path, const vd_config *cfg, const vd_cusum *c,
                 rc = -1;
                 break;
             }
-            static const char *const fields[] = {"mean", "block_sd", "n_mean", "n_sd"};
-            size_t fi = 0;
-            while (fi < 4 && strcmp(fld, fields[fi]))
-                fi++;
-            if (fi == 4) {
-                snprintf(err, cap, "%s:%d: unknown field '%.40s' (mean, block_sd, n_mean, n_sd)", path, ln, fld);
+            unsigned bit;
+            double *dst = ref_field(&ref[i], cfg->n_covariates, fld, &bit);
+            if (!dst) {
+                snprintf(err, cap,
+                         "%s:%d: unknown field '%.40s' (mean, block_sd, n_mean, n_sd; with %zu covariates slope_J, "
+                         "centre_J, low_J, high_J, gram_inv_JL)",
+                         path, ln, fld, cfg->n_covariates);
                 rc = -1;
                 break;
             }
-            double *dst[] = {&ref[i].mean, &ref[i].block_sd, &ref[i].n_mean, &ref[i].n_sd};
-            *dst[fi] = v;
-            have[i] |= 1u << fi;
+            *dst = v;
+            have[i] |= 1ull << bit;
         }
     }
     if (rc == 0 && ferror(f)) {
@@ -213,10 +255,12 @@ int vd_reference_load(const char *path, const vd_config *cfg, const vd_cusum *c,
         snprintf(err, cap, "%s: not a vibidd alarm reference (no format= or key= line)", path);
         return -1;
     }
+    const size_t q = cfg->n_covariates;
+    const uint64_t all = (1ull << (4 + 4 * q + q * q)) - 1u;
     for (size_t i = 0; i < c->n; i++)
-        if (have[i] != 0xfu) {
-            snprintf(err, cap, "%s: parameter %s incomplete (needs mean, block_sd, n_mean, n_sd)", path,
-                     param_name(cfg, c->param[i]));
+        if (have[i] != all) {
+            snprintf(err, cap, "%s: parameter %s incomplete (needs mean, block_sd, n_mean, n_sd%s)", path,
+                     param_name(cfg, c->param[i]), q ? " and per covariate slope, centre, low, high, gram_inv" : "");
             return -1;
         }
     return 1;

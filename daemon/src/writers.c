@@ -68,6 +68,9 @@ int vd_format_tracks_header(char *buf, size_t cap, const vd_config *cfg)
     for (size_t i = 1; i <= cfg->n_modes; i++)
         if (put(buf, cap, &off, ",f%zu_hz,f%zu_hz_se,zeta%zu,zeta%zu_se", i, i, i, i))
             return -1;
+    for (size_t j = 0; j < cfg->n_covariates; j++)
+        if (put(buf, cap, &off, ",%s", cfg->chanmap.ch[cfg->cov_chan[j]].name))
+            return -1;
     if (put(buf, cap, &off, ",gap_samples,flags\n"))
         return -1;
     return (int)off;
@@ -84,6 +87,9 @@ int vd_format_track_row(char *buf, size_t cap, const vd_config *cfg, const vd_ro
     for (size_t i = 0; i < cfg->n_modes; i++)
         if (put_num(buf, cap, &off, row->freq[i]) || put_num(buf, cap, &off, row->freq_se[i]) ||
             put_num(buf, cap, &off, row->zeta[i]) || put_num(buf, cap, &off, row->zeta_se[i]))
+            return -1;
+    for (size_t j = 0; j < cfg->n_covariates; j++)
+        if (put_num(buf, cap, &off, row->cov[j]))
             return -1;
     char fl[VD_FLAG_LETTERS_MAX];
     vd_flag_letters(row->flags, fl);
@@ -155,6 +161,11 @@ int vd_format_influx_row(char *buf, size_t cap, const vd_config *cfg, const char
             put_field(buf, cap, &off, &first, f, "_se", row->freq_se[i]) ||
             put_field(buf, cap, &off, &first, z, "", row->zeta[i]) ||
             put_field(buf, cap, &off, &first, z, "_se", row->zeta_se[i]))
+            return -1;
+    }
+    for (size_t j = 0; j < cfg->n_covariates; j++) {
+        vd_influx_escape_tag(fname, sizeof fname, cfg->chanmap.ch[cfg->cov_chan[j]].name);
+        if (put_field(buf, cap, &off, &first, fname, "", row->cov[j]))
             return -1;
     }
     char fl[VD_FLAG_LETTERS_MAX];

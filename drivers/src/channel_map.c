@@ -4,11 +4,12 @@
 #include <stdio.h>
 #include <string.h>
 
-#define N_QUANTITIES 8
+#define N_QUANTITIES 9
 /* In vibid_quantity's order; NULL-terminated for vibid_cfg_enum. */
 static const char *const qnames[N_QUANTITIES + 1] = {"displacement",      "velocity",          "acceleration",
                                                      "force",             "base_displacement", "base_velocity",
-                                                     "base_acceleration", "input",             NULL};
+                                                     "base_acceleration", "input",             "covariate",
+                                                     NULL};
 
 const char *vibid_quantity_name(vibid_quantity q)
 {
@@ -74,7 +75,14 @@ vibid_drv_status vibid_chanmap_read(const vibid_cfg_reader *r, const config_sett
         c->quantity = (vibid_quantity)qi;
         c->is_input = c->quantity == VIBID_Q_FORCE || c->quantity == VIBID_Q_INPUT || vibid_quantity_is_base(c->quantity);
         vibid_cfg_field(f, sizeof f, p, "node");
-        if (vibid_quantity_is_base(c->quantity)) {
+        if (c->quantity == VIBID_Q_COVARIATE) {
+            /* an operating condition of the whole stand (temperature, speed, load) */
+            if (got)
+                return vibid_cfg_fail(r, config_setting_get_member(g, "node"), f,
+                                      "a covariate belongs to the stand, not to a node: omit node"),
+                       VIBID_DRV_E_SYNTAX;
+            c->node = -1;
+        } else if (vibid_quantity_is_base(c->quantity)) {
             /* The base is not a node; 0 is accepted because earlier maps wrote it. */
             if (got && node != 0)
                 return vibid_cfg_fail(r, config_setting_get_member(g, "node"), f,

@@ -3,6 +3,9 @@
 
 #include "api_guard.hpp"
 
+#include <Eigen/Core>
+#include <Eigen/LU>
+
 #include <algorithm>
 #include <cmath>
 #include <cstring>
@@ -93,17 +96,116 @@ double threshold_for(double k, double arl, double n_mean, double n_sd) {
     return hi;
 }
 
+constexpr size_t kMaxCov = VIBID_CHANGE_MAX_COVARIATES;
+// v(c) = 1 / n_mean + d^T G d of a reference (point 6 of change.h); INFINITY when c lies
+// outside the range of a covariate that is not modelled (G's diagonal 0).
+double prediction_v(const vibid_change_reference &r, size_t q, const double *c) {
+    double v = std::isfinite(r.n_mean) ? 1.0 / r.n_mean : 0.0;
+    double d[kMaxCov];
+    for (size_t j = 0; j < q; ++j) {
+        d[j] = c[j] - r.centre[j];
+        const double tol = 1e-9 * std::max(r.high[j] - r.low[j], std::fabs(c[j]));
+        if (!(r.gram_inv[j * q + j] > 0.0) && (c[j] < r.low[j] - tol || c[j] > r.high[j] + tol)) return kInf;
+    }
+    for (size_t i = 0; i < q; ++i)
+        for (size_t j = 0; j < q; ++j) v += d[i] * r.gram_inv[i * q + j] * d[j];
+    return std::max(v, 0.0);
+}
+
+// Per-parameter learning sums (Welford on x = (c_0 .. c_(q-1), b)): mean and co-moment.
+struct Learn {
+    uint64_t n = 0;
+    double mean[kMaxCov + 1] = {};
+    double m2[(kMaxCov + 1) * (kMaxCov + 1)] = {};
+    double low[kMaxCov] = {}, high[kMaxCov] = {};
+
+    void add(size_t q, const double *c, double b) {
+        double x[kMaxCov + 1], dx[kMaxCov + 1];
+        for (size_t j = 0; j < q; ++j) x[j] = c[j];
+        x[q] = b;
+        ++n;
+        const size_t m = q + 1;
+        for (size_t j = 0; j < m; ++j) {
+            dx[j] = x[j] - mean[j];
+            mean[j] += dx[j] / (double)n;
+        }
+        for (size_t i = 0; i < m; ++i)
+            for (size_t j = 0; j < m; ++j) m2[i * m + j] += dx[i] * (x[j] - mean[j]);
+        for (size_t j = 0; j < q; ++j) {
+            if (n == 1 || c[j] < low[j]) low[j] = c[j];
+            if (n == 1 || c[j] > high[j]) high[j] = c[j];
+        }
+    }
+
+    // The regression of b on the covariates (change.h point 6). The covariates that vary
+    // (their variance left after the earlier ones > 1e-10 of their own, and > 0) are
+    // modelled; the others get slope 0 and a zero row and column in G.
+    vibid_change_reference reference(size_t q) const {
+        const size_t m = q + 1;
+        vibid_change_reference r{};
+        const double N = (double)n;
+        size_t keep[kMaxCov], nk = 0;
+        // greedy selection by the pivots of a Cholesky of the covariates' co-moments
+        Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, 0, kMaxCov, kMaxCov> S(q, q);
+        for (size_t i = 0; i < q; ++i)
+            for (size_t j = 0; j < q; ++j) S(i, j) = m2[i * m + j];
+        for (size_t j = 0; j < q; ++j) {
+            const double own = S(j, j);
+            bool ok = own > 0.0 && std::isfinite(own) && high[j] > low[j];
+            if (ok && nk > 0) {
+                Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, 0, kMaxCov, kMaxCov> A(nk, nk);
+                Eigen::Matrix<double, Eigen::Dynamic, 1, 0, kMaxCov, 1> s(nk);
+                for (size_t a = 0; a < nk; ++a) {
+                    s(a) = S(keep[a], j);
+                    for (size_t b = 0; b < nk; ++b) A(a, b) = S(keep[a], keep[b]);
+                }
+                const double left = own - s.dot(A.inverse() * s);
+                ok = left > 1e-10 * own;
+            }
+            if (ok) keep[nk++] = j;
+        }
+        double resid = m2[q * m + q];
+        if (nk > 0) {
+            Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, 0, kMaxCov, kMaxCov> A(nk, nk);
+            Eigen::Matrix<double, Eigen::Dynamic, 1, 0, kMaxCov, 1> s(nk);
+            for (size_t a = 0; a < nk; ++a) {
+                s(a) = m2[keep[a] * m + q];
+                for (size_t b = 0; b < nk; ++b) A(a, b) = S(keep[a], keep[b]);
+            }
+            const auto G = A.inverse().eval();
+            const auto beta = (G * s).eval();
+            resid -= s.dot(beta);
+            for (size_t a = 0; a < nk; ++a) {
+                r.slope[keep[a]] = beta(a);
+                for (size_t b = 0; b < nk; ++b) r.gram_inv[keep[a] * q + keep[b]] = G(a, b);
+            }
+        }
+        for (size_t j = 0; j < q; ++j) {
+            r.centre[j] = mean[j];
+            r.low[j] = low[j];
+            r.high[j] = high[j];
+        }
+        const double dof = N - 1.0 - (double)nk;
+        r.mean = mean[q];
+        r.block_sd = dof > 0.0 && resid > 0.0 ? std::sqrt(resid / dof) : 0.0;
+        r.n_mean = N;
+        r.n_sd = N - (double)nk;
+        return r;
+    }
+};
+
 struct Param {
     // chain
     double prev = kNaN;
     uint64_t prev_index = 0;
     bool have_prev = false;
-    // learning (Welford)
-    uint64_t n_learn = 0;
-    double l_mean = 0.0, l_m2 = 0.0;
+    Learn learn;
     // reference
     bool have_ref = false;
     vibid_change_reference ref{};
+    double n_eff = kInf;      // the n_mean whose edge shift 1.96 / sqrt(n_eff) is the
+                              // prediction's at the edge of its region (change.h point 6)
+    double v_ref = 0.0;       // the largest v(c) over the reference's covariate box
     double h = 0.0, k = 0.0;  // the CUSUMs' threshold and allowance (units of sigma_b)
     double mdc = kNaN;
     // the CUSUMs: side 0 up, 1 down. sum/n: b_k - m over the current run, which began at onset
@@ -113,7 +215,9 @@ struct Param {
     bool active = false;
     double change = 0.0, stat_at_raise = 0.0, T = 0.0, k_clear = 0.0, h_clear = 0.0;
     double last_block = kNaN;
-    uint64_t tested = 0;
+    uint64_t tested = 0, out_of_range = 0;
+    bool last_out = false;
+    double last_weight = 1.0;
 
     void restart_cusums() {
         std::memset(S, 0, sizeof S);
@@ -141,7 +245,19 @@ struct vibid_change {
 
     // The allowance, threshold and MDC of one parameter from its reference.
     void design(Param &p) const {
-        const double nm = p.ref.n_mean, ns = p.ref.n_sd, n = rows_horizon;
+        // the prediction's uncertainty at the worst corner of the covariate box, as an
+        // equivalent n_mean (point 6)
+        const size_t q = cfg.n_covariates;
+        double vmax = std::isfinite(p.ref.n_mean) ? 1.0 / p.ref.n_mean : 0.0;
+        for (size_t corner = 0; q > 0 && corner < ((size_t)1 << q); ++corner) {
+            double c[kMaxCov];
+            for (size_t j = 0; j < q; ++j) c[j] = (corner >> j & 1) ? p.ref.high[j] : p.ref.low[j];
+            vmax = std::max(vmax, prediction_v(p.ref, q, c));
+        }
+        p.v_ref = vmax;
+        p.n_eff = vmax > 0.0 ? 1.0 / vmax : kInf;
+        if (p.n_eff < 1.0) p.n_eff = 1.0;
+        const double nm = p.n_eff, ns = p.ref.n_sd, n = rows_horizon;
         const double spread = std::sqrt(n + (std::isfinite(nm) ? n * n / nm : 0.0));
         auto mdc_of = [&](double k, double h) { return k + (h + z_p * spread) / n; };
         // k: the allowance with the smallest MDC at the horizon (golden section in log k),
@@ -184,10 +300,25 @@ struct vibid_change {
     }
 
     // One block of parameter i; returns true with *ev filled on an event.
-    bool test(size_t i, uint64_t index, double blk, vibid_change_event *ev) {
+    bool test(size_t i, uint64_t index, double blk, const double *cov, vibid_change_event *ev) {
         Param &p = par[i];
-        const double m = p.ref.mean, sb = p.ref.block_sd;
-        const double u = std::clamp((blk - m) / sb, -kClip, kClip);
+        const size_t q = cfg.n_covariates;
+        double m = p.ref.mean, weight = 1.0;
+        bool out = false;
+        for (size_t j = 0; j < q; ++j) {
+            m += p.ref.slope[j] * (cov[j] - p.ref.centre[j]);
+            // outside by more than rounding (1e-9 of the range, or of the value without one)
+            const double tol = 1e-9 * std::max(p.ref.high[j] - p.ref.low[j], std::fabs(cov[j]));
+            out = out || cov[j] < p.ref.low[j] - tol || cov[j] > p.ref.high[j] + tol;
+        }
+        const double v = q ? prediction_v(p.ref, q, cov) : p.v_ref;
+        if (v > p.v_ref) weight = std::isfinite(v) ? std::sqrt(p.v_ref / v) : 0.0;
+        p.last_out = out;
+        p.last_weight = weight;
+        p.out_of_range += out;
+        if (weight <= 0.0) return false;
+        const double sb = p.ref.block_sd;
+        const double u = std::clamp((blk - m) / sb, -kClip, kClip) * weight;
         ++p.tested;
         if (p.active) {
             const double s = p.change >= 0.0 ? 1.0 : -1.0;
@@ -222,8 +353,7 @@ struct vibid_change {
         const double nrun = (double)p.n[fired];
         const double change = p.sum[fired] / nrun;
         if (!(std::fabs(change) > cfg.min_relative * std::fabs(m))) return false;
-        const double nm = p.ref.n_mean;
-        const double se = sb * std::sqrt(1.0 / nrun + (std::isfinite(nm) ? 1.0 / nm : 0.0));
+        const double se = sb * std::sqrt(1.0 / nrun + v);
         *ev = vibid_change_event{i, VIBID_CHANGE_RAISED, index, p.onset[fired], p.S[fired], p.h, change, se, m};
         p.active = true;
         p.change = change;
@@ -248,6 +378,7 @@ VIBID_API void vibid_change_config_init(vibid_change_config *cfg, size_t n_param
     cfg->horizon_s = VIBID_CHANGE_HORIZON_DEFAULT;
     cfg->detection_probability = VIBID_CHANGE_DETECTION_DEFAULT;
     cfg->min_relative = 0.0;
+    cfg->n_covariates = 0;
 }
 
 VIBID_API vibid_change *vibid_change_create(const vibid_change_config *cfg) {
@@ -273,6 +404,9 @@ VIBID_API vibid_change *vibid_change_create(const vibid_change_config *cfg) {
                         cfg->detection_probability);
         if (!in(cfg->min_relative, 0.0, 1e6))
             throw_error(VIBID_E_OUT_OF_RANGE, "min_relative = %g outside [0, 1e6]", cfg->min_relative);
+        if (cfg->n_covariates > VIBID_CHANGE_MAX_COVARIATES)
+            throw_error(VIBID_E_DIMENSION, "n_covariates = %zu outside [0, %d]", cfg->n_covariates,
+                        VIBID_CHANGE_MAX_COVARIATES);
         auto *d = new vibid_change;
         d->cfg = *cfg;
         const double rows_per_year = kSecondsPerYear * cfg->sample_rate_hz / cfg->row_interval;
@@ -300,11 +434,13 @@ VIBID_API vibid_status vibid_change_reset(vibid_change *det) {
     return VIBID_OK;
 }
 
-VIBID_API vibid_status vibid_change_push(vibid_change *det, uint64_t index, const double *theta, int use,
-                                         vibid_change_phase phase, vibid_change_event *events, size_t cap,
-                                         size_t *n_events) {
-    if (!det || !theta || !n_events || (cap > 0 && !events))
-        return VIBID_FAIL(VIBID_E_NULL_ARGUMENT, "det, theta, n_events (and events when cap > 0) are required");
+VIBID_API vibid_status vibid_change_push(vibid_change *det, uint64_t index, const double *theta,
+                                         const double *covariates, int use, vibid_change_phase phase,
+                                         vibid_change_event *events, size_t cap, size_t *n_events) {
+    if (!det || !theta || !n_events || (cap > 0 && !events) || (det->cfg.n_covariates > 0 && !covariates))
+        return VIBID_FAIL(VIBID_E_NULL_ARGUMENT,
+                          "det, theta, n_events (and events when cap > 0, covariates when n_covariates > 0) "
+                          "are required");
     const int ph = vibid::enum_value(phase);
     if (ph != VIBID_CHANGE_LEARN && ph != VIBID_CHANGE_TEST)
         return VIBID_FAIL(VIBID_E_OUT_OF_RANGE, "phase = %d is neither VIBID_CHANGE_LEARN nor VIBID_CHANGE_TEST", ph);
@@ -315,6 +451,9 @@ VIBID_API vibid_status vibid_change_push(vibid_change *det, uint64_t index, cons
     det->have_last = true;
     det->last_index = index;
     const double wk = det->weight(index);
+    const size_t q = det->cfg.n_covariates;
+    for (size_t j = 0; j < q; ++j)
+        if (!std::isfinite(covariates[j])) use = 0;  // neither learned nor tested
     for (size_t i = 0; i < det->par.size(); ++i) {
         Param &p = det->par[i];
         const double th = theta[i];
@@ -337,13 +476,10 @@ VIBID_API vibid_status vibid_change_push(vibid_change *det, uint64_t index, cons
         if (!use || !std::isfinite(blk)) continue;
         p.last_block = blk;
         if (ph == VIBID_CHANGE_LEARN) {
-            ++p.n_learn;
-            const double delta = blk - p.l_mean;
-            p.l_mean += delta / (double)p.n_learn;
-            p.l_m2 += delta * (blk - p.l_mean);
+            p.learn.add(q, covariates, blk);
         } else if (p.have_ref) {
             vibid_change_event ev;
-            if (det->test(i, index, blk, &ev)) {
+            if (det->test(i, index, blk, covariates, &ev)) {
                 if (*n_events < cap) events[*n_events] = ev;
                 ++*n_events;
             }
@@ -355,17 +491,20 @@ VIBID_API vibid_status vibid_change_push(vibid_change *det, uint64_t index, cons
 
 VIBID_API vibid_status vibid_change_end_learning(vibid_change *det) {
     if (!det) return VIBID_FAIL(VIBID_E_NULL_ARGUMENT, "det is NULL");
+    const size_t q = det->cfg.n_covariates;
+    const uint64_t need = VIBID_CHANGE_MIN_BLOCKS + q;
+    vibid_change_reference ref[1];
     for (size_t i = 0; i < det->par.size(); ++i) {
-        const Param &p = det->par[i];
-        if (p.n_learn < VIBID_CHANGE_MIN_BLOCKS || !(p.l_m2 > 0.0))
+        const Learn &l = det->par[i].learn;
+        if (l.n >= need) ref[0] = l.reference(q);
+        if (l.n < need || !(ref[0].block_sd > 0.0))
             return VIBID_FAIL(VIBID_E_INSUFFICIENT_DATA,
-                              "parameter %zu: %llu blocks learned%s; a reference needs %d with a spread > 0", i,
-                              (unsigned long long)p.n_learn, p.n_learn >= 2 ? " (all equal)" : "",
-                              VIBID_CHANGE_MIN_BLOCKS);
+                              "parameter %zu: %llu blocks learned%s; a reference needs %llu with a spread > 0", i,
+                              (unsigned long long)l.n, l.n >= need ? " (no spread left)" : "",
+                              (unsigned long long)need);
     }
     for (Param &p : det->par) {
-        const double nl = (double)p.n_learn;
-        p.ref = vibid_change_reference{p.l_mean, std::sqrt(p.l_m2 / (nl - 1.0)), nl, nl};
+        p.ref = p.learn.reference(q);
         p.have_ref = true;
         det->design(p);
     }
@@ -382,6 +521,17 @@ VIBID_API vibid_status vibid_change_set_reference(vibid_change *det, const vibid
                               "ref[%zu]: mean %g, block_sd %g, n_mean %g, n_sd %g (need finite mean, "
                               "block_sd > 0, n_mean >= 1, n_sd >= 2)",
                               i, r.mean, r.block_sd, r.n_mean, r.n_sd);
+        const size_t q = det->cfg.n_covariates;
+        for (size_t j = 0; j < q; ++j) {
+            bool ok = std::isfinite(r.slope[j]) && std::isfinite(r.centre[j]) && std::isfinite(r.low[j]) &&
+                      std::isfinite(r.high[j]) && r.low[j] <= r.high[j] && r.gram_inv[j * q + j] >= 0.0;
+            for (size_t l = 0; l < q; ++l) ok = ok && std::isfinite(r.gram_inv[j * q + l]);
+            if (!ok)
+                return VIBID_FAIL(VIBID_E_OUT_OF_RANGE,
+                                  "ref[%zu], covariate %zu: slope %g, centre %g, range [%g, %g], G_jj %g (need "
+                                  "finite values, low <= high, G_jj >= 0)",
+                                  i, j, r.slope[j], r.centre[j], r.low[j], r.high[j], r.gram_inv[j * q + j]);
+        }
     }
     for (size_t i = 0; i < det->par.size(); ++i) {
         Param &p = det->par[i];
@@ -414,8 +564,11 @@ VIBID_API vibid_status vibid_change_get_state(const vibid_change *det, size_t pa
     s.mdc = p.have_ref ? p.mdc : kNaN;
     s.mdc_relative = p.have_ref && p.ref.mean != 0.0 ? p.mdc / std::fabs(p.ref.mean) : kNaN;
     s.last_block = p.last_block;
-    s.blocks_learned = p.n_learn;
+    s.blocks_learned = p.learn.n;
     s.blocks_tested = p.tested;
+    s.out_of_range = p.last_out;
+    s.weight = p.last_weight;
+    s.blocks_out_of_range = p.out_of_range;
     *state = s;
     return VIBID_OK;
 }

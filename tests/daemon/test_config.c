@@ -232,6 +232,51 @@ static double model_scale_of(const char *name, const char *text, size_t channel)
     return s;
 }
 
+/* Issue 32, item 3: covariate channels (operating conditions) are collected in map order
+ * with their unit label; their names head columns of the tracks, so a parameter's name or a
+ * fixed column's is refused, and so is a fifth (the change test models at most 4). */
+#define SOURCE_COV(extra)                                                                                              \
+    "source = {\n"                                                                                                     \
+    "  kind = \"replay\";\n"                                                                                           \
+    "  file = \"cap.csv\";\n"                                                                                          \
+    "  channels = (\n"                                                                                                 \
+    "    { name = \"x1\"; quantity = \"displacement\"; node = 0; column = \"x1\"; },\n"                                \
+    "    { name = \"x2\"; quantity = \"displacement\"; node = 1; column = \"x2\"; },\n"                                \
+    "    { name = \"s\"; quantity = \"base_displacement\"; column = \"s\"; }" extra "\n"                              \
+    "  );\n"                                                                                                           \
+    "};\n"
+static void test_covariates(void **state)
+{
+    (void)state;
+    const char *path = write_cfg("cov.cfg", STAND SOURCE_COV(",\n    { name = \"T\"; quantity = \"covariate\"; "
+                                                              "unit = \"degC\"; column = \"T\"; },\n"
+                                                              "    { name = \"speed\"; quantity = \"covariate\"; "
+                                                              "column = \"n\"; }"));
+    vd_config cfg;
+    vd_config_error err;
+    if (vd_config_load(path, &cfg, &err) != 0)
+        fail_msg("%s", err.text);
+    assert_int_equal(cfg.n_covariates, 2);
+    assert_int_equal(cfg.cov_chan[0], 3);
+    assert_int_equal(cfg.cov_chan[1], 4);
+    assert_string_equal(cfg.cov_unit[0], "degC");
+    assert_string_equal(cfg.cov_unit[1], "");
+    vd_config_free(&cfg);
+    expect_error("cov_clash.cfg",
+                 STAND SOURCE_COV(",\n    { name = \"c2\"; quantity = \"covariate\"; column = \"T\"; }"),
+                 ":9: source.channels:", "covariate 'c2' has the name of a column of the tracks");
+    expect_error("cov_node.cfg",
+                 STAND SOURCE_COV(",\n    { name = \"T\"; quantity = \"covariate\"; node = 1; column = \"T\"; }"),
+                 ":9: source.channels.[3].node:", "a covariate belongs to the stand, not to a node: omit node");
+    expect_error("cov_many.cfg",
+                 STAND SOURCE_COV(",\n    { name = \"T1\"; quantity = \"covariate\"; column = \"T1\"; },"
+                                  " { name = \"T2\"; quantity = \"covariate\"; column = \"T2\"; },"
+                                  " { name = \"T3\"; quantity = \"covariate\"; column = \"T3\"; },"
+                                  " { name = \"T4\"; quantity = \"covariate\"; column = \"T4\"; },"
+                                  " { name = \"T5\"; quantity = \"covariate\"; column = \"T5\"; }"),
+                 ":9: source.channels:", "covariate 'T5': at most 4 covariate channels");
+}
+
 /* Issue 12, item 9: the channel map's quantity, node and unit are checked against the
  * stand; units are converted to the stand's, or refused. Before, x2 declared a force on
  * node 7 in kN loaded, and every unit was ignored. */
@@ -511,6 +556,7 @@ int main(void)
         cmocka_unit_test(test_defaults_and_roundtrip),
         cmocka_unit_test(test_start_values),      cmocka_unit_test(test_prometheus),
         cmocka_unit_test(test_channel_units),     cmocka_unit_test(test_channel_units_dbc),
+        cmocka_unit_test(test_covariates),
     };
     int rc = cmocka_run_group_tests(tests, NULL, NULL);
     snprintf(cmd, sizeof cmd, "rm -rf %s", dir);

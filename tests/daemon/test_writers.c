@@ -374,9 +374,9 @@ static void test_flag_letters(void **state)
     assert_string_equal(l, "GOPUIA");
     /* every letter at once: W (a refinement) last */
     vd_flag_letters(VD_FLAG_GAP | VD_FLAG_OUTLIER | VD_FLAG_NOEST | VD_FLAG_IMPLAUSIBLE | VD_FLAG_SE_INVALID |
-                        VD_FLAG_NOT_EXCITED | VD_FLAG_ALARM | VD_FLAG_REFINED,
+                        VD_FLAG_NOT_EXCITED | VD_FLAG_ALARM | VD_FLAG_COVARIATE | VD_FLAG_REFINED,
                     l);
-    assert_string_equal(l, "GOEPUIAW");
+    assert_string_equal(l, "GOEPUIACW");
     vd_flag_letters(VD_FLAG_NOEST | VD_FLAG_OUTLIER, l);
     assert_string_equal(l, "OE");
     vd_flag_letters(0, l);

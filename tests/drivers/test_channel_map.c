@@ -29,7 +29,8 @@ static void test_valid_map(void **state)
         "  { name = \"x1\"; quantity = \"displacement\"; node = 0; unit = \"m\"; signal = \"Pos1\"; message = \"Sample_A\"; },\n"
         "  { name = \"v2\"; quantity = \"velocity\"; node = 1; register = \"v2\"; },\n"
         "  { name = \"a2\"; quantity = \"acceleration\"; node = 1; unit = \"m/s^2\"; column = \"acc\"; },\n"
-        "  { name = \"xb\"; quantity = \"base_displacement\"; column = \"xb\"; }\n"
+        "  { name = \"xb\"; quantity = \"base_displacement\"; column = \"xb\"; },\n"
+        "  { name = \"T\"; quantity = \"covariate\"; unit = \"degC\"; signal = \"Temp\"; }\n"
         ");\n"
         "counter = \"SampleCounter\";\n"
         "trigger = \"Sample_A\";\n"
@@ -38,7 +39,7 @@ static void test_valid_map(void **state)
     vibid_drv_error err = {0};
     char path[512];
     assert_int_equal(load_text(text, &map, &err, path), VIBID_DRV_OK);
-    assert_int_equal(map.n, 5);
+    assert_int_equal(map.n, 6);
     assert_string_equal(map.ch[0].name, "F1");
     assert_int_equal(map.ch[0].quantity, VIBID_Q_FORCE);
     assert_true(map.ch[0].is_input);
@@ -59,6 +60,11 @@ static void test_valid_map(void **state)
     assert_int_equal(map.ch[4].quantity, VIBID_Q_BASE_DISPLACEMENT);
     assert_true(map.ch[4].is_input);
     assert_int_equal(map.ch[4].node, -1); /* the base is not a node */
+    assert_int_equal(map.ch[5].quantity, VIBID_Q_COVARIATE); /* an operating condition: neither ... */
+    assert_false(map.ch[5].is_input);                        /* ... input nor (by quantity) output */
+    assert_int_equal(map.ch[5].node, -1);
+    assert_string_equal(map.ch[5].unit, "degC");             /* any label */
+    assert_string_equal(vibid_quantity_name(VIBID_Q_COVARIATE), "covariate");
     assert_string_equal(map.counter, "SampleCounter");
     assert_string_equal(map.trigger, "Sample_A");
     assert_string_equal(map.time_column, "t");
@@ -86,6 +92,9 @@ static void test_errors(void **state)
         {"channels = (\n { name = \"s\"; quantity = \"base_velocity\"; node = 3; column = \"s\"; }\n);\n",
          VIBID_DRV_E_SYNTAX,
          ":2: channels.[0].node: a base_velocity belongs to the base, not to a node: omit node"},
+        {"channels = (\n { name = \"T\"; quantity = \"covariate\"; node = 0; column = \"T\"; }\n);\n",
+         VIBID_DRV_E_SYNTAX,
+         ":2: channels.[0].node: a covariate belongs to the stand, not to a node: omit node"},
         {"channels = ();\n", VIBID_DRV_E_RANGE, ":1: channels: 0 channels, allowed 1..32"},
         {"channels = (\n { quantity = \"force\"; node = 0; signal = \"F\"; }\n);\n", VIBID_DRV_E_SYNTAX,
          ":2: channels.[0].name: missing (the stand's channel name"},

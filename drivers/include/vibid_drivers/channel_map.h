@@ -15,9 +15,11 @@
  * quantity: displacement | velocity | acceleration of a node (outputs y); force or input
  * (a force input u, `input` when it is in other units than a force, e.g. a drive voltage
  * that the stand's input gain converts); base_displacement | base_velocity |
- * base_acceleration (the base's motion; no node). node: 0-based index of the node in the
+ * base_acceleration (the base's motion; no node); covariate (an operating condition such as
+ * a temperature, a speed or a load; no node; any unit label). node: 0-based index of the node in the
  * stand, required except for the base (omitted, or 0 as earlier maps wrote). unit:
- * optional, one of vibid/units.h for the quantity's dimension (any label for `input`);
+ * optional, one of vibid/units.h for the quantity's dimension (any label for `input` and
+ * `covariate`);
  * the program checking the map against the stand (vibidd's configuration) converts it
  * to the stand's units. Exactly one of signal / register / column per channel (message
  * only narrows a signal name that several messages share). Any other key is an error. At
@@ -48,7 +50,9 @@ typedef enum vibid_quantity {
     VIBID_Q_BASE_DISPLACEMENT = 4,
     VIBID_Q_BASE_VELOCITY = 5,
     VIBID_Q_BASE_ACCELERATION = 6,
-    VIBID_Q_INPUT = 7 /* a force input in its own units (the stand's gain converts it) */
+    VIBID_Q_INPUT = 7, /* a force input in its own units (the stand's gain converts it) */
+    VIBID_Q_COVARIATE = 8 /* an operating condition (temperature, speed, load; any unit label):
+                             neither input nor output; vibidd's change test compensates for it */
 } vibid_quantity;
 
 typedef enum vibid_chan_source { VIBID_CHAN_SIGNAL, VIBID_CHAN_REGISTER, VIBID_CHAN_COLUMN } vibid_chan_source;
@@ -56,7 +60,8 @@ typedef enum vibid_chan_source { VIBID_CHAN_SIGNAL, VIBID_CHAN_REGISTER, VIBID_C
 typedef struct vibid_channel {
     char name[VIBID_CHAN_NAME_LEN];
     vibid_quantity quantity;
-    bool is_input;             /* force / input / base_*: an input of the stand; else an output y_k */
+    bool is_input;             /* force / input / base_*: an input of the stand; covariate: neither;
+                                  else an output y_k */
     int node;                  /* >= 0; -1 for the base quantities */
     char unit[32];             /* as written, "" when not given */
     vibid_chan_source source;

@@ -57,7 +57,28 @@
  *    error sigma_b sqrt(1/n + 1/N), and the estimated onset (the first of those rows).
  *    With min_relative > 0 the alarm also needs |change| > min_relative |m| (a dead band
  *    for changes too small to matter; 0 by default).
- * 6. Clearing: a raised alarm stays until the data favour the reference again: a CUSUM of
+ * 6. Operating conditions (covariates: temperature, speed, load). A stiffness that
+ *    follows the temperature is no damage. With n_covariates > 0 each row comes with the
+ *    covariates' values over its block (their mean over the samples since the previous
+ *    row) and the reference is a linear regression of the block estimates on them:
+ *        b_k = m + slope^T (c_k - centre) + e_k,   e_k ~ (0, sigma_b^2),
+ *    fitted over the learned blocks (sigma_b from N - 1 - q degrees of freedom, q the
+ *    covariates that varied). The test runs on the compensated deviation
+ *    b_k - m - slope^T (c_k - centre). The prediction's own error has the variance
+ *    sigma_b^2 v(c), v(c) = 1 / N + d^T G d, d = c - centre, G = (sum d_k d_k^T)^-1: it
+ *    grows with the distance from the reference's conditions. The thresholds (3) take the
+ *    prediction at the edge of its 95 % interval where it is worst (the mean's shift
+ *    1.96 sqrt(v_ref), v_ref the largest v over the box of covariate ranges the reference
+ *    saw: n_mean = 1 / v_ref in (3)), so inside that box the false-alarm rate holds as in (3). A block
+ *    whose covariates lie outside the box is FLAGGED (vibid_change_state.out_of_range) and
+ *    its deviation is weighed down by sqrt(v_ref / v(c)) < 1, which keeps the prediction's
+ *    error within the thresholds' allowance (a conservative test: less power, never more
+ *    false alarms) rather than trusting a straight line beyond the data. A covariate that
+ *    did not vary over the reference (or duplicates another) is not modelled: a block with
+ *    it outside its range is not tested at all (weight 0). The minimum detectable change is
+ *    the one inside the box. A block with a non-finite covariate is neither learned nor
+ *    tested.
+ * 7. Clearing: a raised alarm stays until the data favour the reference again: a CUSUM of
  *    the log-likelihood ratio of "at the reference" against "changed by the estimated
  *    change d" (d in units of sigma_b, at most the clip 5; allowance d / 2, threshold for the
  *    same rate) CLEARS it; then the test
@@ -66,7 +87,8 @@
  * Rows. Every recursive row is pushed in order with its sample index: rows whose estimate
  * is not finite break the chain (the next row has no predecessor and forms no block);
  * rows pushed with use = 0 (an impossible estimate, a gap, a row not excited) keep the
- * chain but their block is neither learned from nor tested. Rows of another estimate (an
+ * chain but their block is neither learned from nor tested (nor is a block with a
+ * non-finite covariate). Rows of another estimate (an
  * output-error refinement over a window) are not part of the recursion: do not push them.
  *
  * Real time: create allocates (O(p)); push, get_param and reset allocate nothing and never
@@ -88,7 +110,9 @@ extern "C" {
 #define VIBID_CHANGE_ALARMS_PER_YEAR_DEFAULT 1.0
 #define VIBID_CHANGE_HORIZON_DEFAULT 60.0      /* s */
 #define VIBID_CHANGE_DETECTION_DEFAULT 0.9
-#define VIBID_CHANGE_MIN_BLOCKS 10             /* learned blocks a reference needs per parameter */
+#define VIBID_CHANGE_MIN_BLOCKS 10             /* learned blocks a reference needs per parameter
+                                                  (plus one per covariate) */
+#define VIBID_CHANGE_MAX_COVARIATES 4
 
 typedef struct vibid_change vibid_change;
 
@@ -101,6 +125,8 @@ typedef struct vibid_change_config {
     double horizon_s;             /* of the minimum detectable change, > 0 (default 60 s) */
     double detection_probability; /* of the minimum detectable change, [0.5, 0.999] (default 0.9) */
     double min_relative;          /* dead band |change| > min_relative |m|, >= 0 (default 0) */
+    size_t n_covariates;          /* covariates per row (6 above), 0 .. VIBID_CHANGE_MAX_COVARIATES
+                                     (default 0) */
 } vibid_change_config;
 
 /* A parameter's reference (vibid_change_get_reference / vibid_change_set_reference). */
@@ -109,8 +135,20 @@ typedef struct vibid_change_reference {
     double block_sd;  /* sigma_b: standard deviation of one row's block estimate, > 0 */
     double n_mean;    /* blocks m was learned from (its standard error sigma_b / sqrt(n_mean));
                          INFINITY: m known exactly */
-    double n_sd;      /* blocks sigma_b was learned from (n_sd - 1 degrees of freedom), >= 2;
-                         INFINITY: known exactly */
+    double n_sd;      /* sigma_b's degrees of freedom + 1 (n_sd - 1 of them), >= 2; learned:
+                         the blocks minus the modelled covariates; INFINITY: known exactly */
+    /* With covariates (entries 0 .. n_covariates - 1; 0 without; point 6 above): */
+    double slope[VIBID_CHANGE_MAX_COVARIATES];  /* d m / d c_j: the parameter's unit per the
+                                                   covariate's */
+    double centre[VIBID_CHANGE_MAX_COVARIATES]; /* c_j's mean over the reference: m is the
+                                                   parameter at the centre */
+    double low[VIBID_CHANGE_MAX_COVARIATES], high[VIBID_CHANGE_MAX_COVARIATES]; /* c_j's range
+                                                   over the reference, low <= high */
+    double gram_inv[VIBID_CHANGE_MAX_COVARIATES * VIBID_CHANGE_MAX_COVARIATES];
+                      /* G = (sum_k d_k d_k^T)^-1, n_covariates x n_covariates row-major in the
+                         first n_covariates^2 entries (the covariates' units^-2): the slopes'
+                         covariance over sigma_b^2, symmetric, positive semi-definite; a
+                         covariate that is not modelled has its row and column 0 (and slope 0) */
 } vibid_change_reference;
 
 typedef enum vibid_change_phase {
@@ -144,6 +182,11 @@ typedef struct vibid_change_state {
     double mdc_relative;   /* mdc / |m| */
     double last_block;     /* the last block estimate b_k (NaN before one) */
     uint64_t blocks_learned, blocks_tested;
+    /* covariates (point 6; 0 / 1.0 without): */
+    int out_of_range;      /* the last block's covariates lay outside the reference's range */
+    double weight;         /* the last block's weight in the test: 1 inside the range, < 1
+                              extrapolated, 0 not tested */
+    uint64_t blocks_out_of_range; /* tested or not, since the reference */
 } vibid_change_state;
 
 VIBID_API void vibid_change_config_init(vibid_change_config *cfg, size_t n_params);
@@ -155,22 +198,25 @@ VIBID_API void vibid_change_destroy(vibid_change *det);
 VIBID_API vibid_status vibid_change_reset(vibid_change *det);
 
 /* One recursive row: its sample index (increasing; from the estimator's first sample),
- * its estimate theta (n_params values, the parameters' units), whether its block may be
+ * its estimate theta (n_params values, the parameters' units), the covariates' means over
+ * its block (n_covariates values; NULL when n_covariates is 0), whether its block may be
  * used, and the phase. Events (at most one per parameter) go to events[0 .. *n_events),
  * *n_events <= cap; events may be NULL when cap is 0. Events beyond cap are lost: pass
  * cap = n_params.
  * VIBID_E_NULL_ARGUMENT, VIBID_E_OUT_OF_RANGE (an index that does not increase: nothing
  * changes). */
-VIBID_API vibid_status vibid_change_push(vibid_change *det, uint64_t index, const double *theta, int use,
+VIBID_API vibid_status vibid_change_push(vibid_change *det, uint64_t index, const double *theta,
+                                         const double *covariates, int use,
                                          vibid_change_phase phase, vibid_change_event *events, size_t cap,
                                          size_t *n_events);
 
 /* The reference from the blocks learned so far. Every parameter needs
- * VIBID_CHANGE_MIN_BLOCKS blocks with a spread > 0: VIBID_E_INSUFFICIENT_DATA names the
+ * VIBID_CHANGE_MIN_BLOCKS blocks (plus one per covariate) with a spread > 0: VIBID_E_INSUFFICIENT_DATA names the
  * first that has not (no parameter gets a reference then; learning may go on). */
 VIBID_API vibid_status vibid_change_end_learning(vibid_change *det);
 
-/* A given reference (n_params entries), e.g. a saved one; replaces any other. */
+/* A given reference (n_params entries), e.g. a saved one; replaces any other. The covariate
+ * fields are checked (finite, low <= high, G's diagonal >= 0). */
 VIBID_API vibid_status vibid_change_set_reference(vibid_change *det, const vibid_change_reference *ref);
 /* The reference in use (n_params entries); VIBID_E_STATE without one. */
 VIBID_API vibid_status vibid_change_get_reference(const vibid_change *det, vibid_change_reference *ref);
