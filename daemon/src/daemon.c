@@ -460,12 +460,15 @@ static void run_cusum(vd_daemon *d, vd_row *row)
         outputs_alarm(d, &a);
     }
     for (size_t i = 0; i < d->cusum.n; i++) {
+        const size_t k = d->cusum.param[i];
         double stat, mdc, mdc_rel;
         bool active;
-        if (vd_cusum_state(&d->cusum, d->cusum.param[i], &stat, &mdc, &mdc_rel, &active) && active) {
+        if (!vd_cusum_state(&d->cusum, k, &stat, &mdc, &mdc_rel, &active))
+            continue;
+        row->change_stat[k] = stat;
+        row->change_mdc[k] = mdc;
+        if (active)
             row->flags |= VD_FLAG_ALARM;
-            break;
-        }
     }
 }
 

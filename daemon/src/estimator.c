@@ -291,7 +291,8 @@ static void start_row(vd_est *e, const vibid_record *rec, uint64_t rel, vd_row *
         row->flags |= VD_FLAG_OUTLIER;
     e->outlier_since_row = 0;
     for (size_t k = 0; k < VD_MAX_PARAMS; k++)
-        row->theta[k] = row->se[k] = row->freq[k] = row->freq_se[k] = row->zeta[k] = row->zeta_se[k] = NAN;
+        row->theta[k] = row->se[k] = row->freq[k] = row->freq_se[k] = row->zeta[k] = row->zeta_se[k] =
+            row->change_stat[k] = row->change_mdc[k] = NAN;
     for (size_t j = 0; j < VD_MAX_COVARIATES; j++) {
         row->cov[j] = e->cov_n[j] ? e->cov_sum[j] / (double)e->cov_n[j] : NAN;
         e->cov_sum[j] = 0.0;
@@ -351,7 +352,8 @@ void vd_est_refined_row(vd_est *e, vd_row *row, uint64_t index, int64_t t_us, co
     /* the library's row checks (vibid/report.h), as for every recursive row */
     vibid_report_row_out out = report_out(row);
     for (size_t k = 0; k < VD_MAX_PARAMS; k++)
-        row->theta[k] = row->se[k] = row->freq[k] = row->freq_se[k] = row->zeta[k] = row->zeta_se[k] = NAN;
+        row->theta[k] = row->se[k] = row->freq[k] = row->freq_se[k] = row->zeta[k] = row->zeta_se[k] =
+            row->change_stat[k] = row->change_mdc[k] = NAN;
     (void)vibid_report_estimate(e->report, theta, se, cov, quality, n_samples, &out); /* arguments checked at init */
     row->est_status = (int)out.est_status;
     row->implausible = out.implausible;

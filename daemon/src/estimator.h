@@ -85,6 +85,12 @@ enum {
 #define VD_FLAG_LETTERS_MAX 12
 void vd_flag_letters(unsigned flags, char out[VD_FLAG_LETTERS_MAX]);
 
+/* Parameter k gets the change test's columns in the tracks (alarms.test = "cusum" and k alarmed). */
+static inline bool vd_change_columns(const vd_config *cfg, size_t k)
+{
+    return cfg->alarms_enabled && cfg->alarm_test == VD_ALARM_CUSUM && cfg->alarm_param[k].enabled;
+}
+
 /* Rows the alarms may use: an estimate exists (no E) and is physically possible (no P). */
 static inline bool vd_row_usable(unsigned flags)
 {
@@ -101,6 +107,10 @@ typedef struct vd_row {
     double freq[VD_MAX_PARAMS], freq_se[VD_MAX_PARAMS], zeta[VD_MAX_PARAMS], zeta_se[VD_MAX_PARAMS];
     double cov[VD_MAX_COVARIATES]; /* the covariates' means over the samples since the previous
                                row (their channels' units; NaN: none finite; refined rows NaN) */
+    /* the change test (alarms.test = "cusum", alarmed parameters once the reference exists;
+       NaN otherwise): the statistic over its threshold (>= 1 raises) and the minimum
+       detectable change (the parameter's unit) */
+    double change_stat[VD_MAX_PARAMS], change_mdc[VD_MAX_PARAMS];
     int est_status;         /* vibid_status of the estimate */
     unsigned implausible;   /* VIBID_IMPLAUSIBLE_* bits found (flag P), 0 = plausible */
 } vd_row;

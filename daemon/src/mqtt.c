@@ -104,6 +104,12 @@ int vd_mqtt_format_track(char *buf, size_t cap, const vd_config *cfg, const char
         put_num(&o, row->theta[k]);
         vd_text_put(&o, ",\"se\":");
         put_num(&o, row->se[k]);
+        if (vd_change_columns(cfg, k)) { /* the change test's, null before its reference */
+            vd_text_put(&o, ",\"change_statistic\":");
+            put_num(&o, row->change_stat[k]);
+            vd_text_put(&o, ",\"mdc\":");
+            put_num(&o, row->change_mdc[k]);
+        }
         vd_text_put(&o, "}");
     }
     vd_text_put(&o, "},\"modes\":[");
@@ -863,7 +869,8 @@ static void *op_open(const vd_output_ctx *ctx, char *err, size_t cap) {
         w.gap_samples = UINT64_MAX;
         w.flags = 0x1ffu;
         for (size_t k = 0; k < VD_MAX_PARAMS; k++)
-            w.theta[k] = w.se[k] = w.freq[k] = w.freq_se[k] = w.zeta[k] = w.zeta_se[k] = -2.225073859e-308;
+            w.theta[k] = w.se[k] = w.freq[k] = w.freq_se[k] = w.zeta[k] = w.zeta_se[k] = w.change_stat[k] =
+                w.change_mdc[k] = -2.225073859e-308;
         for (size_t j = 0; j < VD_MAX_COVARIATES; j++)
             w.cov[j] = -2.225073859e-308;
         char pname[256];

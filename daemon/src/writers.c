@@ -71,6 +71,13 @@ int vd_format_tracks_header(char *buf, size_t cap, const vd_config *cfg)
     for (size_t j = 0; j < cfg->n_covariates; j++)
         if (put(buf, cap, &off, ",%s", cfg->chanmap.ch[cfg->cov_chan[j]].name))
             return -1;
+    for (size_t k = 0; k < cfg->n_params; k++)
+        if (vd_change_columns(cfg, k)) {
+            vibid_param_info pi;
+            vibid_model_param_info(m, k, &pi);
+            if (put(buf, cap, &off, ",%s_change_statistic,%s_mdc", pi.name, pi.name))
+                return -1;
+        }
     if (put(buf, cap, &off, ",gap_samples,flags\n"))
         return -1;
     return (int)off;
@@ -90,6 +97,10 @@ int vd_format_track_row(char *buf, size_t cap, const vd_config *cfg, const vd_ro
             return -1;
     for (size_t j = 0; j < cfg->n_covariates; j++)
         if (put_num(buf, cap, &off, row->cov[j]))
+            return -1;
+    for (size_t k = 0; k < cfg->n_params; k++)
+        if (vd_change_columns(cfg, k) &&
+            (put_num(buf, cap, &off, row->change_stat[k]) || put_num(buf, cap, &off, row->change_mdc[k])))
             return -1;
     char fl[VD_FLAG_LETTERS_MAX];
     vd_flag_letters(row->flags, fl);
@@ -151,6 +162,10 @@ int vd_format_influx_row(char *buf, size_t cap, const vd_config *cfg, const char
         vd_influx_escape_tag(fname, sizeof fname, pi.name);
         if (put_field(buf, cap, &off, &first, fname, "", row->theta[k]) ||
             put_field(buf, cap, &off, &first, fname, "_se", row->se[k]))
+            return -1;
+        if (vd_change_columns(cfg, k) &&
+            (put_field(buf, cap, &off, &first, fname, "_change_statistic", row->change_stat[k]) ||
+             put_field(buf, cap, &off, &first, fname, "_mdc", row->change_mdc[k])))
             return -1;
     }
     for (size_t i = 0; i < cfg->n_modes; i++) {

@@ -87,7 +87,24 @@ alarms = { parameters = ( { name = "c1"; }, { name = "d1"; }, { name = "c2"; }, 
     # every row: no negative stiffness or damping without P
     bad=$(grep -v '^#' tracks.csv | awk -F, 'NR > 1 { for (i = 3; i <= 9; i += 2) if ($i + 0 <= 0 && $NF !~ /P/ && $NF !~ /E/) n++ } END { print n + 0 }')
     [ "$bad" -eq 0 ] || fail "$bad rows with an impossible value and no flag"
-    note "c2 alarm at sample $first ($(awk -v i="$first" 'BEGIN { print i / 1000 }') s, change at 30 s); final c2 = $c2_after (new value 1.08e5)"
+    # the change test's columns (issue 32, item 4): the statistic reaches its threshold (>= 1)
+    # at the row that raised, never before the change; the minimum detectable change is nan
+    # before the reference (learned over 5..15 s) and then constant and finite (refinement
+    # rows, W, are not tested and carry nan)
+    sc=$(column c2_change_statistic tracks.csv); mc=$(column c2_mdc tracks.csv)
+    [ -n "$sc" ] && [ -n "$mc" ] || fail "tracks lack c2_change_statistic / c2_mdc: $(grep -v '^#' tracks.csv | head -1)"
+    grep -v '^#' tracks.csv | awk -F, -v s="$sc" -v m="$mc" -v a="$first" '
+        NR == 1 || $NF ~ /W/ { next }   # the header; refinement rows (not part of the test)
+        $2 < 14000 && $m != "nan" { print "row " $2 ": mdc " $m " before the reference"; bad = 1 }
+        $2 >= 16000 && !($m != "nan" && $m + 0 > 0) { print "row " $2 ": mdc " $m " after the reference"; bad = 1 }
+        $2 >= 16000 && mdc != "" && $m != mdc { print "row " $2 ": mdc changed " mdc " -> " $m; bad = 1 }
+        $2 >= 16000 { mdc = $m }
+        $2 < 30000 && $s != "nan" && $s + 0 >= 1 { print "row " $2 ": statistic " $s " before the change"; bad = 1 }
+        $2 == a && !($s != "nan" && $s + 0 >= 1) { print "row " $2 " raised with statistic " $s; bad = 1 }
+        END { exit bad }' > cols.out || fail "change columns: $(head -3 cols.out)"
+    mdc=$(grep -v '^#' tracks.csv | awk -F, -v m="$mc" '$NF !~ /W/ { v = $m } END { print v }')
+    grep -q '^vibid,.*c2_mdc=' tracks.influx || fail "InfluxDB rows lack c2_mdc"
+    note "c2 alarm at sample $first ($(awk -v i="$first" 'BEGIN { print i / 1000 }') s, change at 30 s); final c2 = $c2_after (new value 1.08e5); c2's MDC $mdc N/m in the tracks"
     ;;
 restart)
     # The monitoring issue: "a restart after a change keeps the alarm". Run 1 replays 25 s of
