@@ -38,7 +38,8 @@ static const char usage[] =
     "                         for file outputs and unlimited (until Ctrl-C) when serving live)\n"
     "      --seed N           random seed for noise and random excitation (default: simulation.seed, 1)\n"
     "Outputs (any combination; at least one, or a --write-* option):\n"
-    "      --csv FILE         CSV: header t,<inputs>,<measured> by the stand's channel names, one row per sample\n"
+    "      --csv FILE         CSV: header t,<inputs>,<measured>[,<covariates>] by the stand's channel names\n"
+    "                         (and simulation.covariates' names), one row per sample\n"
     "      --candump FILE     candump -l log (can-utils format, 6-digit microseconds) of the CAN frames\n"
     "      --candump-iface N  interface name written in the log (default can0)\n"
     "      --epoch S          log time of sample 0 in seconds since 1970 (default: now)\n"
@@ -242,7 +243,7 @@ typedef struct sim_run {
     vibid_regmap *loaded_map;
     vibid_regmap defmap;
     const vibid_regmap *map; /* loaded_map, &defmap or NULL */
-    size_t map_chan[64];
+    size_t map_chan[SIM_MAX_OUTPUTS]; /* output channel (model channel, or n_channels + covariate) of each entry */
     sim_faults faults, mb_faults;
     sim_engine *eng;
     sim_csv csv;
@@ -321,8 +322,10 @@ static int load_register_map(sim_run *r, const sim_options *o)
     }
     for (size_t i = 0; i < r->loaded_map->n; i++) {
         size_t c = vibid_stand_find_channel(r->stand, r->loaded_map->entries[i].name);
+        for (size_t j = 0; c == (size_t)-1 && j < r->cfg.n_covariates; j++) /* a covariate is a channel too */
+            if (strcmp(r->cfg.covariates[j].name, r->loaded_map->entries[i].name) == 0) c = r->dims.n_channels + j;
         if (c == (size_t)-1) {
-            fprintf(stderr, "vibid-sim: %s:%u: register '%s' is not a channel of stand %s\n", o->regmap_path,
+            fprintf(stderr, "vibid-sim: %s:%u: register '%s' is not a channel of stand %s nor a covariate\n", o->regmap_path,
                     r->loaded_map->entries[i].line, r->loaded_map->entries[i].name, o->stand_path);
             return 2;
         }
@@ -332,13 +335,14 @@ static int load_register_map(sim_run *r, const sim_options *o)
     return 0;
 }
 
-/* Without --regmap: every channel as FLOAT32 ABCD in holding registers 0, 2, 4, ... 0, 1
- * (out of memory) or 2 (more channels than the FIFO holds). */
+/* Without --regmap: every channel, then every covariate, as FLOAT32 ABCD in holding
+ * registers 0, 2, 4, ... 0, 1 (out of memory) or 2 (more channels than the FIFO holds). */
 static int build_default_register_map(sim_run *r)
 {
-    size_t n = r->dims.n_channels;
+    size_t nch = r->dims.n_channels, n = nch + r->cfg.n_covariates;
     if (n > 32) {
-        fprintf(stderr, "vibid-sim: %zu channels; the Modbus FIFO holds at most 32\n", n);
+        fprintf(stderr, "vibid-sim: %zu channels%s; the Modbus FIFO holds at most 32\n", n,
+                r->cfg.n_covariates ? " (covariates included)" : "");
         return 2;
     }
     r->defmap.n = n;
@@ -346,7 +350,8 @@ static int build_default_register_map(sim_run *r)
     if (!r->defmap.entries) return 1;
     for (size_t i = 0; i < n; i++) {
         vibid_reg_entry *e = &r->defmap.entries[i];
-        snprintf(e->name, sizeof e->name, "%s", vibid_stand_channel_name(r->stand, i));
+        snprintf(e->name, sizeof e->name, "%s",
+                 i < nch ? vibid_stand_channel_name(r->stand, i) : r->cfg.covariates[i - nch].name);
         e->address = (uint16_t)(2 * i);
         e->kind = VIBID_REG_HOLDING;
         e->type = VIBID_REG_FLOAT32;
@@ -442,7 +447,7 @@ static int open_engine_and_outputs(sim_run *r, const sim_options *o)
         fprintf(stderr, "vibid-sim: %s: %s\n", o->stand_path, err);
         return 2;
     }
-    if (o->csv_path && sim_csv_open(&r->csv, o->csv_path, r->stand, err, sizeof err)) {
+    if (o->csv_path && sim_csv_open_cfg(&r->csv, o->csv_path, r->stand, &r->cfg, err, sizeof err)) {
         fprintf(stderr, "vibid-sim: %s\n", err);
         return 1;
     }
@@ -514,7 +519,7 @@ static int run_samples(sim_run *r, const sim_options *o, double duration, int pa
     clock_gettime(CLOCK_REALTIME, &t_real0);
     int64_t epoch_ns = o->epoch >= 0 ? (int64_t)llround(o->epoch * 1e9) : ts_ns(&t_real0);
     st->pacing.start_ns = ts_ns(&t_start);
-    double values[SIM_MAX_CHANNELS];
+    double values[SIM_MAX_OUTPUTS]; /* model channels, then covariates */
     for (uint64_t k = 0;; k++) {
         double t = (double)k * r->h;
         if (t >= duration - 1e-9 * r->h || g_quit) break;

@@ -37,9 +37,13 @@ int sim_can_layout_build(const vibid_stand *stand, const sim_config *cfg, sim_ca
     vibid_model_get_dims(m, &d);
     lay->fd = cfg->can_fd;
     lay->extended = cfg->can_extended;
+    lay->n_covariates = cfg->n_covariates;
     sanitize(vibid_stand_name(stand), lay->stand_name, sizeof lay->stand_name);
-    for (size_t c = 0; c < d.n_channels; c++) {
-        const char *nm = vibid_stand_channel_name(stand, c);
+    size_t n_out = d.n_channels + cfg->n_covariates; /* the covariates' signals follow the channels */
+    for (size_t c = 0; c < n_out; c++) {
+        const char *nm = c < d.n_channels ? vibid_stand_channel_name(stand, c) : cfg->covariates[c - d.n_channels].name;
+        if (c >= d.n_channels)
+            snprintf(lay->sig_unit[c], sizeof lay->sig_unit[c], "%s", cfg->covariates[c - d.n_channels].unit);
         sanitize(nm ? nm : "ch", lay->sig_name[c], sizeof lay->sig_name[c]);
         if (strcmp(lay->sig_name[c], "SampleCounter") == 0) {
             snprintf(err, errlen, "channel '%s': the name SampleCounter is reserved for the sample counter", nm);
@@ -47,7 +51,8 @@ int sim_can_layout_build(const vibid_stand *stand, const sim_config *cfg, sim_ca
         }
         for (size_t j = 0; j < c; j++)
             if (strcmp(lay->sig_name[c], lay->sig_name[j]) == 0) {
-                snprintf(err, errlen, "channels '%s' and '%s' give the same DBC signal name '%s'", vibid_stand_channel_name(stand, j),
+                snprintf(err, errlen, "channels '%s' and '%s' give the same DBC signal name '%s'",
+                         j < d.n_channels ? vibid_stand_channel_name(stand, j) : cfg->covariates[j - d.n_channels].name,
                          nm, lay->sig_name[c]);
                 return -1;
             }
@@ -56,12 +61,12 @@ int sim_can_layout_build(const vibid_stand *stand, const sim_config *cfg, sim_ca
     uint32_t idmax = lay->extended ? 0x1FFFFFFFu : 0x7FFu;
     sim_can_msg *cur = NULL;
     unsigned used = 0;
-    for (size_t c = 0; c < d.n_channels; c++) {
+    for (size_t c = 0; c < n_out; c++) {
         unsigned bits = type_bits(cfg->can_sig[c].type);
         if (!cur || used + bits > cap_bits) {
             if (lay->fd && cur) {
-                snprintf(err, errlen, "%zu channels do not fit one CAN FD frame of 64 bytes (2 bytes counter); use int16 signals or classic CAN",
-                         d.n_channels);
+                snprintf(err, errlen, "%zu channels%s do not fit one CAN FD frame of 64 bytes (2 bytes counter); use int16 signals or classic CAN",
+                         n_out, cfg->n_covariates ? " (covariates included)" : "");
                 return -1;
             }
             cur = &lay->msg[lay->n_msg];
@@ -137,18 +142,20 @@ int sim_can_write_dbc(const sim_can_layout *lay, FILE *f)
         for (size_t j = 0; j < m->n_sig; j++) {
             const sim_can_sig *s = &m->sig[j];
             if (s->type == SIM_CAN_FLOAT32) {
-                fprintf(f, " SG_ %s : %u|32@1- (1,0) [0|0] \"\" Vector__XXX\n", lay->sig_name[s->channel], s->start_bit);
+                fprintf(f, " SG_ %s : %u|32@1- (1,0) [0|0] \"%s\" Vector__XXX\n", lay->sig_name[s->channel], s->start_bit,
+                        lay->sig_unit[s->channel]);
             } else {
                 unsigned bits = s->type == SIM_CAN_INT16 ? 16u : 32u;
                 double lim = s->type == SIM_CAN_INT16 ? 32768.0 : 2147483648.0;
-                fprintf(f, " SG_ %s : %u|%u@1- (%.17g,0) [%.17g|%.17g] \"\" Vector__XXX\n", lay->sig_name[s->channel],
-                        s->start_bit, bits, s->scale, -lim * s->scale, (lim - 1.0) * s->scale);
+                fprintf(f, " SG_ %s : %u|%u@1- (%.17g,0) [%.17g|%.17g] \"%s\" Vector__XXX\n", lay->sig_name[s->channel],
+                        s->start_bit, bits, s->scale, -lim * s->scale, (lim - 1.0) * s->scale, lay->sig_unit[s->channel]);
             }
         }
         fprintf(f, "\n");
     }
     fprintf(f, "\nCM_ \"Frames of vibid-sim (stand %s): SampleCounter = sample index mod 65536 in every frame; "
-               "channels in the stand's order. Written by vibid-sim --write-dbc.\";\n", lay->stand_name);
+               "channels in the stand's order%s. Written by vibid-sim --write-dbc.\";\n", lay->stand_name,
+            lay->n_covariates ? ", then the covariates (simulation.covariates)" : "");
     if (lay->fd) {
         fprintf(f, "BA_DEF_ BO_ \"VFrameFormat\" ENUM \"StandardCAN\",\"ExtendedCAN\",\"reserved\",\"J1939PG\",\"reserved\","
                    "\"reserved\",\"reserved\",\"reserved\",\"reserved\",\"reserved\",\"reserved\",\"reserved\",\"reserved\","

@@ -8,7 +8,9 @@
  * id+1, ...; a signal never straddles two frames). CAN FD: one frame per sample (id),
  * length rounded up to a valid FD length (<= 64 bytes), BRS set.
  * Signal names are the stand's channel names (characters other than [A-Za-z0-9_]
- * replaced by '_').
+ * replaced by '_'). The covariates (simulation.covariates) follow the stand's channels as
+ * signals of their own (float32 unless simulation.can.signals gives them a type), named by
+ * the covariate, their unit in the DBC.
  */
 #ifndef VIBID_SIM_CAN_H
 #define VIBID_SIM_CAN_H
@@ -21,10 +23,10 @@
 
 #include "sim_config.h"
 
-#define SIM_CAN_MAX_FRAMES SIM_MAX_CHANNELS
+#define SIM_CAN_MAX_FRAMES SIM_MAX_OUTPUTS
 
 typedef struct sim_can_sig {
-    size_t channel;     /* model channel */
+    size_t channel;     /* output channel (model channel, or n_channels + covariate) */
     unsigned start_bit; /* Intel start bit (LSB) */
     sim_can_type type;
     double scale;
@@ -34,14 +36,16 @@ typedef struct sim_can_msg {
     uint32_t id;
     uint8_t len;        /* payload bytes */
     size_t n_sig;
-    sim_can_sig sig[SIM_MAX_CHANNELS];
+    sim_can_sig sig[SIM_MAX_OUTPUTS];
 } sim_can_msg;
 
 typedef struct sim_can_layout {
     int fd, extended;
+    size_t n_covariates;
     size_t n_msg;
     sim_can_msg msg[SIM_CAN_MAX_FRAMES];
-    char sig_name[SIM_MAX_CHANNELS][64];
+    char sig_name[SIM_MAX_OUTPUTS][64];
+    char sig_unit[SIM_MAX_OUTPUTS][32]; /* "" for the stand's channels, the covariate's unit */
     char stand_name[64];
 } sim_can_layout;
 

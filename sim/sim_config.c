@@ -188,6 +188,30 @@ static int resolve_channel(const sim_reader *r, const config_setting_t *e, const
                           "unknown channel '%s' (channels: %s)", name, names);
 }
 
+/* The output channel named `name` for a CAN signal: a stand channel as resolve_channel, or
+ * a covariate (output channel n_channels + j; they are read before simulation.can). The
+ * noise entries stay with resolve_channel: a covariate has its own `noise`. */
+static int resolve_output_channel(const sim_reader *r, const config_setting_t *e, const char *p, const char *name,
+                                  size_t *idx)
+{
+    for (size_t j = 0; j < r->cfg->n_covariates; j++)
+        if (strcmp(r->cfg->covariates[j].name, name) == 0) {
+            *idx = r->d.n_channels + j;
+            return 0;
+        }
+    *idx = find_channel(r->stand, name);
+    if (*idx != (size_t)-1) return 0;
+    char names[512], *end;
+    channel_list(r->stand, names, sizeof names);
+    for (size_t j = 0; j < r->cfg->n_covariates; j++) {
+        end = names + strlen(names);
+        snprintf(end, sizeof names - (size_t)(end - names), "%s%s", j ? ", " : "; covariates: ",
+                 r->cfg->covariates[j].name);
+    }
+    return vibid_cfg_fail(r->c, config_setting_get_member(e, "channel"), p,
+                          "unknown channel '%s' (channels: %s)", name, names);
+}
+
 /* Appends `name` and a space to a fixed buffer (the lists of names in messages). */
 static void append_name(char *buf, size_t cap, const char *name)
 {
@@ -521,6 +545,152 @@ static int parse_changes(const sim_reader *r, const config_setting_t *g, const c
     return 0;
 }
 
+double sim_covariate_value(const sim_covariate *c, double t)
+{
+    double v = c->mean + c->ramp * t;
+    if (c->amplitude != 0.0) v += c->amplitude * sin(2.0 * M_PI * t / c->period + c->phase);
+    return v;
+}
+
+int sim_covariate_varies(const sim_covariate *c) { return c->amplitude != 0.0 || c->ramp != 0.0; }
+
+/* A covariate's name becomes a CSV column, a DBC signal and a register-map entry beside the
+ * stand's channels, so it must differ from every channel name (acquisition and model
+ * names), from the CSV's time column "t", from the CAN frames' SampleCounter, and from the
+ * covariates before it. */
+static int check_covariate_name(const sim_reader *r, const config_setting_t *e, const char *p, const char *name,
+                                size_t j)
+{
+    const config_setting_t *ns = config_setting_get_member(e, "name");
+    char field[160];
+    snprintf(field, sizeof field, "%s.name", p);
+    if (vibid_cfg_check_name(r->c, ns, field, name)) return -1;
+    if (find_channel(r->stand, name) != (size_t)-1) {
+        char names[512];
+        channel_list(r->stand, names, sizeof names);
+        return vibid_cfg_fail(r->c, ns, field, "'%s' is a channel of the stand (channels: %s); a covariate is a "
+                              "channel of its own and needs another name", name, names);
+    }
+    if (strcmp(name, "t") == 0 || strcmp(name, "SampleCounter") == 0)
+        return vibid_cfg_fail(r->c, ns, field, "'%s' is reserved (%s)", name,
+                              name[0] == 't' ? "the CSV's time column" : "the CAN frames' sample counter");
+    for (size_t k = 0; k < j; k++)
+        if (strcmp(r->cfg->covariates[k].name, name) == 0)
+            return vibid_cfg_fail(r->c, ns, field, "'%s' names covariate [%zu] already", name, k);
+    return 0;
+}
+
+/* The numbers of one covariate and their ranges. The unit goes into the DBC between
+ * quotes, so it is printable ASCII without '"'. */
+static int parse_covariate_numbers(const sim_reader *r, const config_setting_t *e, const char *p, sim_covariate *cv)
+{
+    int hm = 0;
+    if ((hm = get_num(r->c, e, p, "mean", &cv->mean)) < 0 || get_num(r->c, e, p, "amplitude", &cv->amplitude) < 0 ||
+        get_num(r->c, e, p, "period", &cv->period) < 0 || get_num(r->c, e, p, "phase", &cv->phase) < 0 ||
+        get_num(r->c, e, p, "ramp", &cv->ramp) < 0 || get_num(r->c, e, p, "noise", &cv->noise) < 0)
+        return -1;
+    if (!hm) return vibid_cfg_fail(r->c, e, p, "mean missing (the covariate's value without swing, its unit)");
+    if (cv->amplitude != 0.0 && !(cv->period > 0.0))
+        return vibid_cfg_fail(r->c, e, p, "period = %g s: must be > 0 when amplitude (%g) is not 0", cv->period,
+                              cv->amplitude);
+    if (cv->period < 0.0) return vibid_cfg_fail(r->c, e, p, "period = %g s must be > 0", cv->period);
+    if (cv->noise < 0.0) return vibid_cfg_fail(r->c, e, p, "noise = %g must be >= 0 (a standard deviation)", cv->noise);
+    for (const char *u = cv->unit; *u; u++)
+        if (*u < 0x20 || *u > 0x7E || *u == '"')
+            return vibid_cfg_fail(r->c, e, p, "unit '%s': printable ASCII without '\"' (it is quoted in the DBC)",
+                                  cv->unit);
+    return 0;
+}
+
+/* simulation.covariates ( { name, unit, mean, amplitude, period, phase, ramp, noise }, ... ):
+ * at most SIM_MAX_COVARIATES. Read before the dependence (which names them) and the CAN
+ * signals (which may give them a wire type). */
+static int parse_covariates(const sim_reader *r, const config_setting_t *g, const char *gp)
+{
+    static const char *const ck[] = {"name", "unit", "mean", "amplitude", "period", "phase", "ramp", "noise", NULL};
+    sim_config *cfg = r->cfg;
+    int lerr;
+    const config_setting_t *cl = get_list(r->c, g, gp, "covariates", &lerr);
+    if (lerr) return -1;
+    if (cl && config_setting_length(cl) > SIM_MAX_COVARIATES)
+        return vibid_cfg_fail(r->c, cl, "simulation.covariates", "%d covariates; at most %d",
+                              config_setting_length(cl), SIM_MAX_COVARIATES);
+    for (int i = 0; cl && i < config_setting_length(cl); i++) {
+        char p[128];
+        const config_setting_t *e =
+            list_group_elem(r, cl, "simulation.covariates", i, p, sizeof p, "must be a group { ... }");
+        if (!e || vibid_cfg_check_keys(r->c, e, p, ck)) return -1;
+        sim_covariate cv;
+        memset(&cv, 0, sizeof cv);
+        const char *name = NULL;
+        if (vibid_cfg_string_ref(r->c, e, p, "name", &name) < 0) return -1;
+        if (!name) return vibid_cfg_fail(r->c, e, p, "name missing (the covariate's channel name, e.g. \"T\")");
+        if (check_covariate_name(r, e, p, name, (size_t)i)) return -1;
+        snprintf(cv.name, sizeof cv.name, "%s", name);
+        if (vibid_cfg_string(r->c, e, p, "unit", true, cv.unit, sizeof cv.unit) < 0) return -1;
+        if (parse_covariate_numbers(r, e, p, &cv)) return -1;
+        cfg->covariates[cfg->n_covariates++] = cv;
+    }
+    return 0;
+}
+
+/* simulation.dependence ( { parameter, covariate, coefficient, reference }, ... ). A pair
+ * (parameter, covariate) at most once; several covariates of one parameter multiply. A
+ * dependence on a covariate that varies keeps every interval on ARKODE (the parameter
+ * changes inside it, as during a ramp), which integrator.kind = "exact" refuses. */
+static int parse_dependence(const sim_reader *r, const config_setting_t *g, const char *gp)
+{
+    static const char *const dk[] = {"parameter", "covariate", "coefficient", "reference", NULL};
+    sim_config *cfg = r->cfg;
+    int lerr;
+    const config_setting_t *dl = get_list(r->c, g, gp, "dependence", &lerr);
+    if (lerr) return -1;
+    for (int i = 0; dl && i < config_setting_length(dl); i++) {
+        char p[128];
+        const config_setting_t *e =
+            list_group_elem(r, dl, "simulation.dependence", i, p, sizeof p, "must be a group { ... }");
+        if (!e || vibid_cfg_check_keys(r->c, e, p, dk)) return -1;
+        const char *pn = NULL, *cn = NULL;
+        if (vibid_cfg_string_ref(r->c, e, p, "parameter", &pn) < 0 ||
+            vibid_cfg_string_ref(r->c, e, p, "covariate", &cn) < 0)
+            return -1;
+        if (!pn) return vibid_cfg_fail(r->c, e, p, "parameter missing");
+        if (!cn) return vibid_cfg_fail(r->c, e, p, "covariate missing");
+        sim_dependence dp = {0, (size_t)-1, 0.0, 0.0};
+        if (resolve_changed_parameter(r, e, p, pn, &dp.param)) return -1;
+        char names[512] = "";
+        for (size_t j = 0; j < cfg->n_covariates; j++) {
+            if (strcmp(cfg->covariates[j].name, cn) == 0) dp.covariate = j;
+            append_name(names, sizeof names, cfg->covariates[j].name);
+        }
+        if (dp.covariate == (size_t)-1)
+            return vibid_cfg_fail(r->c, config_setting_get_member(e, "covariate"), p,
+                                  "'%s' is not a covariate of simulation.covariates (covariates: %s)", cn,
+                                  names[0] ? names : "none");
+        const sim_covariate *cv = &cfg->covariates[dp.covariate];
+        int hc, hr;
+        if ((hc = get_num(r->c, e, p, "coefficient", &dp.coefficient)) < 0 ||
+            (hr = get_num(r->c, e, p, "reference", &dp.reference)) < 0)
+            return -1;
+        if (!hc) return vibid_cfg_fail(r->c, e, p, "coefficient missing (relative change per covariate unit)");
+        if (!hr) dp.reference = cv->mean;
+        for (size_t k = 0; k < cfg->n_dependence; k++)
+            if (cfg->dependence[k].param == dp.param && cfg->dependence[k].covariate == dp.covariate)
+                return vibid_cfg_fail(r->c, e, p, "'%s' depends on '%s' already (entry [%zu])", pn, cn, k);
+        if (cfg->integrator == SIM_INTEGRATOR_EXACT && dp.coefficient != 0.0 && sim_covariate_varies(cv))
+            return vibid_cfg_fail(r->c, e, p,
+                                  "'%s' follows covariate '%s', which varies: the parameter changes inside every "
+                                  "sample interval, which the exact step cannot take, and integrator.kind = "
+                                  "\"exact\" refuses runs that keep ARKODE on every interval (use \"auto\")",
+                                  pn, cn);
+        sim_dependence *nd = grow_by_one(r, e, p, cfg->dependence, cfg->n_dependence, sizeof *nd);
+        if (!nd) return -1;
+        cfg->dependence = nd;
+        cfg->dependence[cfg->n_dependence++] = dp;
+    }
+    return 0;
+}
+
 /* One entry of simulation.can.signals: the channel's wire type and scale. */
 static int parse_can_signal(const sim_reader *r, const config_setting_t *e, const char *p)
 {
@@ -535,7 +705,7 @@ static int parse_can_signal(const sim_reader *r, const config_setting_t *e, cons
         return -1;
     if (!ch) return vibid_cfg_fail(r->c, e, p, "channel missing");
     size_t idx;
-    if (resolve_channel(r, e, p, ch, &idx)) return -1;
+    if (resolve_output_channel(r, e, p, ch, &idx)) return -1;
     sim_can_signal sg = {type_values[ty], 1.0};
     if (get_num(r->c, e, p, "scale", &sg.scale) < 0) return -1;
     if (!(sg.scale > 0)) return vibid_cfg_fail(r->c, e, p, "scale = %g must be > 0", sg.scale);
@@ -617,17 +787,18 @@ static void set_defaults(sim_config *cfg, const char *path)
     cfg->can_id = 0x100;
     cfg->fifo_base = 1000;
     cfg->fifo_capacity = 1000;
-    for (size_t i = 0; i < SIM_MAX_CHANNELS; i++) cfg->can_sig[i] = (sim_can_signal){SIM_CAN_FLOAT32, 1.0};
+    for (size_t i = 0; i < SIM_MAX_OUTPUTS; i++) cfg->can_sig[i] = (sim_can_signal){SIM_CAN_FLOAT32, 1.0};
 }
 
 /* The `simulation` group of the file read into lc (absent: the defaults), each of its
  * settings by the parser of its concern, in the order in which they depend on each other:
  * the seed before the excitations' streams, the hold and the integrator before the check
- * of "exact" against the excitations. `seed` (the command line's) replaces the file's. */
+ * of "exact" against the excitations and the dependence, the covariates before the
+ * dependence and the CAN signals that name them. `seed` (the command line's) replaces the file's. */
 static int parse_simulation_group(const sim_reader *r, const config_t *lc, const uint64_t *seed)
 {
     static const char *const known[] = {"seed", "duration", "hold", "integrator", "excitation", "noise",
-                                        "changes", "can", "modbus", NULL};
+                                        "changes", "covariates", "dependence", "can", "modbus", NULL};
     const char *gp = "simulation";
     const config_setting_t *g = config_lookup(lc, gp);
     if (g && !config_setting_is_group(g)) return vibid_cfg_fail(r->c, g, gp, "must be a group { ... }");
@@ -637,7 +808,8 @@ static int parse_simulation_group(const sim_reader *r, const config_t *lc, const
     const config_setting_t *kind_setting = NULL; /* where integrator.kind = "exact" was asked for */
     if (parse_duration_and_hold(r, g, gp) || parse_integrator(r, g, &kind_setting) < 0 ||
         parse_excitations(r, g, gp) || check_exact_integrable(r, kind_setting) || parse_noise(r, g, gp) ||
-        parse_changes(r, g, gp) || parse_can(r, g) < 0 || parse_modbus(r, g) < 0)
+        parse_changes(r, g, gp) || parse_covariates(r, g, gp) || parse_dependence(r, g, gp) || parse_can(r, g) < 0 ||
+        parse_modbus(r, g) < 0)
         return -1;
     return 0;
 }
@@ -676,8 +848,10 @@ void sim_config_free(sim_config *cfg)
     free(cfg->targets);
     free(cfg->noise);
     free(cfg->changes);
+    free(cfg->dependence);
     cfg->targets = NULL;
     cfg->noise = NULL;
     cfg->changes = NULL;
-    cfg->n_targets = cfg->n_noise = cfg->n_changes = 0;
+    cfg->dependence = NULL;
+    cfg->n_targets = cfg->n_noise = cfg->n_changes = cfg->n_dependence = cfg->n_covariates = 0;
 }

@@ -12,6 +12,10 @@
  *     noise = ( { channel = "x1"; std = 1e-7; resolution = 1e-8; },
  *               { channel = "x2"; snr_db = 60.0; correlation_time = 0.01; offset = 2e-6; } );
  *     changes = ( { parameter = "c2"; at = 60.0; factor = 0.9; ramp = 0.0; } );
+ *     covariates = ( { name = "T"; unit = "degC"; mean = 20.0; amplitude = 5.0; period = 600.0;
+ *                      phase = 0.0; ramp = 0.0; noise = 0.0; } );   # an operating condition, output
+ *                                                                    # as a channel after the stand's
+ *     dependence = ( { parameter = "c2"; covariate = "T"; coefficient = -0.004; reference = 20.0; } );
  *     can = { id = 0x100; fd = false; extended = false;
  *             signals = ( { channel = "x1"; type = "int32"; scale = 1e-9; } ); };
  *     modbus = { fifo_base = 1000; capacity = 1000; };
@@ -29,6 +33,10 @@
 #include "excitation.h"
 
 #define SIM_MAX_CHANNELS 64
+#define SIM_MAX_COVARIATES 4
+/* Output channels: the stand's model channels 0 .. n_channels-1, then the covariates
+ * n_channels .. n_channels + n_covariates - 1 (CSV columns, CAN signals, registers). */
+#define SIM_MAX_OUTPUTS (SIM_MAX_CHANNELS + SIM_MAX_COVARIATES)
 
 typedef struct sim_exc_target {
     int is_base;          /* 1: base motion s(t); 0: force input or disturbance */
@@ -55,6 +63,31 @@ typedef struct sim_change {
     double ramp;          /* s: duration of the linear ramp (0 = step at the first sample >= at) */
     double value;         /* value after the change (absolute) */
 } sim_change;
+
+/* simulation.covariates: an operating condition (a temperature, a speed) that the
+ * simulation records as a channel of its own, and that parameters may follow
+ * (sim_dependence). True value (no noise):
+ *     c(t) = mean + amplitude sin(2 pi t / period + phase) + ramp t
+ * the recorded one adds white Gaussian noise of std `noise` from a stream of its own. */
+typedef struct sim_covariate {
+    char name[64];        /* the channel name (CSV column, CAN signal, register map entry) */
+    char unit[32];        /* free text, e.g. "degC"; written into the DBC */
+    double mean;          /* covariate units */
+    double amplitude;     /* covariate units; 0 = no swing */
+    double period;        /* s, > 0 when amplitude != 0 */
+    double phase;         /* rad (the formula's; simulation.excitation's `phase` is in degrees) */
+    double ramp;          /* covariate units per second: a linear drift from t = 0 */
+    double noise;         /* covariate units: std of the measurement noise (0 = none) */
+} sim_covariate;
+
+/* simulation.dependence: theta_i(t) = base_i(t) (1 + coefficient (c_true(t) - reference)),
+ * base_i(t) the true value after simulation.changes. Several entries multiply. */
+typedef struct sim_dependence {
+    size_t param;         /* unknown parameter index (model parameter order) */
+    size_t covariate;     /* index into sim_config.covariates */
+    double coefficient;   /* 1 / covariate unit (e.g. 1/K) */
+    double reference;     /* covariate units: where the factor is 1 */
+} sim_dependence;
 
 /* simulation.integrator.kind (sim_engine.h says what each does). */
 typedef enum sim_integrator {
@@ -91,10 +124,14 @@ typedef struct sim_config {
     size_t n_noise;
     sim_change *changes;
     size_t n_changes;
+    sim_covariate covariates[SIM_MAX_COVARIATES];
+    size_t n_covariates;
+    sim_dependence *dependence;
+    size_t n_dependence;
     /* CAN */
     uint32_t can_id;      /* id of the first frame; frames use can_id, can_id+1, ... */
     int can_fd, can_extended;
-    sim_can_signal can_sig[SIM_MAX_CHANNELS]; /* per model channel */
+    sim_can_signal can_sig[SIM_MAX_OUTPUTS]; /* per output channel (model channels, then covariates) */
     /* Modbus */
     unsigned fifo_base, fifo_capacity;
 } sim_config;
@@ -106,5 +143,11 @@ typedef struct sim_config {
 int sim_config_load(const char *path, const vibid_stand *stand, const uint64_t *seed, sim_config *cfg, char *err,
                     size_t errlen);
 void sim_config_free(sim_config *cfg);
+
+/* True value of covariate j at t (s), without measurement noise. */
+double sim_covariate_value(const sim_covariate *c, double t);
+/* 1 when covariate j changes with time (amplitude or ramp not 0): a parameter that follows
+ * it varies within every sample interval. */
+int sim_covariate_varies(const sim_covariate *c);
 
 #endif

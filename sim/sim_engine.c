@@ -33,6 +33,12 @@ struct sim_engine {
     /* parameters */
     double *theta0, *theta, *theta_k;
     int mass_changes, ramp_in_interval;
+    int dep_varies;        /* a parameter follows a covariate that varies: it changes inside every
+                              interval, so every interval takes the ramp's path (ARKODE, theta_at(t)) */
+    /* covariates (simulation.covariates): output channels nch .. nch + ncov - 1 */
+    size_t ncov;
+    double cov_noise[SIM_MAX_COVARIATES];  /* std of the recorded value's noise (0 without noise) */
+    sim_rng cov_rng[SIM_MAX_COVARIATES];   /* one stream each: a covariate's noise changes no other stream */
     /* mass matrix */
     double *M, *Minv, *work;
     int diag;
@@ -78,7 +84,16 @@ static void set_err(sim_engine *e, const char *fmt, ...)
     va_end(ap);
 }
 
-/* theta at time t within interval [tk, tk + h): steps at sample boundaries, ramps continuous */
+/* The factor (1 + coefficient (c_true(t) - reference)) of dependence entry i at t. */
+static double dependence_factor(const sim_engine *e, size_t i, double t)
+{
+    const sim_dependence *d = &e->cfg->dependence[i];
+    return 1.0 + d->coefficient * (sim_covariate_value(&e->cfg->covariates[d->covariate], t) - d->reference);
+}
+
+/* theta at time t within interval [tk, tk + h): steps at sample boundaries, ramps continuous;
+ * then the dependence on covariates at t (continuous, like a ramp), multiplying the value
+ * that the changes set */
 static void theta_at(const sim_engine *e, double t, double tk, double *theta)
 {
     memcpy(theta, e->theta0, e->p * sizeof *theta);
@@ -94,6 +109,27 @@ static void theta_at(const sim_engine *e, double t, double tk, double *theta)
             theta[c->param] = prev + (c->value - prev) * (t - c->at) / c->ramp;
         }
     }
+    for (size_t i = 0; i < e->cfg->n_dependence; i++) theta[e->cfg->dependence[i].param] *= dependence_factor(e, i, t);
+}
+
+/* A dependence factor <= 0 at t_k would flip the sign of a mass, stiffness or damping: not
+ * a drift of the operating condition but a covariate that left the range its coefficient
+ * holds for. The run stops naming it (also a ramp that drifts there after hours). */
+static int check_dependence(sim_engine *e, double tk)
+{
+    for (size_t i = 0; i < e->cfg->n_dependence; i++) {
+        double f = dependence_factor(e, i, tk);
+        if (f > 0.0) continue;
+        const sim_dependence *d = &e->cfg->dependence[i];
+        vibid_param_info pi;
+        vibid_model_param_info(e->model, d->param, &pi);
+        set_err(e, "%s: simulation.dependence.[%zu]: the factor of '%s' is %g at t = %g s (covariate '%s' = %g): "
+                   "must stay > 0 (a smaller coefficient or a narrower covariate range)",
+                e->cfg->file, i, pi.name, f, tk, e->cfg->covariates[d->covariate].name,
+                sim_covariate_value(&e->cfg->covariates[d->covariate], tk));
+        return -1;
+    }
+    return 0;
 }
 
 /* Gauss-Jordan inverse with partial pivoting of the n x n column-major A (destroyed). */
@@ -378,7 +414,20 @@ sim_engine *sim_engine_create_internal(const vibid_stand *stand, const sim_confi
         if (!isfinite(e->theta0[i])) CFAIL("parameter %s: true value not finite", pi.name);
         for (size_t c = 0; c < cfg->n_changes; c++)
             if (cfg->changes[c].param == i && pi.kind == VIBID_PARAM_MASS) e->mass_changes = 1;
+        for (size_t c = 0; c < cfg->n_dependence; c++)
+            if (cfg->dependence[c].param == i && pi.kind == VIBID_PARAM_MASS) e->mass_changes = 1;
     }
+    /* covariates: a stream each, derived from the run's seed and the position (the other
+     * streams stay as they were), and which parameters vary inside the intervals */
+    e->ncov = cfg->n_covariates;
+    for (size_t j = 0; j < e->ncov; j++) {
+        e->cov_noise[j] = with_noise ? cfg->covariates[j].noise : 0.0;
+        sim_rng_seed(&e->cov_rng[j], (cfg->seed ^ 0x636F766172ull) * 1000003ull + j + 1);
+    }
+    for (size_t c = 0; c < cfg->n_dependence; c++)
+        if (cfg->dependence[c].coefficient != 0.0 && sim_covariate_varies(&cfg->covariates[cfg->dependence[c].covariate]))
+            e->dep_varies = 1;
+    if (check_dependence(e, 0.0)) goto fail;
     for (size_t i = 0; i < e->nch; i++) {
         vibid_model_channel_info(e->model, i, &e->ch[i]);
         /* sim_config_load rejects this for simulation.hold = "zoh"; here the stand declared it */
@@ -504,7 +553,7 @@ sim_engine *sim_engine_create_internal(const vibid_stand *stand, const sim_confi
         double dur = cfg->duration > 0 ? fmin(cfg->duration, 2.0) : 2.0;
         uint64_t ns = (uint64_t)ceil(dur / e->h);
         if (ns < 2) ns = 2;
-        double *sum = calloc(e->nch, sizeof(double)), *v = calloc(e->nch, sizeof(double));
+        double *sum = calloc(e->nch, sizeof(double)), *v = calloc(e->nch + e->ncov, sizeof(double));
         int bad = !sum || !v;
         for (uint64_t s = 0; s < ns && !bad; s++) {
             uint64_t kk;
@@ -571,6 +620,7 @@ void sim_engine_destroy(sim_engine *e)
 }
 
 size_t sim_engine_channels(const sim_engine *e) { return e->nch; }
+size_t sim_engine_outputs(const sim_engine *e) { return e->nch + e->ncov; }
 double sim_engine_period(const sim_engine *e) { return e->h; }
 double sim_engine_noise_std(const sim_engine *e, size_t c) { return c < e->nch ? e->noise_std[c] : 0.0; }
 const char *sim_engine_error(const sim_engine *e) { return e->err; }
@@ -682,11 +732,12 @@ int sim_engine_next(sim_engine *e, uint64_t *kout, double *tout, double *values,
         if (e->w_exc[j]) sim_exc_begin_sample(e->w_exc[j], k);
     /* parameters of this interval */
     int mass_changed = 0;
+    if (e->cfg->n_dependence && check_dependence(e, tk)) return -1;
     theta_at(e, tk, tk, e->theta);
     for (size_t i = 0; i < e->p; i++)
         if (e->theta[i] != e->theta_k[i]) mass_changed = 1;
     memcpy(e->theta_k, e->theta, e->p * sizeof(double));
-    e->ramp_in_interval = 0;
+    e->ramp_in_interval = e->dep_varies;
     for (size_t i = 0; i < e->cfg->n_changes; i++) {
         const sim_change *c = &e->cfg->changes[i];
         if (c->ramp > 0.0 && c->at < tk1 && c->at + c->ramp > tk) e->ramp_in_interval = 1;
@@ -749,6 +800,13 @@ int sim_engine_next(sim_engine *e, uint64_t *kout, double *tout, double *values,
         v += e->noise_offset[c];
         if (e->resolution[c] > 0.0) v = nearbyint(v / e->resolution[c]) * e->resolution[c];
         values[c] = v;
+    }
+    /* covariates after the channels: the true value at t_k, plus its noise when recorded */
+    for (size_t j = 0; j < e->ncov; j++) {
+        double v = sim_covariate_value(&e->cfg->covariates[j], tk);
+        if (clean) clean[e->nch + j] = v;
+        if (e->cov_noise[j] > 0.0) v += e->cov_noise[j] * sim_rng_normal(&e->cov_rng[j]);
+        values[e->nch + j] = v;
     }
     *kout = k;
     *tout = tk;

@@ -53,6 +53,12 @@
  * Time-varying parameters (sim_config.changes): a step takes effect at the first sample
  * boundary t_k >= at (so the ZOH solution stays exact); a ramp is linear in continuous
  * time. A change of a mass takes effect at sample boundaries (M^-1 is refreshed there).
+ *
+ * Covariates (sim_config.covariates) are output channels after the model channels; the
+ * dependence (sim_config.dependence) multiplies a parameter's value after the changes by
+ * (1 + coefficient (c_true(t) - reference)), evaluated at every right-hand-side evaluation
+ * like a ramp (continuous in time, no hold; a mass, again, at sample boundaries). A
+ * dependence on a covariate that varies therefore sends every interval to ARKODE.
  */
 #ifndef VIBID_SIM_ENGINE_H
 #define VIBID_SIM_ENGINE_H
@@ -71,17 +77,20 @@ sim_engine *sim_engine_create(const vibid_stand *stand, const sim_config *cfg, c
 void sim_engine_destroy(sim_engine *e);
 
 size_t sim_engine_channels(const sim_engine *e);   /* model channel count */
+/* Output channels: the model channels, then the covariates (sim_config.covariates). */
+size_t sim_engine_outputs(const sim_engine *e);
 double sim_engine_period(const sim_engine *e);     /* h, s */
 /* Noise standard deviation in effect for channel i (after the SNR pilot run). */
 double sim_engine_noise_std(const sim_engine *e, size_t channel);
 
-/* Sample k (0, 1, ...): *k, *t = k h, values[n_channels] with noise and quantisation,
- * clean[n_channels] (may be NULL) without; then advances the state to t_{k+1}.
+/* Sample k (0, 1, ...): *k, *t = k h, values[sim_engine_outputs] with noise and quantisation
+ * (the model channels, then each covariate: its true value at t_k plus its noise),
+ * clean[sim_engine_outputs] (may be NULL) without; then advances the state to t_{k+1}.
  * Returns 0, or -1 when the integrator fails (sim_engine_error says why). */
 int sim_engine_next(sim_engine *e, uint64_t *k, double *t, double *values, double *clean);
 const char *sim_engine_error(const sim_engine *e);
 
-/* Current value of unknown parameter i (after changes). */
+/* Value of unknown parameter i at the last sample's t_k (after changes and dependence). */
 double sim_engine_param(const sim_engine *e, size_t i);
 
 typedef struct sim_engine_stats {

@@ -18,7 +18,7 @@
 static int csv_format_batch(sim_csv *c, const double *b, size_t rows)
 {
     const size_t stride = 1 + c->n, row_max = stride * (VIBID_NUM_FORMAT_MAX + 1) + 1;
-    char text[65536 + (64 + 1) * (VIBID_NUM_FORMAT_MAX + 1) + 1];
+    char text[65536 + (SIM_MAX_OUTPUTS + 1) * (VIBID_NUM_FORMAT_MAX + 1) + 1];
     size_t len = 0;
     for (size_t r = 0; r < rows; r++) {
         const double *v = b + r * stride;
@@ -75,6 +75,12 @@ static int csv_hand_over(sim_csv *c)
 
 int sim_csv_open(sim_csv *c, const char *path, const vibid_stand *stand, char *err, size_t errlen)
 {
+    return sim_csv_open_cfg(c, path, stand, NULL, err, errlen);
+}
+
+int sim_csv_open_cfg(sim_csv *c, const char *path, const vibid_stand *stand, const sim_config *cfg, char *err,
+                     size_t errlen)
+{
     memset(c, 0, sizeof *c);
     c->pending = -1;
     const vibid_model *m = vibid_stand_model(stand);
@@ -91,6 +97,8 @@ int sim_csv_open(sim_csv *c, const char *path, const vibid_stand *stand, char *e
             int input = ci.kind == VIBID_CHANNEL_INPUT || ci.index == VIBID_BASE;
             if (input == (pass == 0)) c->order[c->n++] = i;
         }
+    size_t n_cov = cfg ? cfg->n_covariates : 0;
+    for (size_t j = 0; j < n_cov; j++) c->order[c->n++] = d.n_channels + j;
     snprintf(c->path, sizeof c->path, "%s", path);
     for (int b = 0; b < 2; b++)
         if (!(c->batch[b] = malloc(SIM_CSV_BATCH * (1 + c->n) * sizeof(double)))) {
@@ -108,7 +116,9 @@ int sim_csv_open(sim_csv *c, const char *path, const vibid_stand *stand, char *e
     /* 1 MiB of stdio buffer: a 10-DOF row is about 400 bytes, so a write(2) per ~2600 rows */
     setvbuf(c->f, NULL, _IOFBF, 1 << 20);
     fprintf(c->f, "t");
-    for (size_t i = 0; i < c->n; i++) fprintf(c->f, ",%s", vibid_stand_channel_name(stand, c->order[i]));
+    for (size_t i = 0; i < c->n; i++)
+        fprintf(c->f, ",%s", c->order[i] < d.n_channels ? vibid_stand_channel_name(stand, c->order[i])
+                                                        : cfg->covariates[c->order[i] - d.n_channels].name);
     fprintf(c->f, "\n");
     pthread_mutex_init(&c->mu, NULL);
     pthread_cond_init(&c->cv, NULL);

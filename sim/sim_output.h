@@ -10,9 +10,12 @@
 #include <vibid/stand_file.h>
 #include <vibid_drivers/can_frame.h>
 
-/* CSV: header "t,<inputs>,<measured>" by the stand's channel names; inputs are the
- * force inputs and the base's channels, measured the nodes' channels, each group in
- * the stand's channel order. Values in their shortest round-trip form (num_format.h:
+#include "sim_config.h"
+
+/* CSV: header "t,<inputs>,<measured>[,<covariates>]" by the stand's channel names; inputs
+ * are the force inputs and the base's channels, measured the nodes' channels, each group in
+ * the stand's channel order; then the covariates (simulation.covariates) by their names,
+ * in their order (values[] as sim_engine_next writes them: output channels). Values in their shortest round-trip form (num_format.h:
  * lossless, at most 17 significant digits).
  *
  * Formatting, not the simulation, is the cost (about 40-80 ns a value against 0.2 us for a
@@ -28,7 +31,7 @@
 typedef struct sim_csv {
     FILE *f;
     size_t n;
-    size_t order[64];
+    size_t order[SIM_MAX_OUTPUTS]; /* output channel of each column after t */
     char path[512];
     double *batch[2];      /* SIM_CSV_BATCH x (1 + n) each: t, then the values in `order` */
     size_t fill;           /* rows in batch[cur] */
@@ -44,6 +47,9 @@ typedef struct sim_csv {
 } sim_csv;
 
 int sim_csv_open(sim_csv *c, const char *path, const vibid_stand *stand, char *err, size_t errlen);
+/* The same with cfg's covariates as columns after the stand's channels (cfg NULL: none). */
+int sim_csv_open_cfg(sim_csv *c, const char *path, const vibid_stand *stand, const sim_config *cfg, char *err,
+                     size_t errlen);
 /* 0, or -1 for every row once a write of an earlier batch has failed. */
 int sim_csv_write(sim_csv *c, double t, const double *values);
 /* Writes what is left, joins the writer, closes; returns -1 if any write failed (err says so). */

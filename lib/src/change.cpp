@@ -214,6 +214,11 @@ struct Param {
     // a raised alarm and its recovery CUSUM
     bool active = false;
     double change = 0.0, stat_at_raise = 0.0, T = 0.0, k_clear = 0.0, h_clear = 0.0;
+    // the latest tested blocks' deviations from the reference (a ring of the detector's
+    // ring_size): the change point of a raised alarm (test)
+    std::vector<double> dev;
+    std::vector<uint64_t> dev_index;
+    size_t dev_pos = 0, dev_n = 0;
     double last_block = kNaN;
     uint64_t tested = 0, out_of_range = 0;
     bool last_out = false;
@@ -236,6 +241,13 @@ struct vibid_change {
     std::vector<Param> par;
     bool have_last = false;  // a row was pushed; its sample index:
     uint64_t last_index = 0;
+    size_t ring_size = 256;  // Param::dev's size
+
+    void init_ring(Param &p) const {
+        p.dev.assign(ring_size, 0.0);
+        p.dev_index.assign(ring_size, 0);
+        p.dev_pos = p.dev_n = 0;
+    }
 
     // W of a row at sample index n (weight of the samples 0..n)
     double weight(uint64_t n) const {
@@ -320,6 +332,10 @@ struct vibid_change {
         const double sb = p.ref.block_sd;
         const double u = std::clamp((blk - m) / sb, -kClip, kClip) * weight;
         ++p.tested;
+        p.dev[p.dev_pos] = blk - m;
+        p.dev_index[p.dev_pos] = index;
+        p.dev_pos = (p.dev_pos + 1) % p.dev.size();
+        p.dev_n = std::min(p.dev_n + 1, p.dev.size());
         if (p.active) {
             const double s = p.change >= 0.0 ? 1.0 : -1.0;
             p.T = std::max(0.0, p.T + p.k_clear - s * u);
@@ -350,11 +366,32 @@ struct vibid_change {
             if (r >= 1.0 && r > best) best = r, fired = side;
         }
         if (fired < 0) return false;
-        const double nrun = (double)p.n[fired];
-        const double change = p.sum[fired] / nrun;
+        // The change point: the CUSUM's last zero runs early when the change is large against
+        // the allowance, and the mean since then mixes in unchanged blocks. Within the run (as
+        // far as the ring reaches) the maximum-likelihood split of a mean step: the start j of
+        // the latest blocks whose sum S_j (on the side that fired) maximises S_j^2 / n_j.
+        const double sgn = fired == 0 ? 1.0 : -1.0;
+        double best_score = -1.0, change = p.sum[fired] / (double)p.n[fired], nrun = (double)p.n[fired];
+        double spread = 0.0;  // the variance of the blocks after the change point
+        uint64_t onset = p.onset[fired];
+        double S = 0.0, SS = 0.0;
+        for (size_t back = 1; back <= p.dev_n; ++back) {
+            const size_t at = (p.dev_pos + p.dev.size() - back) % p.dev.size();
+            if (p.dev_index[at] < p.onset[fired]) break;
+            S += p.dev[at];
+            SS += p.dev[at] * p.dev[at];
+            const double score = sgn * S > 0.0 ? S * S / (double)back : 0.0;
+            if (score > best_score) {
+                best_score = score, change = S / (double)back, nrun = (double)back, onset = p.dev_index[at];
+                spread = back > 1 ? std::max(0.0, (SS - S * S / (double)back) / (double)(back - 1)) : 0.0;
+            }
+        }
         if (!(std::fabs(change) > cfg.min_relative * std::fabs(m))) return false;
-        const double se = sb * std::sqrt(1.0 / nrun + v);
-        *ev = vibid_change_event{i, VIBID_CHANGE_RAISED, index, p.onset[fired], p.S[fired], p.h, change, se, m};
+        // its standard error: the blocks after a change can scatter far more than the
+        // reference's (an estimator out of its stationary regime: IV, the EKF), so the larger
+        // of sigma_b and their own spread, plus the reference's error
+        const double se = std::sqrt(std::max(sb * sb, spread) / nrun + sb * sb * v);
+        *ev = vibid_change_event{i, VIBID_CHANGE_RAISED, index, onset, p.S[fired], p.h, change, se, m};
         p.active = true;
         p.change = change;
         p.stat_at_raise = best;
@@ -414,8 +451,12 @@ VIBID_API vibid_change *vibid_change_create(const vibid_change_config *cfg) {
         d->arl = std::max(2.0, rows_per_year * cusums / cfg->false_alarms_per_year);
         d->rows_horizon = std::max(1.0, cfg->horizon_s * cfg->sample_rate_hz / cfg->row_interval);
         d->z_p = normal_quantile(cfg->detection_probability);
+        // the ring of recent deviations: 4 horizons (a change at the MDC is raised within one),
+        // 256 .. 8192 blocks
+        d->ring_size = (size_t)std::clamp(4.0 * d->rows_horizon, 256.0, 8192.0);
         try {
             d->par.assign(cfg->n_params, Param{});
+            for (Param &p : d->par) d->init_ring(p);
         } catch (...) {
             delete d;
             throw;
@@ -428,7 +469,14 @@ VIBID_API void vibid_change_destroy(vibid_change *det) { delete det; }
 
 VIBID_API vibid_status vibid_change_reset(vibid_change *det) {
     if (!det) return VIBID_FAIL(VIBID_E_NULL_ARGUMENT, "det is NULL");
-    std::fill(det->par.begin(), det->par.end(), Param{});
+    for (Param &p : det->par) {  // back to Param{}, keeping the rings' storage (no allocation)
+        std::vector<double> dev = std::move(p.dev);
+        std::vector<uint64_t> dev_index = std::move(p.dev_index);
+        p = Param{};
+        p.dev = std::move(dev);
+        p.dev_index = std::move(dev_index);
+        p.dev_pos = p.dev_n = 0;
+    }
     det->have_last = false;
     det->last_index = 0;
     return VIBID_OK;

@@ -588,12 +588,15 @@ struct ReplayDel {
 };
 
 // vibidd -c config [--replay capture] with its outputs replaced by the tracks file
-// tracks_path, run by the daemon's own code (vibid_replay.c). Returns vibidd's exit status
+// tracks_path (and the InfluxDB line file influx_path when given; reference: the alarms'
+// reference file in place of the configuration's, "" none), run by the daemon's own code
+// (vibid_replay.c). Returns vibidd's exit status
 // of the run (0 ok; 1 a run-time failure, which the daemon has logged on stderr); raises
 // ValueError with the daemon's message for what it refuses before running (the
 // configuration's file:line: field: reason, a capture whose rate does not fit, ...).
 int replay_run(const std::string &config, const std::optional<std::string> &capture, const std::string &tracks_path,
-               const std::string &log_level, const std::string &rate_check) {
+               const std::string &log_level, const std::string &rate_check,
+               const std::optional<std::string> &influx_path, const std::optional<std::string> &reference) {
     require_c_numeric(config.c_str());
     int level = vibid_py_log_level_parse(log_level.c_str());
     if (level < 0)
@@ -609,7 +612,9 @@ int replay_run(const std::string &config, const std::optional<std::string> &capt
         int old_level = vibid_py_log_level_set(level);
         std::vector<char> err(8192);
         std::unique_ptr<vibid_py_replay, ReplayDel> r(vibid_py_replay_open(
-            config.c_str(), capture ? capture->c_str() : nullptr, tracks_path.c_str(), rmode, err.data(), err.size()));
+            config.c_str(), capture ? capture->c_str() : nullptr, tracks_path.c_str(),
+            influx_path ? influx_path->c_str() : nullptr, reference ? reference->c_str() : nullptr, rmode, err.data(),
+            err.size()));
         if (!r) {
             err_text = err.data();
         } else {
@@ -669,6 +674,7 @@ void vibid_register_drivers(nb::module_ &m) {
     m.def("write_candump", &write_candump, "path"_a, "dbc"_a, "channels"_a, "signals"_a, "chanmap"_a.none(),
           "hint"_a, "values"_a, "index"_a, "t_us"_a, "iface"_a);
 #ifdef VIBID_HAVE_DAEMON
-    m.def("replay_run", &replay_run, "config"_a, "capture"_a.none(), "tracks"_a, "log_level"_a, "rate_check"_a);
+    m.def("replay_run", &replay_run, "config"_a, "capture"_a.none(), "tracks"_a, "log_level"_a, "rate_check"_a,
+          "influx"_a.none() = nb::none(), "reference"_a.none() = nb::none());
 #endif
 }

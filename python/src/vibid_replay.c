@@ -23,8 +23,8 @@ struct vibid_py_replay {
 int vibid_py_log_level_parse(const char *name) { return vd_log_level_parse(name); }
 int vibid_py_rate_mode_parse(const char *name) { return vd_rate_mode_parse(name); }
 
-vibid_py_replay *vibid_py_replay_open(const char *config, const char *capture, const char *tracks, int rate_mode,
-                                      char *err, size_t cap)
+vibid_py_replay *vibid_py_replay_open(const char *config, const char *capture, const char *tracks, const char *influx,
+                                      const char *reference, int rate_mode, char *err, size_t cap)
 {
     /* vd_config and vd_daemon are large (main.c keeps them static): on the heap */
     vibid_py_replay *r = calloc(1, sizeof *r);
@@ -40,8 +40,10 @@ vibid_py_replay *vibid_py_replay_open(const char *config, const char *capture, c
     }
     r->cfg_loaded = 1;
     vd_config *cfg = &r->cfg;
-    if (strlen(tracks) >= sizeof cfg->tracks_path) {
-        snprintf(err, cap, "tracks path %s: too long", tracks);
+    if (strlen(tracks) >= sizeof cfg->tracks_path || (influx && strlen(influx) >= sizeof cfg->influx_path) ||
+        (reference && strlen(reference) >= sizeof cfg->alarm_reference_file)) {
+        snprintf(err, cap, "tracks, influx or reference path too long (at most %zu characters)",
+                 sizeof cfg->tracks_path - 1);
         vibid_py_replay_close(r);
         return NULL;
     }
@@ -51,8 +53,15 @@ vibid_py_replay *vibid_py_replay_open(const char *config, const char *capture, c
      * (output.h) and no other. Neither mlockall of the whole interpreter
      * (acquisition.lock_memory) nor SCHED_FIFO (realtime_priority) belongs in a Python
      * process; neither changes a value. */
-    static const char *const outputs[] = {"tracks", NULL};
+    static const char *const tracks_only[] = {"tracks", NULL}, *const with_influx[] = {"tracks", "influx", NULL};
+    const char *const *outputs = influx ? with_influx : tracks_only;
     snprintf(cfg->tracks_path, sizeof cfg->tracks_path, "%s", tracks);
+    if (influx) { /* the file, not a server: the influx output's file part alone */
+        snprintf(cfg->influx_path, sizeof cfg->influx_path, "%s", influx);
+        cfg->influx_udp[0] = '\0';
+    }
+    if (reference)
+        snprintf(cfg->alarm_reference_file, sizeof cfg->alarm_reference_file, "%s", reference);
     cfg->lock_memory = false;
     cfg->rt_priority = 0;
     if (vd_config_check_paths_for(cfg, capture, outputs, err, cap)) {

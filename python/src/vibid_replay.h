@@ -13,9 +13,12 @@ int vibid_py_rate_mode_parse(const char *name);
 int vibid_py_log_level_set(int level);
 /* Loads config, puts the tracks into `tracks` (other outputs off), checks the paths and runs
  * vd_daemon_init for a replay of capture (NULL: the configured source, which must be a
- * replay). NULL with err filled (the daemon's message). */
-vibid_py_replay *vibid_py_replay_open(const char *config, const char *capture, const char *tracks, int rate_mode,
-                                      char *err, size_t cap);
+ * replay). influx: NULL, or a file for the InfluxDB lines too (rows and alarm events, the
+ * influx output's format). reference: NULL keeps alarms.reference_file, "" turns it off,
+ * else the reference file to read or, learned, to write. NULL with err filled (the daemon's
+ * message). */
+vibid_py_replay *vibid_py_replay_open(const char *config, const char *capture, const char *tracks, const char *influx,
+                                      const char *reference, int rate_mode, char *err, size_t cap);
 /* vd_daemon_run: blocks SIGTERM, SIGINT, SIGHUP, SIGUSR1 in the calling thread and returns
  * vibidd's exit status (0 ok) when the replay has ended or SIGTERM reached that thread. */
 int vibid_py_replay_run(vibid_py_replay *r);

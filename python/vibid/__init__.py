@@ -27,5 +27,6 @@ __all__ += ["LeastSquares", "RLS", "IV", "RecursiveIV", "KFRLS", "EKF", "Estimat
 
 # vibidd's pipeline in-process (issue 13; docs/python.md "vibid.replay").
 from ._drivers import replay  # noqa: E402
+from ._monitor import Monitoring, monitor  # noqa: E402
 
-__all__ += ["replay"]
+__all__ += ["replay", "monitor", "Monitoring"]

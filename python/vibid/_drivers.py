@@ -121,11 +121,17 @@ def replay(config: str | os.PathLike, capture: Optional[str | os.PathLike] = Non
         if rc != 0:
             raise _core.VibidError(f"{config}: the pipeline ended with vibidd's exit status {rc} (a run-time "
                                    "failure; the daemon's log lines on stderr say what failed)")
-        # flags as text ("" = none), as identify's tracks; "nan"/"inf" values as floats
-        df = pd.read_csv(tracks, comment="#", dtype={"flags": str}, keep_default_na=False, na_values=["nan"])
+        df = _read_tracks(tracks)
+    df.attrs["config"] = config
+    return df
+
+
+def _read_tracks(path: str) -> pd.DataFrame:
+    """vibidd's tracks file: flags as text ("" = none), as identify's tracks; "nan"/"inf"
+    values as floats."""
+    df = pd.read_csv(path, comment="#", dtype={"flags": str}, keep_default_na=False, na_values=["nan"])
     if "flags" in df.columns:
         df["flags"] = df["flags"].astype(str)
-    df.attrs["config"] = config
     return df
 
 

@@ -177,3 +177,57 @@ def welch_psd(x: np.ndarray, fs: float, nperseg: int = 4096) -> tuple[np.ndarray
     psd = acc * scale / max(count, 1)
     psd[1:-1 if nperseg % 2 == 0 else None] *= 2.0  # one-sided: fold the negative frequencies
     return np.fft.rfftfreq(nperseg, 1.0 / fs), psd
+
+
+def monitoring_figure(mon, parameters: Sequence[str], path: Optional[str] = None) -> "Figure":
+    """vibid.Monitoring.plot: per parameter the change statistic against the sample time
+    (its threshold is 1: the CUSUM over its threshold), the threshold line, raised events
+    (red) with their estimated onset (dotted), cleared events (green), and the rows flagged C
+    (covariates outside the reference's range) shaded; the covariates in a last panel."""
+    tr = mon.tracks
+    t = tr["time_s"].to_numpy(dtype=float)
+    t0 = t[np.isfinite(t)].min() if np.isfinite(t).any() else 0.0
+    panels = len(parameters) + (1 if mon.covariates else 0)
+    if panels == 0:
+        raise ValueError("vibid.Monitoring.plot: no alarmed parameter and no covariate to draw")
+    fig = _figure(figsize=(9.0, 2.2 * panels + 0.6))
+    axes = fig.subplots(panels, 1, sharex=True, squeeze=False)[:, 0]
+    recursive = ~tr["flags"].str.contains("W", regex=False)
+    flagged_c = tr["flags"].str.contains("C", regex=False).to_numpy()
+    for ax, p in zip(axes, parameters):
+        col = f"{p}_change_statistic"
+        if col not in tr.columns:
+            raise ValueError(f"vibid.Monitoring.plot: '{p}' has no change statistic (not an alarmed parameter; "
+                             f"those are {mon.parameters()})")
+        ax.plot(t[recursive] - t0, tr.loc[recursive, col].to_numpy(dtype=float), linewidth=0.8,
+                label="statistic / threshold")
+        ax.axhline(1.0, color="k", linestyle="--", linewidth=1.0, label="threshold")
+        if flagged_c.any():
+            ax.fill_between(t - t0, 0, 1, where=flagged_c, color="0.85", step="mid",
+                            transform=ax.get_xaxis_transform(), label="covariate outside reference (C)")
+        ev = mon.events[mon.events["parameter"] == p]
+        for _, e in ev.iterrows():
+            raised = e["state"] == "raised"
+            ax.axvline(e["time_s"] - t0, color="tab:red" if raised else "tab:green", linewidth=1.2)
+            if raised and np.isfinite(e["onset_index"]):
+                # the onset's time from the row of that capture with the onset's index
+                rows = tr[(tr["capture"] == e["capture"]) & (tr["index"] >= e["onset_index"])]
+                if len(rows):
+                    ax.axvline(rows["time_s"].iloc[0] - t0, color="tab:red", linestyle=":", linewidth=1.0)
+        mdc = tr[f"{p}_mdc"].to_numpy(dtype=float) if f"{p}_mdc" in tr.columns else np.array([np.nan])
+        last_mdc = mdc[np.isfinite(mdc)][-1] if np.isfinite(mdc).any() else math.nan
+        ax.set_ylabel(f"{p}\nCUSUM / h")
+        ax.set_title(f"{p}: {len(ev[ev['state'] == 'raised'])} alarm(s); minimum detectable change "
+                     f"{last_mdc:.4g}", fontsize=9, loc="left")
+        ax.legend(fontsize=7, loc="upper left")
+    if mon.covariates:
+        ax = axes[-1]
+        for c in mon.covariates:
+            ax.plot(t - t0, tr[c].to_numpy(dtype=float), linewidth=0.8, label=c)
+        ax.set_ylabel("covariates")
+        ax.legend(fontsize=7, loc="upper left")
+    axes[-1].set_xlabel("time from the first row, s")
+    fig.tight_layout()
+    if path:
+        fig.savefig(path)
+    return fig

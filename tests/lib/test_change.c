@@ -292,6 +292,50 @@ static void test_detection(void **state)
     assert_true(wrong_param <= 1); /* one false alarm in 40 x 700 rows at 1 a year is not expected */
 }
 
+/* A large step (0.3, 2.6 sigma_b, five times the MDC): the CUSUM's last zero runs early
+ * against such a change, the change point does not. In 20 runs the raised change within 4 of
+ * its standard errors of 0.3 and the onset within 3 rows of the step's (the first block with
+ * the new value begins at the step's row) in at least 18 (the maximum-likelihood split
+ * errs by more than 2 rows with a probability of a few % at this size). */
+static void test_large_step(void **state)
+{
+    (void)state;
+    test_rng rng;
+    test_rng_seed(&rng, 99);
+    int good_change = 0, good_onset = 0;
+    const int runs = 20;
+    for (int r = 0; r < runs; ++r) {
+        vibid_change *det = make_detector(1.0, 0);
+        ewls e;
+        uint64_t index = learn(det, &e, &rng, 1.0, -2.0);
+        const uint64_t step_row_index = index + 100 * kRowSamples + kRowSamples - 1; /* the first changed row */
+        int raised = 0;
+        for (int row = 0; row < 400 && !raised; ++row) {
+            double theta[2];
+            ewls_rows(&e, &rng, row < 100 ? 1.0 : 1.3, -2.0, kRowSamples, theta);
+            index += kRowSamples;
+            vibid_change_event ev[2];
+            size_t ne;
+            assert_int_equal(vibid_change_push(det, index - 1, theta, NULL, 1, VIBID_CHANGE_TEST, ev, 2, &ne), VIBID_OK);
+            for (size_t i = 0; i < ne; ++i)
+                if (ev[i].kind == VIBID_CHANGE_RAISED && ev[i].param == 0) {
+                    raised = 1;
+                    good_change += fabs(ev[i].change - 0.3) < 4.0 * ev[i].change_se;
+                    long d = ((long)ev[i].onset_index - (long)step_row_index) / kRowSamples;
+                    good_onset += d >= -3 && d <= 3;
+                    if (r == 0)
+                        printf("large step: change %.4f +- %.4f (true 0.3), onset %ld rows from the step\n",
+                               ev[i].change, ev[i].change_se, d);
+                }
+        }
+        assert_true(raised);
+        vibid_change_destroy(det);
+    }
+    printf("large step: change within 4 se in %d of %d, onset within 3 rows in %d\n", good_change, runs, good_onset);
+    assert_true(good_change >= 18);
+    assert_true(good_onset >= 18);
+}
+
 /* Operating conditions: t1 follows a temperature-like covariate c (t1 = 1 + 0.02 (c - 20)),
  * c = 20 + 10 sin(2 pi row / period); each row gets the covariate's mean over its block.
  * The swing moves t1 by +-0.2, about 1.7 sigma_b and several times the minimum detectable
@@ -449,7 +493,8 @@ int main(void)
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_threshold),       cmocka_unit_test(test_block_cumulative),
         cmocka_unit_test(test_false_alarm_rate), cmocka_unit_test(test_detection),
-        cmocka_unit_test(test_covariates),      cmocka_unit_test(test_bad_arguments),
+        cmocka_unit_test(test_large_step),      cmocka_unit_test(test_covariates),
+        cmocka_unit_test(test_bad_arguments),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -49,4 +49,27 @@ static inline const char *tmp_path(const char *name)
     return p;
 }
 
+#ifdef VIBID_SIM_EXE
+#include <sys/wait.h>
+/* Runs vibid-sim with args; returns its exit status (-1 if it did not exit); its stderr
+ * text in errbuf (NULL: not kept). */
+static inline int run_sim(const char *args, char *errbuf, size_t cap)
+{
+    char cmd[4096];
+    const char *errf = tmp_path("sim_stderr.txt");
+    snprintf(cmd, sizeof cmd, "%s %s 2>%s", VIBID_SIM_EXE, args, errf);
+    int st = system(cmd);
+    if (errbuf) {
+        errbuf[0] = 0;
+        FILE *f = fopen(errf, "r");
+        if (f) {
+            size_t n = fread(errbuf, 1, cap - 1, f);
+            errbuf[n] = 0;
+            fclose(f);
+        }
+    }
+    return WIFEXITED(st) ? WEXITSTATUS(st) : -1;
+}
+#endif
+
 #endif

@@ -22,24 +22,6 @@
 #define SIM1 VIBID_SIM_SOURCE_DIR "/examples/paper_example1_sim.cfg"
 #define H1 5e-4
 
-/* Runs vibid-sim with args; returns its exit status; stderr text in errbuf. */
-static int run_sim(const char *args, char *errbuf, size_t cap)
-{
-    char cmd[4096];
-    const char *errf = tmp_path("sim_stderr.txt");
-    snprintf(cmd, sizeof cmd, "%s %s 2>%s", VIBID_SIM_EXE, args, errf);
-    int st = system(cmd);
-    if (errbuf) {
-        errbuf[0] = 0;
-        FILE *f = fopen(errf, "r");
-        if (f) {
-            size_t n = fread(errbuf, 1, cap - 1, f);
-            errbuf[n] = 0;
-            fclose(f);
-        }
-    }
-    return WIFEXITED(st) ? WEXITSTATUS(st) : -1;
-}
 
 /* All CSV rows: rows x cols into *out (malloc). Returns rows. */
 static size_t read_csv(const char *path, double **out, size_t *cols, char names[][64])

@@ -53,8 +53,14 @@
  *    (conservative: the CUSUM's reset only helps; the n^2 / N
  *    term is the reference mean's error, which a long horizon cannot average away).
  * 5. The event: statistic S and threshold h of the CUSUM that fired, the estimated
- *    change (mean of b_k - m over the rows since that CUSUM last left 0) with its standard
- *    error sigma_b sqrt(1/n + 1/N), and the estimated onset (the first of those rows).
+ *    change with its standard error and the estimated onset. Among the rows since that CUSUM
+ *    last left 0 (as far as a ring of the latest 4 horizons' blocks reaches) the onset is the
+ *    maximum-likelihood split of a mean step (the start of the latest n blocks whose summed
+ *    deviation S_n maximises S_n^2 / n: the CUSUM's last zero runs early when the change is
+ *    large against its allowance); the change is the mean deviation of those n blocks, its
+ *    standard error sqrt(max(sigma_b^2, s^2) / n + sigma_b^2 v) with s^2 their own variance
+ *    (blocks after a change may scatter more than the reference's: an estimator out of its
+ *    stationary regime) and v the reference's error (1 / N without covariates).
  *    With min_relative > 0 the alarm also needs |change| > min_relative |m| (a dead band
  *    for changes too small to matter; 0 by default).
  * 6. Operating conditions (covariates: temperature, speed, load). A stiffness that
@@ -91,7 +97,8 @@
  * non-finite covariate). Rows of another estimate (an
  * output-error refinement over a window) are not part of the recursion: do not push them.
  *
- * Real time: create allocates (O(p)); push, get_param and reset allocate nothing and never
+ * Real time: create allocates (O(p) and the rings, 256 .. 8192 doubles per parameter); push,
+ * get_param and reset allocate nothing and never
  * throw. end_learning and set_reference compute the thresholds (bisections, well under
  * 1 ms per parameter) and allocate nothing either.
  */
