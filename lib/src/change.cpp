@@ -330,7 +330,7 @@ struct vibid_change {
         p.out_of_range += out;
         if (weight <= 0.0) return false;
         const double sb = p.ref.block_sd;
-        const double u = std::clamp((blk - m) / sb, -kClip, kClip) * weight;
+        const double u_raw = std::clamp((blk - m) / sb, -kClip, kClip), u = u_raw * weight;
         ++p.tested;
         p.dev[p.dev_pos] = blk - m;
         p.dev_index[p.dev_pos] = index;
@@ -338,7 +338,10 @@ struct vibid_change {
         p.dev_n = std::min(p.dev_n + 1, p.dev.size());
         if (p.active) {
             const double s = p.change >= 0.0 ? 1.0 : -1.0;
-            p.T = std::max(0.0, p.T + p.k_clear - s * u);
+            // a block weighed down (covariates outside the reference's range) is weaker
+            // evidence either way: its whole increment is weighed, so that it cannot clear
+            // an alarm by looking like the reference
+            p.T = std::max(0.0, p.T + weight * (p.k_clear - s * u_raw));
             if (p.T < p.h_clear) return false;
             *ev = vibid_change_event{i, VIBID_CHANGE_CLEARED, index, index, p.T, p.h_clear, p.change, kNaN, m};
             p.active = false;

@@ -16,6 +16,8 @@ libraries analysts' tools use (pandas for CSV, asammdf for MDF4, npTDMS for TDMS
     stand.dbc, run7.log, map.cfg         sim/paper_example1.dbc, a candump log of it written
                                          by vibid-sim (4 s), a channel map of its signals
     vibidd.cfg                           vibidd replaying a candump log with stand.dbc
+    day1.csv, day2.csv, monitor.cfg      60 s each of sim/examples/service_temperature_sim.cfg
+                                         (vibid-sim, seeds 1 and 2) and vibidd with T a covariate
     daemon/examples/replay_csv.cfg       the repository's, beside the capture.csv it names
 
 Blocks that need what an optional part of the build provides (the drivers for candump logs,
@@ -65,6 +67,10 @@ def missing_parts(code: str) -> list[str]:
         out.append("vibid built without vibidd's core (vibid.replay)")
     if candump and not sim_path().exists():
         out.append(f"no vibid-sim at {sim_path()} to write run7.log (set VIBID_SIM)")
+    if "vibid.monitor(" in code and not getattr(_core, "HAVE_DAEMON", False):
+        out.append("vibid built without vibidd's core (vibid.monitor)")
+    if "vibid.monitor(" in code and not sim_path().exists():
+        out.append(f"no vibid-sim at {sim_path()} to write day1.csv, day2.csv (set VIBID_SIM)")
     return out
 
 
@@ -117,6 +123,28 @@ def write_files(d: Path) -> None:
         subprocess.run([str(sim_path()), "-c", str(EXAMPLE1), "-s", str(SIM_CFG), "--duration", "4",
                         "--candump", str(d / "run7.log"), "--fast", "-q"], check=True, capture_output=True,
                        timeout=120)
+    # monitoring: two days of the temperature example (sim/examples/service_temperature_sim.cfg,
+    # 60 s each, other seeds) and vibidd's configuration with T as a covariate
+    if sim_path().exists():
+        for day, seed in (("day1.csv", "1"), ("day2.csv", "2")):
+            subprocess.run([str(sim_path()), "-c", str(EXAMPLE1), "-s",
+                            str(REPO / "sim" / "examples" / "service_temperature_sim.cfg"), "--duration", "60",
+                            "--seed", seed, "--csv", str(d / day), "-q"], check=True, capture_output=True,
+                           timeout=120)
+    (d / "monitor.cfg").write_text("""stand = "examples/stands/paper_example1.cfg";
+source = {
+  kind = "replay"; file = "day1.csv"; time_column = "t";
+  channels = (
+    { name = "x1"; quantity = "displacement"; node = 0; unit = "m"; column = "x1"; },
+    { name = "x2"; quantity = "displacement"; node = 1; unit = "m"; column = "x2"; },
+    { name = "s";  quantity = "base_displacement"; unit = "m"; column = "s"; },
+    { name = "T";  quantity = "covariate"; unit = "degC"; column = "T"; }
+  );
+};
+estimator = { forgetting = 0.999; decimation = 200; };
+alarms = { learn_duration = 40.0; };
+outputs = { tracks = { path = "tracks.csv"; }; };
+""")
     (d / "map.cfg").write_text("""counter = "SampleCounter";
 channels = (
   { name = "x1"; quantity = "displacement"; node = 0; unit = "m"; signal = "x1"; },

@@ -193,6 +193,32 @@ static void test_track_json(void **state) {
     assert_non_null(strstr(buf, "\"time_s\":-1.500000,"));
 }
 
+/* Issue 32: with covariate channels a "covariates" object follows the modes; an alarmed
+ * parameter of the change test carries its statistic and minimum detectable change. */
+static void test_track_json_monitoring(void **state) {
+    (void)state;
+    static vd_config c;
+    c = cfg; /* a shallow copy: the same stand, not freed here */
+    c.n_covariates = 1;
+    c.cov_chan[0] = 1; /* the channel map's "s", as a covariate's name */
+    c.alarms_enabled = true;
+    c.alarm_test = VD_ALARM_CUSUM;
+    for (size_t k = 0; k < c.n_params; k++)
+        c.alarm_param[k].enabled = k == 2;
+    vd_row r = sample_row();
+    r.cov[0] = 21.5;
+    r.change_stat[2] = 0.5;
+    r.change_mdc[2] = 1200.0;
+    char buf[4096];
+    assert_true(vd_mqtt_format_track(buf, sizeof buf, &c, "rig1", 7, 2, &r) > 0);
+    assert_non_null(strstr(buf, "\"c2\":{\"value\":1500000,\"se\":null,\"change_statistic\":0.5,\"mdc\":1200}}"));
+    assert_non_null(strstr(buf, "\"d\":{\"value\":300,\"se\":null},")); /* not alarmed: no change fields */
+    assert_non_null(strstr(buf, "}],\"covariates\":{\"s\":21.5},\"gap_samples\":3,"));
+    r.cov[0] = NAN; /* no finite value in the row's block */
+    assert_true(vd_mqtt_format_track(buf, sizeof buf, &c, "rig1", 7, 2, &r) > 0);
+    assert_non_null(strstr(buf, "\"covariates\":{\"s\":null}"));
+}
+
 static void test_alarm_json(void **state) {
     (void)state;
     char buf[1024];
@@ -271,6 +297,7 @@ static void test_queue_drops(void **state) {
 int main(void) {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_config),      cmocka_unit_test(test_track_json),
+        cmocka_unit_test(test_track_json_monitoring),
         cmocka_unit_test(test_alarm_json),  cmocka_unit_test(test_status_json),
         cmocka_unit_test(test_queue_drops),
     };
