@@ -211,14 +211,21 @@ alarms = { };'
     done < rows_t
     grep -q '^vibid,.* .*T=[0-9.]*' tracks.influx || grep -q '^vibid,[^ ]* .*,T=' tracks.influx ||
         fail "InfluxDB rows lack the field T"
-    # 3: a reference over one whole swing (learn_duration = 60 s)
-    sed -i 's/^alarms = { };/alarms = { learn_duration = 60.0; };/' v.cfg
+    # 3: a reference over one whole swing (learn_duration = 60 s), saved with its covariate
+    sed -i 's/^alarms = { };/alarms = { learn_duration = 60.0; reference_file = "ref_t.txt"; };/' v.cfg
     rm -f tracks.influx tracks.csv
     timeout 120 "$VIBIDD" -c v.cfg 2> log3 || fail "run 3: $(cat log3)"
     ev3=$(events)
     [ "$(echo "$ev3" | wc -l)" -eq 1 ] && [ "${ev3% raised *}" = c2 ] ||
         fail "run 3: expected c2's alarm alone: $ev3"
     [ "${ev3##* }" -ge 150000 ] && [ "${ev3##* }" -le 155000 ] || fail "run 3: c2 raised at ${ev3##* }, not within 5 s"
+    # 4: the saved reference read back (slopes, centre, range, G: the covariate's fields) gives
+    # the same test: the same event at the same sample
+    grep -q '^c2.slope_0=' ref_t.txt && grep -q '^c2.gram_inv_00=' ref_t.txt || fail "ref_t.txt: $(cat ref_t.txt)"
+    rm -f tracks.influx tracks.csv
+    timeout 120 "$VIBIDD" -c v.cfg 2> log4 || fail "run 4: $(cat log4)"
+    grep -q 'alarm reference read from .*ref_t.txt' log4 || fail "run 4 did not read the reference"
+    [ "$(events)" = "$ev3" ] || fail "run 4 (the saved reference): $(events), run 3: $ev3"
     note "temperature +-3 %, c2 -1 % at 150 s: unmapped $early1 false alarm(s) before the crack; mapped (10 s reference, $nC rows C, slope $slope N/m/degC): c2 at sample ${first2#* }; 60 s reference: c2 at sample ${ev3##* }, nothing else"
     ;;
 *)
