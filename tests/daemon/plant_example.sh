@@ -31,7 +31,7 @@ GEN=$BUILD/tests/daemon/vd_gen_capture
 PY=/usr/bin/python3
 [ -x "$PY" ] || PY=$(command -v python3) || fail "python3 not found"
 [ "$CASE" = plant ] || fail "unknown case '$CASE' (the only case is 'plant')"
-for f in stand1.cfg stand2.cfg mosquitto.conf mosquitto.acl prometheus.yml telegraf.conf; do
+for f in stand1.cfg stand2.cfg mosquitto.conf mosquitto.acl prometheus.yml telegraf.conf vibid_alerts.yml vibid_alerts_test.yml; do
     [ -f "$EX/$f" ] || fail "daemon/examples/plant/$f missing"
 done
 NOT_RUN=()
@@ -131,7 +131,16 @@ note "$out"
 # ---- 2. promtool ----------------------------------------------------------------------------
 if command -v promtool > /dev/null; then
     promtool check config "$EX/prometheus.yml" > promtool.out 2>&1 || fail "promtool check config daemon/examples/plant/prometheus.yml: $(cat promtool.out)"
-    note "promtool check config daemon/examples/plant/prometheus.yml: $(grep -o 'SUCCESS.*' promtool.out)"
+    note "promtool check config daemon/examples/plant/prometheus.yml: $(grep -o 'SUCCESS.*' promtool.out | tr '\n' ' ')"
+    # the alert rules (issue 32, item 6): valid, each alert firing on the series that should
+    # raise it and not on the others (promtool's rule unit tests), and every vibid_* metric they
+    # name one that vibidd exports (daemon/src/metrics.c)
+    (cd "$EX" && promtool test rules vibid_alerts_test.yml) > promtest.out 2>&1 ||
+        fail "promtool test rules daemon/examples/plant/vibid_alerts_test.yml: $(cat promtest.out)"
+    for m in $(grep 'expr:' "$EX/vibid_alerts.yml" | grep -o 'vibid_[a-z_]*' | sort -u); do
+        grep -q "\"$m\"" "$SRC/daemon/src/metrics.c" || fail "vibid_alerts.yml names $m, which vibidd does not export"
+    done
+    note "promtool test rules vibid_alerts_test.yml: $(grep -c 'alertname:' "$EX/vibid_alerts_test.yml") alert checks passed"
 else
     echo "NOT RUN [$CASE]: promtool not installed (Debian package prometheus): prometheus.yml NOT checked"
     NOT_RUN+=(promtool)
