@@ -199,6 +199,8 @@ struct Param {
     double prev = kNaN;
     uint64_t prev_index = 0;
     bool have_prev = false;
+    bool prev_use = false;  // the previous row was usable: a block spans two rows and is used
+                            // only when both are (an impossible estimate poisons the next block)
     Learn learn;
     // reference
     bool have_ref = false;
@@ -214,6 +216,8 @@ struct Param {
     // a raised alarm and its recovery CUSUM
     bool active = false;
     double change = 0.0, stat_at_raise = 0.0, T = 0.0, k_clear = 0.0, h_clear = 0.0;
+    double act_sum = 0.0, act_u = 0.0, act_u2 = 0.0, act_n = 0.0;  // the deviations since the
+                                  // onset (while raised): raw, as clipped increments, their squares
     // the latest tested blocks' deviations from the reference (a ring of the detector's
     // ring_size): the change point of a raised alarm (test)
     std::vector<double> dev;
@@ -337,11 +341,32 @@ struct vibid_change {
         p.dev_pos = (p.dev_pos + 1) % p.dev.size();
         p.dev_n = std::min(p.dev_n + 1, p.dev.size());
         if (p.active) {
+            // the change as the blocks since its onset show it: the estimate at the raise is
+            // biased away from 0 (the CUSUM fires when the noise adds to the change), and a
+            // recovery test against an overestimated change clears a change that persists
+            p.act_sum += blk - m;
+            p.act_u += u_raw;
+            p.act_u2 += u_raw * u_raw;
+            p.act_n += 1.0;
+            // The recovery test in the clipped increments' own scale and spread since the
+            // onset: blocks that scatter beyond the clip show a smaller mean than their raw
+            // one, and blocks of an estimator out of its stationary regime (IV, the EKF after
+            // a change) scatter more than sigma_b: a test that expected the raw mean with unit
+            // spread would read a change that persists as "back at the reference".
+            const double n = p.act_n;
+            const double var = n >= 2.0 ? std::max(0.0, (p.act_u2 - p.act_u * p.act_u / n) / (n - 1.0)) : 1.0;
+            const double scale = std::max(1.0, std::sqrt(var));
+            const double d_now = std::clamp(std::fabs(p.act_u / n) / scale, 1e-3, kClip);
+            if (std::fabs(0.5 * d_now - p.k_clear) > 0.05 * p.k_clear) {
+                p.k_clear = 0.5 * d_now;
+                p.h_clear = clear_threshold(p.k_clear);
+            }
+            p.change = p.act_sum / n;
             const double s = p.change >= 0.0 ? 1.0 : -1.0;
             // a block weighed down (covariates outside the reference's range) is weaker
             // evidence either way: its whole increment is weighed, so that it cannot clear
             // an alarm by looking like the reference
-            p.T = std::max(0.0, p.T + weight * (p.k_clear - s * u_raw));
+            p.T = std::max(0.0, p.T + weight * (p.k_clear - s * u_raw / scale));
             if (p.T < p.h_clear) return false;
             *ev = vibid_change_event{i, VIBID_CHANGE_CLEARED, index, index, p.T, p.h_clear, p.change, kNaN, m};
             p.active = false;
@@ -397,6 +422,11 @@ struct vibid_change {
         *ev = vibid_change_event{i, VIBID_CHANGE_RAISED, index, onset, p.S[fired], p.h, change, se, m};
         p.active = true;
         p.change = change;
+        p.act_sum = change * nrun;
+        p.act_u = std::clamp(change / sb, -kClip, kClip) * nrun;
+        // the run's spread as the raise saw it (the blocks' own variance, at least sigma_b's)
+        p.act_u2 = p.act_u * p.act_u / nrun + std::max(1.0, spread / (sb * sb)) * std::max(0.0, nrun - 1.0);
+        p.act_n = nrun;
         p.stat_at_raise = best;
         // the change as the clipped increments see it: beyond the clip they show at most kClip
         const double d = std::clamp(std::fabs(change) / sb, 1e-3, kClip);
@@ -524,7 +554,9 @@ VIBID_API vibid_status vibid_change_push(vibid_change *det, uint64_t index, cons
         p.prev = th;
         p.prev_index = index;
         p.have_prev = true;
-        if (!use || !std::isfinite(blk)) continue;
+        const bool both = use && p.prev_use;
+        p.prev_use = use != 0;
+        if (!both || !std::isfinite(blk)) continue;
         p.last_block = blk;
         if (ph == VIBID_CHANGE_LEARN) {
             p.learn.add(q, covariates, blk);

@@ -71,6 +71,11 @@ void no_estimate(vibid_report *r, vibid_status status, vibid_report_row_out *out
 // The modes of out->theta with their standard errors from cov (have_cov), and the
 // plausibility of both: the checks every row makes, whoever estimated it.
 void describe(vibid_report *r, const double *cov, bool have_cov, vibid_report_row_out *out) {
+    // A covariance with a non-finite entry (the estimator's standard errors do not exist yet:
+    // IV with too few blocks) is no covariance: the modes are still those of theta. Before,
+    // the modal analysis refused it and the row's modes were NaN, so the row was flagged P
+    // ("not finite") although its estimate was plausible (a third of a 3-DOF stand's rows).
+    for (std::size_t i = 0; have_cov && i < r->p * r->p; ++i) have_cov = std::isfinite(cov[i]);
     // An unstable estimate (VIBID_E_UNSTABLE) keeps its modes: a negative zeta or f = 0 is
     // what the plausibility check flags, and what the reader needs to see. Without a
     // covariance the modes' standard errors stay NaN (not modal.h's 0).

@@ -86,14 +86,21 @@
  *    tested.
  * 7. Clearing: a raised alarm stays until the data favour the reference again: a CUSUM of
  *    the log-likelihood ratio of "at the reference" against "changed by the estimated
- *    change d" (d in units of sigma_b, at most the clip 5; allowance d / 2, threshold for the
- *    same rate) CLEARS it; then the test
+ *    change d" (d in units of sigma_b, at most the clip 5, re-estimated at every block as the
+ *    mean clipped increment since the onset over their spread since then (at least 1): the
+ *    estimate at the raise is biased away from 0, blocks that scatter beyond the clip show a
+ *    smaller mean than their raw one, and an estimator out of its stationary regime after a
+ *    change (IV, the EKF) scatters more than sigma_b; a test that expected the raw change
+ *    with unit spread cleared changes that persisted (a 1 % crack on a 3-DOF stand, IV:
+ *    cleared twice in 90 s); increments are scaled by the same spread; allowance d / 2,
+ *    threshold for the same rate) CLEARS it; then the test
  *    restarts at 0. A crack does not heal, so a persistent change stays raised.
  *
  * Rows. Every recursive row is pushed in order with its sample index: rows whose estimate
  * is not finite break the chain (the next row has no predecessor and forms no block);
  * rows pushed with use = 0 (an impossible estimate, a gap, a row not excited) keep the
- * chain but their block is neither learned from nor tested (nor is a block with a
+ * chain but their block, and the next row's (which is computed from theirs), is neither
+ * learned from nor tested (nor is a block with a
  * non-finite covariate). Rows of another estimate (an
  * output-error refinement over a window) are not part of the recursion: do not push them.
  *
