@@ -305,6 +305,10 @@ struct vibid_change {
 
     // h of the recovery CUSUM for allowance k (reference taken as exact: a clearing
     // decision, not a false alarm of the service)
+    // At least 3 blocks of the largest evidence (k + the clip): Siegmund's threshold assumes
+    // Gaussian increments, and an estimator's wild block (an IV transient) is not; with a
+    // large change the threshold is below one wild block's increment, and single blocks
+    // cleared persisting cracks (base2 at 500 Hz: every 100-300 s).
     double clear_threshold(double k) const {
         double lo = 0.0, hi = 1.0;
         while (siegmund_arl(k, hi) < arl && hi < 1e7) hi *= 2.0;
@@ -312,7 +316,7 @@ struct vibid_change {
             const double mid = 0.5 * (lo + hi);
             (siegmund_arl(k, mid) < arl ? lo : hi) = mid;
         }
-        return hi;
+        return std::max(hi, 3.0 * (k + kClip));
     }
 
     // One block of parameter i; returns true with *ev filled on an event.

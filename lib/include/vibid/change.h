@@ -92,7 +92,9 @@
  *    smaller mean than their raw one, and an estimator out of its stationary regime after a
  *    change (IV, the EKF) scatters more than sigma_b; a test that expected the raw change
  *    with unit spread cleared changes that persisted (a 1 % crack on a 3-DOF stand, IV:
- *    cleared twice in 90 s); increments are scaled by the same spread; allowance d / 2,
+ *    cleared twice in 90 s); increments are scaled by the same spread; its threshold is at least 3 blocks
+ *    of the largest evidence (k + 5): one wild block of an estimator's transient must not
+ *    clear a crack; allowance d / 2,
  *    threshold for the same rate) CLEARS it; then the test
  *    restarts at 0. A crack does not heal, so a persistent change stays raised.
  *
