@@ -23,7 +23,11 @@
  *    EKF (forgetting on the parameter covariance) and KF+RLS (tests/lib/test_change.c
  *    measures the false-alarm rate on a simulated recursive estimator).
  * 2. The reference: per parameter the mean m of the block estimates and their standard
- *    deviation sigma_b, learned from the rows the caller marks (VIBID_CHANGE_LEARN) or given
+ *    deviation sigma_b (the long-run one where neighbouring blocks correlate: from batches of
+ *    10 blocks, used when the batches' variance exceeds the 95 % quantile of what independent
+ *    blocks give, with the batches' degrees of freedom in n_sd; IV's blocks correlate, 0.3-0.45
+ *    at lag 1, because its pre-filter, difference windows and instrument lag straddle the
+ *    block boundaries), learned from the rows the caller marks (VIBID_CHANGE_LEARN) or given
  *    (vibid_change_set_reference; e.g. a saved one). A learned reference carries its
  *    uncertainty: m from N blocks has a standard error sigma_b / sqrt(N), sigma_b from
  *    N - 1 degrees of freedom. Both enter the thresholds (3).
