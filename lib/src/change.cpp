@@ -251,6 +251,7 @@ struct Param {
     bool prev_use = false;  // the previous row was usable: a block spans two rows and is used
                             // only when both are (an impossible estimate poisons the next block)
     Learn learn;
+    vibid_change_reference learned{};  // end_learning's regression, before it is taken
     // reference
     bool have_ref = false;
     vibid_change_reference ref{};
@@ -629,18 +630,18 @@ VIBID_API vibid_status vibid_change_end_learning(vibid_change *det) {
     if (!det) return VIBID_FAIL(VIBID_E_NULL_ARGUMENT, "det is NULL");
     const size_t q = det->cfg.n_covariates;
     const uint64_t need = VIBID_CHANGE_MIN_BLOCKS + q;
-    vibid_change_reference ref[1];
-    for (size_t i = 0; i < det->par.size(); ++i) {
-        const Learn &l = det->par[i].learn;
-        if (l.n >= need) ref[0] = l.reference(q);
-        if (l.n < need || !(ref[0].block_sd > 0.0))
+    for (size_t i = 0; i < det->par.size(); ++i) {  // every parameter's first: all or none
+        Param &p = det->par[i];
+        const Learn &l = p.learn;
+        if (l.n >= need) p.learned = l.reference(q);
+        if (l.n < need || !(p.learned.block_sd > 0.0))
             return VIBID_FAIL(VIBID_E_INSUFFICIENT_DATA,
                               "parameter %zu: %llu blocks learned%s; a reference needs %llu with a spread > 0", i,
                               (unsigned long long)l.n, l.n >= need ? " (no spread left)" : "",
                               (unsigned long long)need);
     }
     for (Param &p : det->par) {
-        p.ref = p.learn.reference(q);
+        p.ref = p.learned;
         p.have_ref = true;
         det->design(p);
     }
