@@ -5,12 +5,14 @@
  * default in place). Messages: "file:line: field: what is wrong".
  */
 #include "config.h"
+#include "config_read.h"
 
 #include <vibid/change.h>
 #include <vibid/output_error.h>
 
 #include "log.h"
 #include "metrics.h"
+#include "output.h"
 
 #include <vibid/outlier.h>
 
@@ -27,42 +29,39 @@
 #include <vibid/units.h>
 #include <vibid_drivers/source_replay.h>
 
-typedef struct ctx {
-    vibid_cfg_reader r; /* r.file: the configuration file; r.err: the caller's error */
-    vd_config *cfg;
-} ctx;
+/* The getters of config_read.h. */
 
 /* Thin adapters over the configuration reader (vibid/cfgread.h): each getter fills in the
  * directive's default first, so that an absent directive reads as its default, and
  * returns 0 or -1 (the reader's message in c->r.err). */
 
-static int check_known(ctx *c, const config_setting_t *group, const char *section, const char *const *known)
+int vd_cfg_known(vd_cfg_ctx *c, const config_setting_t *group, const char *section, const char *const *known)
 {
     return vibid_cfg_check_keys(&c->r, group, section, known);
 }
 
-static int get_double(ctx *c, const config_setting_t *g, const char *section, const char *name, double def, double lo,
+int vd_cfg_double(vd_cfg_ctx *c, const config_setting_t *g, const char *section, const char *name, double def, double lo,
                       double hi, double *out)
 {
     *out = def;
     return vibid_cfg_number(&c->r, g, section, name, lo, hi, out) < 0 ? -1 : 0;
 }
 
-static int get_int(ctx *c, const config_setting_t *g, const char *section, const char *name, long long def,
+int vd_cfg_int(vd_cfg_ctx *c, const config_setting_t *g, const char *section, const char *name, long long def,
                    long long lo, long long hi, long long *out)
 {
     *out = def;
     return vibid_cfg_int(&c->r, g, section, name, lo, hi, out) < 0 ? -1 : 0;
 }
 
-static int get_bool(ctx *c, const config_setting_t *g, const char *section, const char *name, bool def, bool *out)
+int vd_cfg_bool(vd_cfg_ctx *c, const config_setting_t *g, const char *section, const char *name, bool def, bool *out)
 {
     *out = def;
     return vibid_cfg_bool(&c->r, g, section, name, out) < 0 ? -1 : 0;
 }
 
 /* String of at most cap-1 characters ("" allowed: it means "not set" for the outputs). */
-static int get_string(ctx *c, const config_setting_t *g, const char *section, const char *name, const char *def,
+int vd_cfg_string(vd_cfg_ctx *c, const config_setting_t *g, const char *section, const char *name, const char *def,
                       char *out, size_t cap)
 {
     snprintf(out, cap, "%s", def);
@@ -72,10 +71,10 @@ static int get_string(ctx *c, const config_setting_t *g, const char *section, co
 /* A name (the safe set of vibid/cfgread.h: A-Z a-z 0-9 _ - ., written into outputs
  * unescaped), copied into out; absent leaves def; "" only where allow_empty (it means
  * "not set"). */
-static int get_name(ctx *c, const config_setting_t *g, const char *section, const char *name, const char *def,
+int vd_cfg_name(vd_cfg_ctx *c, const config_setting_t *g, const char *section, const char *name, const char *def,
                     bool allow_empty, char *out, size_t cap)
 {
-    if (get_string(c, g, section, name, def, out, cap))
+    if (vd_cfg_string(c, g, section, name, def, out, cap))
         return -1;
     const config_setting_t *s = g ? config_setting_get_member(g, name) : NULL;
     if (!s || (allow_empty && !out[0]))
@@ -86,7 +85,7 @@ static int get_name(ctx *c, const config_setting_t *g, const char *section, cons
 }
 
 /* One of `names` (NULL-terminated); *out = its index. */
-static int get_enum(ctx *c, const config_setting_t *g, const char *section, const char *name, int def,
+int vd_cfg_enum(vd_cfg_ctx *c, const config_setting_t *g, const char *section, const char *name, int def,
                     const char *const *names, int *out)
 {
     *out = def;
@@ -94,7 +93,7 @@ static int get_enum(ctx *c, const config_setting_t *g, const char *section, cons
 }
 
 /* A file name relative to the file that names it; absent or "" leaves "" (not set). */
-static int get_path(ctx *c, const config_setting_t *g, const char *section, const char *name, char *out, size_t cap)
+int vd_cfg_path(vd_cfg_ctx *c, const config_setting_t *g, const char *section, const char *name, char *out, size_t cap)
 {
     out[0] = '\0';
     const config_setting_t *s = g ? config_setting_get_member(g, name) : NULL;
@@ -104,7 +103,7 @@ static int get_path(ctx *c, const config_setting_t *g, const char *section, cons
 
 /* ---- sections ---- */
 
-static int load_stand(ctx *c, config_t *cf)
+static int load_stand(vd_cfg_ctx *c, config_t *cf)
 {
     vd_config *cfg = c->cfg;
     config_setting_t *s = config_lookup(cf, "stand");
@@ -159,7 +158,7 @@ static const char *const src_known[] = {
     "fifo_base", "response_timeout", "backoff_initial", "backoff_max", "max_timeouts",
     /* replay */ "file", "format", "paced", "speed", NULL};
 
-static int parse_url(ctx *c, const config_setting_t *src)
+static int parse_url(vd_cfg_ctx *c, const config_setting_t *src)
 {
     vd_config *cfg = c->cfg;
     const config_setting_t *s = config_setting_get_member(src, "url");
@@ -195,10 +194,10 @@ static int parse_url(ctx *c, const config_setting_t *src)
     return vibid_cfg_fail(&c->r, s, "source.url", "'%s': expected tcp://HOST[:PORT] or rtu:///dev/DEVICE", u);
 }
 
-static int load_dbc(ctx *c, const config_setting_t *src)
+static int load_dbc(vd_cfg_ctx *c, const config_setting_t *src)
 {
     vd_config *cfg = c->cfg;
-    if (get_path(c, src, "source", "dbc", cfg->dbc_file, sizeof cfg->dbc_file))
+    if (vd_cfg_path(c, src, "source", "dbc", cfg->dbc_file, sizeof cfg->dbc_file))
         return -1;
     if (!cfg->dbc_file[0])
         return vibid_cfg_fail(&c->r, src, "source.dbc", "missing: CAN signals need a DBC file");
@@ -211,11 +210,11 @@ static int load_dbc(ctx *c, const config_setting_t *src)
     return 0;
 }
 
-static int load_chanmap(ctx *c, const config_setting_t *src)
+static int load_chanmap(vd_cfg_ctx *c, const config_setting_t *src)
 {
     vd_config *cfg = c->cfg;
     const config_setting_t *inl = config_setting_get_member(src, "channels");
-    if (get_path(c, src, "source", "channel_map", cfg->chanmap_file, sizeof cfg->chanmap_file))
+    if (vd_cfg_path(c, src, "source", "channel_map", cfg->chanmap_file, sizeof cfg->chanmap_file))
         return -1;
     if (inl && cfg->chanmap_file[0])
         return vibid_cfg_fail(&c->r, inl, "source.channels",
@@ -238,7 +237,7 @@ static int load_chanmap(ctx *c, const config_setting_t *src)
     for (int i = 0; i < 3; i++) {
         if (!config_setting_get_member(src, keys[i]))
             continue;
-        if (get_string(c, src, "source", keys[i], "", tmp, sizeof tmp))
+        if (vd_cfg_string(c, src, "source", keys[i], "", tmp, sizeof tmp))
             return -1;
         snprintf(dst[i], VIBID_CHAN_NAME_LEN, "%s", tmp);
     }
@@ -310,7 +309,7 @@ static int quantity_dim(vibid_quantity q)
 /* Factor from channel k's unit to the stand's units, into cfg->chan_scale[k]. The unit is
  * the channel map's `unit`, else the DBC signal's unit, else none (the stand's units, 1).
  * A unit given twice must agree. */
-static int channel_scale(ctx *c, const char *map_file, size_t k)
+static int channel_scale(vd_cfg_ctx *c, const char *map_file, size_t k)
 {
     vd_config *cfg = c->cfg;
     const vibid_channel *ch = &cfg->chanmap.ch[k];
@@ -354,7 +353,7 @@ static int channel_scale(ctx *c, const char *map_file, size_t k)
 /* The channel map against the stand: every channel's unit known for its quantity (and
  * converted), and every channel the stand reads declared with the quantity and node the
  * stand gives it. Runs after the source's DBC is loaded (a signal's unit comes from it). */
-static int check_channels(ctx *c)
+static int check_channels(vd_cfg_ctx *c)
 {
     vd_config *cfg = c->cfg;
     const char *map_file = cfg->chanmap_file[0] ? cfg->chanmap_file : c->r.file;
@@ -414,7 +413,7 @@ static int check_channels(ctx *c)
     return 0;
 }
 
-static int load_source(ctx *c, config_t *cf)
+static int load_source(vd_cfg_ctx *c, config_t *cf)
 {
     vd_config *cfg = c->cfg;
     config_setting_t *src = config_lookup(cf, "source");
@@ -422,12 +421,12 @@ static int load_source(ctx *c, config_t *cf)
         return vibid_cfg_fail(&c->r, src ? src : config_root_setting(cf), "source",
                               "missing: a group source = { kind = ...; }");
     cfg->source_line = config_setting_source_line(src);
-    if (check_known(c, src, "source", src_known))
+    if (vd_cfg_known(c, src, "source", src_known))
         return -1;
     int kind;
     if (!config_setting_get_member(src, "kind"))
         return vibid_cfg_fail(&c->r, src, "source.kind", "missing: socketcan, modbus or replay");
-    if (get_enum(c, src, "source", "kind", 0, src_kinds, &kind))
+    if (vd_cfg_enum(c, src, "source", "kind", 0, src_kinds, &kind))
         return -1;
     cfg->source_kind = (vd_source_kind)kind;
     long long v;
@@ -435,19 +434,19 @@ static int load_source(ctx *c, config_t *cf)
         return -1;
     switch (cfg->source_kind) {
     case VD_SRC_SOCKETCAN:
-        if (get_string(c, src, "source", "interface", "", cfg->iface, 16))
+        if (vd_cfg_string(c, src, "source", "interface", "", cfg->iface, 16))
             return -1;
         if (!cfg->iface[0])
             return vibid_cfg_fail(&c->r, src, "source.interface",
                                   "missing: the CAN interface, e.g. \"can0\"");
         if (load_dbc(c, src))
             return -1;
-        if (get_int(c, src, "source", "rcvbuf", 0, 0, 64LL << 20, &v))
+        if (vd_cfg_int(c, src, "source", "rcvbuf", 0, 0, 64LL << 20, &v))
             return -1;
         cfg->rcvbuf_bytes = (int)v;
-        if (get_bool(c, src, "source", "hw_timestamps", false, &cfg->hw_timestamps))
+        if (vd_cfg_bool(c, src, "source", "hw_timestamps", false, &cfg->hw_timestamps))
             return -1;
-        if (get_int(c, src, "source", "batch", 64, 1, 256, &v))
+        if (vd_cfg_int(c, src, "source", "batch", 64, 1, 256, &v))
             return -1;
         cfg->can_batch = (unsigned)v;
         if (!cfg->chanmap.counter[0] && !cfg->chanmap.trigger[0])
@@ -455,30 +454,30 @@ static int load_source(ctx *c, config_t *cf)
                                   "CAN samples need a counter signal or a trigger message");
         break;
     case VD_SRC_MODBUS: {
-        if (get_string(c, src, "source", "url", "", cfg->url, sizeof cfg->url))
+        if (vd_cfg_string(c, src, "source", "url", "", cfg->url, sizeof cfg->url))
             return -1;
         if (!cfg->url[0])
             return vibid_cfg_fail(&c->r, src, "source.url", "missing: tcp://HOST:PORT or rtu:///dev/DEVICE");
         if (parse_url(c, src))
             return -1;
-        if (get_int(c, src, "source", "baud", 19200, 1200, 4000000, &v))
+        if (vd_cfg_int(c, src, "source", "baud", 19200, 1200, 4000000, &v))
             return -1;
         cfg->baud = (int)v;
         static const char *const par[] = {"N", "E", "O", NULL};
         int pi;
-        if (get_enum(c, src, "source", "parity", 1, par, &pi))
+        if (vd_cfg_enum(c, src, "source", "parity", 1, par, &pi))
             return -1;
         cfg->parity = par[pi][0];
-        if (get_int(c, src, "source", "unit_id", 1, 1, 247, &v))
+        if (vd_cfg_int(c, src, "source", "unit_id", 1, 1, 247, &v))
             return -1;
         cfg->unit_id = (int)v;
         static const char *const modes[] = {"fifo", "snapshot", NULL};
         int mi;
-        if (get_enum(c, src, "source", "mode", 0, modes, &mi))
+        if (vd_cfg_enum(c, src, "source", "mode", 0, modes, &mi))
             return -1;
         cfg->modbus_mode = (vibid_modbus_mode)mi;
         const config_setting_t *inl = config_setting_get_member(src, "registers");
-        if (get_path(c, src, "source", "register_map", cfg->regmap_file, sizeof cfg->regmap_file)) return -1;
+        if (vd_cfg_path(c, src, "source", "register_map", cfg->regmap_file, sizeof cfg->regmap_file)) return -1;
         if (inl && cfg->regmap_file[0])
             return vibid_cfg_fail(&c->r, inl, "source.registers",
                                   "give either registers (inline) or register_map, not both");
@@ -500,14 +499,14 @@ static int load_source(ctx *c, config_t *cf)
                                       "channel '%s' (line %u) must name a register of the register map",
                                       cfg->chanmap.ch[i].name, cfg->chanmap.ch[i].line);
             }
-        if (get_double(c, src, "source", "poll_period", 0.0, 0.0, 10.0, &cfg->poll_period_s) ||
-            get_int(c, src, "source", "fifo_base", 1000, 0, 65535, &v))
+        if (vd_cfg_double(c, src, "source", "poll_period", 0.0, 0.0, 10.0, &cfg->poll_period_s) ||
+            vd_cfg_int(c, src, "source", "fifo_base", 1000, 0, 65535, &v))
             return -1;
         cfg->fifo_base = (unsigned)v;
-        if (get_double(c, src, "source", "response_timeout", 0.5, 0.001, 60.0, &cfg->response_timeout_s) ||
-            get_double(c, src, "source", "backoff_initial", 0.1, 0.001, 60.0, &cfg->backoff_initial_s) ||
-            get_double(c, src, "source", "backoff_max", 5.0, 0.001, 3600.0, &cfg->backoff_max_s) ||
-            get_int(c, src, "source", "max_timeouts", 3, 1, 1000, &v))
+        if (vd_cfg_double(c, src, "source", "response_timeout", 0.5, 0.001, 60.0, &cfg->response_timeout_s) ||
+            vd_cfg_double(c, src, "source", "backoff_initial", 0.1, 0.001, 60.0, &cfg->backoff_initial_s) ||
+            vd_cfg_double(c, src, "source", "backoff_max", 5.0, 0.001, 3600.0, &cfg->backoff_max_s) ||
+            vd_cfg_int(c, src, "source", "max_timeouts", 3, 1, 1000, &v))
             return -1;
         cfg->max_timeouts = (unsigned)v;
         if (cfg->backoff_max_s < cfg->backoff_initial_s)
@@ -517,18 +516,18 @@ static int load_source(ctx *c, config_t *cf)
         break;
     }
     case VD_SRC_REPLAY: {
-        if (get_path(c, src, "source", "file", cfg->replay_file, sizeof cfg->replay_file))
+        if (vd_cfg_path(c, src, "source", "file", cfg->replay_file, sizeof cfg->replay_file))
             return -1;
         if (!cfg->replay_file[0])
             return vibid_cfg_fail(&c->r, src, "source.file",
                                   "missing: the capture file (candump .log or .csv)");
         static const char *const fmts[] = {"auto", "candump", "csv", NULL};
         int fi;
-        if (get_enum(c, src, "source", "format", 0, fmts, &fi))
+        if (vd_cfg_enum(c, src, "source", "format", 0, fmts, &fi))
             return -1;
         cfg->replay_format = fi;
-        if (get_bool(c, src, "source", "paced", false, &cfg->paced) ||
-            get_double(c, src, "source", "speed", 1.0, 1e-3, 1e6, &cfg->speed))
+        if (vd_cfg_bool(c, src, "source", "paced", false, &cfg->paced) ||
+            vd_cfg_double(c, src, "source", "speed", 1.0, 1e-3, 1e6, &cfg->speed))
             return -1;
         char why[512];
         const vibid_replay_format resolved =
@@ -553,7 +552,6 @@ static const char *const acq_known[] = {"ring_size",   "read_batch",   "read_tim
 static const char *const est_known[] = {"method",         "forgetting",       "prefilter_hz", "rls_alpha",
                                         "iv_lag",         "difference_order", "decimation",   "warmup_samples",
                                         "start_values",   "outlier_threshold", "refine_every", "refine_window", NULL};
-static const char *const out_known[] = {"tracks", "influx", "record", "status", "prometheus", "mqtt", NULL};
 static const char *const alarm_known[] = {"enabled",       "test",           "false_alarms_per_year",
                                           "horizon",       "detection_probability",
                                           "threshold",     "min_relative",   "hold",
@@ -563,32 +561,32 @@ static const char *const log_known[] = {"level", "status_interval", NULL};
 static const char *const top_known[] = {"stand", "source", "acquisition", "estimator", "outputs", "alarms", "log",
                                         NULL};
 
-static int load_acquisition(ctx *c, config_t *cf)
+static int load_acquisition(vd_cfg_ctx *c, config_t *cf)
 {
     vd_config *cfg = c->cfg;
     config_setting_t *g = config_lookup(cf, "acquisition");
-    if (check_known(c, g, "acquisition", acq_known))
+    if (vd_cfg_known(c, g, "acquisition", acq_known))
         return -1;
     long long v;
-    if (get_int(c, g, "acquisition", "ring_size", 65536, 16, 1LL << 20, &v))
+    if (vd_cfg_int(c, g, "acquisition", "ring_size", 65536, 16, 1LL << 20, &v))
         return -1;
     if ((v & (v - 1)) != 0)
         return vibid_cfg_fail(&c->r, config_setting_get_member(g, "ring_size"), "acquisition.ring_size",
                               "%lld is not a power of two", v);
     cfg->ring_size = (unsigned)v;
-    if (get_int(c, g, "acquisition", "read_batch", 64, 1, 1024, &v))
+    if (vd_cfg_int(c, g, "acquisition", "read_batch", 64, 1, 1024, &v))
         return -1;
     cfg->read_batch = (unsigned)v;
-    if (get_int(c, g, "acquisition", "read_timeout", 100, 1, 10000, &v))
+    if (vd_cfg_int(c, g, "acquisition", "read_timeout", 100, 1, 10000, &v))
         return -1;
     cfg->read_timeout_ms = (int)v;
-    if (get_int(c, g, "acquisition", "realtime_priority", 0, 0, 99, &v))
+    if (vd_cfg_int(c, g, "acquisition", "realtime_priority", 0, 0, 99, &v))
         return -1;
     cfg->rt_priority = (int)v;
-    if (get_int(c, g, "acquisition", "handoff_spin", 0, 0, 10000, &v))
+    if (vd_cfg_int(c, g, "acquisition", "handoff_spin", 0, 0, 10000, &v))
         return -1;
     cfg->handoff_spin_us = (unsigned)v;
-    return get_bool(c, g, "acquisition", "lock_memory", false, &cfg->lock_memory);
+    return vd_cfg_bool(c, g, "acquisition", "lock_memory", false, &cfg->lock_memory);
 }
 
 /* Index of the stand's unknown named name, or n_params if there is none. */
@@ -605,7 +603,7 @@ static size_t param_index(const vd_config *cfg, const char *name)
 
 /* estimator.start_values = ( { name = "c1"; value = 2.5e5; }, ... ): RLS start values
  * (vibid_ident_set_prior); unlisted parameters start at the stand's nominal value. */
-static int load_start_values(ctx *c, const config_setting_t *sv)
+static int load_start_values(vd_cfg_ctx *c, const config_setting_t *sv)
 {
     vd_config *cfg = c->cfg;
     if (!sv)
@@ -630,7 +628,7 @@ static int load_start_values(ctx *c, const config_setting_t *sv)
         if (!config_setting_is_group(e))
             return vibid_cfg_fail(&c->r, e, sec, "must be a group { name = \"...\"; value = ...; }");
         char name[64];
-        if (check_known(c, e, sec, sk) || get_name(c, e, sec, "name", "", false, name, sizeof name))
+        if (vd_cfg_known(c, e, sec, sk) || vd_cfg_name(c, e, sec, "name", "", false, name, sizeof name))
             return -1;
         size_t k = param_index(cfg, name);
         snprintf(f, sizeof f, "%s.name", sec);
@@ -638,7 +636,7 @@ static int load_start_values(ctx *c, const config_setting_t *sv)
             return vibid_cfg_fail(&c->r, e, f, "'%s' is not an unknown parameter of the stand", name);
         snprintf(f, sizeof f, "%s.value", sec);
         if (!config_setting_get_member(e, "value")) return vibid_cfg_fail(&c->r, e, f, "missing");
-        if (get_double(c, e, sec, "value", 0.0, -1e300, 1e300, &cfg->start_theta[k]))
+        if (vd_cfg_double(c, e, sec, "value", 0.0, -1e300, 1e300, &cfg->start_theta[k]))
             return -1;
     }
     cfg->has_start = true;
@@ -669,14 +667,14 @@ static const char *refine_refusal(const vd_config *cfg, char *why, size_t cap)
 }
 
 /* estimator.refine_every / refine_window (docs/vibidd.md "Refinement"). */
-static int load_refine(ctx *c, config_setting_t *g)
+static int load_refine(vd_cfg_ctx *c, config_setting_t *g)
 {
     vd_config *cfg = c->cfg;
     const double fa = cfg->sample_rate;
     const char *no = refine_refusal(cfg, cfg->refine_why, sizeof cfg->refine_why);
     const config_setting_t *every = g ? config_setting_get_member(g, "refine_every") : NULL;
     cfg->refine_explicit = every != NULL;
-    if (get_double(c, g, "estimator", "refine_every", no ? 0.0 : 10.0, 0.0, 86400.0, &cfg->refine_every_s))
+    if (vd_cfg_double(c, g, "estimator", "refine_every", no ? 0.0 : 10.0, 0.0, 86400.0, &cfg->refine_every_s))
         return -1;
     if (cfg->refine_every_s > 0 && no)
         return vibid_cfg_fail(&c->r, every, "estimator.refine_every", "%g s: no refinement possible: %s",
@@ -685,7 +683,7 @@ static int load_refine(ctx *c, config_setting_t *g)
      * still remembers, at least 10 s */
     double memory = cfg->forgetting < 1.0 ? 1.0 / (fa * (1.0 - cfg->forgetting)) : 0.0;
     double min_window = 8.0 * 50.0 / fa; /* the fit's least: 8 blocks of 50 samples */
-    if (get_double(c, g, "estimator", "refine_window", fmax(10.0, 3.0 * memory), min_window, 86400.0,
+    if (vd_cfg_double(c, g, "estimator", "refine_window", fmax(10.0, 3.0 * memory), min_window, 86400.0,
                    &cfg->refine_window_s))
         return -1;
     if (cfg->refine_every_s > 0 && cfg->refine_every_s * fa < 1.0)
@@ -703,11 +701,11 @@ static int load_refine(ctx *c, config_setting_t *g)
     return 0;
 }
 
-static int load_estimator(ctx *c, config_t *cf)
+static int load_estimator(vd_cfg_ctx *c, config_t *cf)
 {
     vd_config *cfg = c->cfg;
     config_setting_t *g = config_lookup(cf, "estimator");
-    if (check_known(c, g, "estimator", est_known))
+    if (vd_cfg_known(c, g, "estimator", est_known))
         return -1;
     /* The library's names (identify.h), indexed by vibid_estimator, up to the output-error
      * estimator (the last), which vibidd does not run: its push keeps every sample. */
@@ -716,20 +714,20 @@ static int load_estimator(ctx *c, config_t *cf)
         methods[k] = vibid_estimator_name((vibid_estimator)k);
     methods[VIBID_ESTIMATOR_OE] = NULL;
     int mi;
-    if (get_enum(c, g, "estimator", "method", (int)VIBID_ESTIMATOR_AUTO, methods, &mi))
+    if (vd_cfg_enum(c, g, "estimator", "method", (int)VIBID_ESTIMATOR_AUTO, methods, &mi))
         return -1;
     cfg->method = (vibid_estimator)mi;
     double fa = cfg->sample_rate;
     long long v;
     /* Absent prefilter_hz, iv_lag, difference_order: the library chooses (identify.h);
      * a given value overrides the choice. */
-    if (get_double(c, g, "estimator", "forgetting", 1.0, 0.9, 1.0, &cfg->forgetting) ||
-        get_double(c, g, "estimator", "prefilter_hz", -1.0, 0.0, 0.45 * fa, &cfg->prefilter_hz) ||
-        get_double(c, g, "estimator", "rls_alpha", 0.0 /* automatic */, 1e-30, 1e30, &cfg->rls_alpha) ||
-        get_int(c, g, "estimator", "iv_lag", 0, 3, 4096, &v))
+    if (vd_cfg_double(c, g, "estimator", "forgetting", 1.0, 0.9, 1.0, &cfg->forgetting) ||
+        vd_cfg_double(c, g, "estimator", "prefilter_hz", -1.0, 0.0, 0.45 * fa, &cfg->prefilter_hz) ||
+        vd_cfg_double(c, g, "estimator", "rls_alpha", 0.0 /* automatic */, 1e-30, 1e30, &cfg->rls_alpha) ||
+        vd_cfg_int(c, g, "estimator", "iv_lag", 0, 3, 4096, &v))
         return -1;
     cfg->iv_lag = (unsigned)v;
-    if (get_int(c, g, "estimator", "difference_order", 0, 2, 4, &v))
+    if (vd_cfg_int(c, g, "estimator", "difference_order", 0, 2, 4, &v))
         return -1;
     if (v == 3)
         return vibid_cfg_fail(&c->r, config_setting_get_member(g, "difference_order"),
@@ -740,14 +738,14 @@ static int load_estimator(ctx *c, config_t *cf)
         return vibid_cfg_fail(&c->r, config_setting_get_member(g, "prefilter_hz"), "estimator.prefilter_hz",
                               "%g Hz is below f_a / 1000 = %g Hz (0 turns the pre-filter off)",
                               cfg->prefilter_hz, 1e-3 * fa);
-    if (get_int(c, g, "estimator", "decimation", (long long)fmax(1.0, round(fa / 10.0)), 1, 10000000, &v))
+    if (vd_cfg_int(c, g, "estimator", "decimation", (long long)fmax(1.0, round(fa / 10.0)), 1, 10000000, &v))
         return -1;
     cfg->decimation = (unsigned)v;
-    if (get_int(c, g, "estimator", "warmup_samples", 0, 0, 1000000000, &v))
+    if (vd_cfg_int(c, g, "estimator", "warmup_samples", 0, 0, 1000000000, &v))
         return -1;
     cfg->warmup_samples = (unsigned)v;
     /* single-sample glitches taken out before the estimator (vibid/outlier.h); 0 = off */
-    if (get_double(c, g, "estimator", "outlier_threshold", VIBID_OUTLIER_THRESHOLD_DEFAULT, 0.0, 1e6,
+    if (vd_cfg_double(c, g, "estimator", "outlier_threshold", VIBID_OUTLIER_THRESHOLD_DEFAULT, 0.0, 1e6,
                    &cfg->outlier_threshold))
         return -1;
     if (cfg->outlier_threshold > 0.0 && cfg->outlier_threshold < 2.0)
@@ -757,137 +755,6 @@ static int load_estimator(ctx *c, config_t *cf)
     if (load_start_values(c, g ? config_setting_get_member(g, "start_values") : NULL))
         return -1;
     return load_refine(c, g);
-}
-
-/* outputs.mqtt.url: mqtt://HOST[:PORT] (1883) or mqtts://HOST[:PORT] (8883); HOST a name, an
- * IPv4 literal or a bracketed IPv6 literal; nothing after the port. 0, or -1 with why. */
-static int parse_mqtt_url(vd_config *cfg, char *why, size_t cap)
-{
-    const char *u = cfg->mqtt.url, *h;
-    if (!strncmp(u, "mqtt://", 7)) {
-        cfg->mqtt.tls = false;
-        cfg->mqtt.port = 1883;
-        h = u + 7;
-    } else if (!strncmp(u, "mqtts://", 8)) {
-        cfg->mqtt.tls = true;
-        cfg->mqtt.port = 8883;
-        h = u + 8;
-    } else {
-        snprintf(why, cap, "'%s': expected mqtt://HOST[:PORT] or mqtts://HOST[:PORT] (TLS)", u);
-        return -1;
-    }
-    const char *end, *port = NULL;
-    if (*h == '[') {
-        end = strchr(h, ']');
-        if (!end) {
-            snprintf(why, cap, "'%s': unterminated [IPv6] address", u);
-            return -1;
-        }
-        snprintf(cfg->mqtt.host, sizeof cfg->mqtt.host, "%.*s", (int)(end - h - 1), h + 1);
-        end++;
-    } else {
-        end = h + strcspn(h, ":/?#@");
-        snprintf(cfg->mqtt.host, sizeof cfg->mqtt.host, "%.*s", (int)(end - h), h);
-    }
-    if (!cfg->mqtt.host[0]) {
-        snprintf(why, cap, "'%s': no host", u);
-        return -1;
-    }
-    if (*end == ':') {
-        port = end + 1;
-        char *e;
-        long p = strtol(port, &e, 10);
-        if (!*port || *e || *port == '-' || *port == '+' || p < 1 || p > 65535) {
-            snprintf(why, cap, "'%s': port '%s' outside 1..65535 (nothing may follow the port)", u, port);
-            return -1;
-        }
-        cfg->mqtt.port = (int)p;
-    } else if (*end) {
-        snprintf(why, cap, "'%s': unexpected '%s' after the host (no user, path or query: username and "
-                           "password_file are settings of their own)", u, end);
-        return -1;
-    }
-    return 0;
-}
-
-/* outputs.mqtt (docs/vibidd.md, "MQTT"): off without the group or with url = ""; the group
- * alone publishes to the broker on loopback. Only what the file says is checked here; the
- * files it names are read by --check and at start-up (mqtt.c). The password comes from a
- * file of its own, never from this configuration: --check prints the configuration (and
- * systemd's ExecStartPre puts that into the journal), configurations are copied and
- * compared, and /etc/vibidd is readable by the service; a password file can be 0600 (or a
- * systemd credential) and rotated on its own. */
-static int load_mqtt(ctx *c, const config_setting_t *q)
-{
-    vd_config *cfg = c->cfg;
-    static const char *const qk[] = {"url",     "site",     "stand",        "topic_prefix", "client_id",
-                                     "username", "password_file", "ca_file", "cert_file",   "key_file",
-                                     "qos",      "queue_size", "format",     "keepalive",    "protocol",
-                                     "drain_timeout", NULL};
-    static const char *const fmts[] = {"json", "line", NULL};
-    static const char *const protos[] = {"5", "3.1.1", NULL};
-    const char *S = "outputs.mqtt";
-    if (q && !config_setting_is_group(q))
-        return vibid_cfg_fail(&c->r, q, S, "must be a group { url = \"mqtt://127.0.0.1:1883\"; site = \"...\"; }");
-    long long v;
-    int fi = 0, pi = 0;
-    if (check_known(c, q, S, qk) ||
-        get_string(c, q, S, "url", q ? "mqtt://127.0.0.1:1883" : "", cfg->mqtt.url, sizeof cfg->mqtt.url) ||
-        get_name(c, q, S, "site", "", false, cfg->mqtt.site, sizeof cfg->mqtt.site) ||
-        get_name(c, q, S, "stand", "", true, cfg->mqtt.stand, sizeof cfg->mqtt.stand) ||
-        get_string(c, q, S, "topic_prefix", "vibid/v1", cfg->mqtt.prefix, sizeof cfg->mqtt.prefix) ||
-        get_name(c, q, S, "client_id", "", true, cfg->mqtt.client_id, sizeof cfg->mqtt.client_id) ||
-        get_string(c, q, S, "username", "", cfg->mqtt.username, sizeof cfg->mqtt.username) ||
-        get_path(c, q, S, "password_file", cfg->mqtt.password_file, sizeof cfg->mqtt.password_file) ||
-        get_path(c, q, S, "ca_file", cfg->mqtt.ca_file, sizeof cfg->mqtt.ca_file) ||
-        get_path(c, q, S, "cert_file", cfg->mqtt.cert_file, sizeof cfg->mqtt.cert_file) ||
-        get_path(c, q, S, "key_file", cfg->mqtt.key_file, sizeof cfg->mqtt.key_file) ||
-        get_int(c, q, S, "qos", 1, 1, 2, &v))
-        return -1;
-    cfg->mqtt.qos = (int)v;
-    if (get_int(c, q, S, "queue_size", 10000, 1, 10000000, &v))
-        return -1;
-    cfg->mqtt.queue_size = (unsigned)v;
-    if (get_enum(c, q, S, "format", 0, fmts, &fi) || get_int(c, q, S, "keepalive", 30, 5, 3600, &v))
-        return -1;
-    cfg->mqtt.format = fi;
-    cfg->mqtt.keepalive = (int)v;
-    if (get_enum(c, q, S, "protocol", 0, protos, &pi) ||
-        get_double(c, q, S, "drain_timeout", 5.0, 0.0, 60.0, &cfg->mqtt.drain_timeout_s))
-        return -1;
-    cfg->mqtt.protocol = pi == 0 ? 5 : 4;
-    if (!cfg->mqtt.url[0])
-        return 0;
-    char why[400];
-    if (parse_mqtt_url(cfg, why, sizeof why))
-        return vibid_cfg_fail(&c->r, config_setting_get_member(q, "url"), "outputs.mqtt.url", "%s", why);
-    if (!config_setting_get_member(q, "site"))
-        return vibid_cfg_fail(&c->r, q, "outputs.mqtt.site",
-                              "missing: the plant or site, the topic level after topic_prefix "
-                              "(<topic_prefix>/<site>/<stand>/tracks)");
-    /* site and stand are names (get_name): no '/', '+' or '#' can make more topic levels */
-    /* topic_prefix: levels separated by '/', each a name */
-    for (const char *lv = cfg->mqtt.prefix;;) {
-        const char *sl = strchr(lv, '/');
-        char level[sizeof cfg->mqtt.prefix], lwhy[512];
-        snprintf(level, sizeof level, "%.*s", (int)(sl ? sl - lv : (long)strlen(lv)), lv);
-        if (vibid_cfg_name_problem(level, lwhy, sizeof lwhy))
-            return vibid_cfg_fail(&c->r, config_setting_get_member(q, "topic_prefix"), "outputs.mqtt.topic_prefix",
-                                  "topic levels separated by '/', e.g. \"vibid/v1\"; level %s", lwhy);
-        if (!sl)
-            break;
-        lv = sl + 1;
-    }
-    if (cfg->mqtt.password_file[0] && !cfg->mqtt.username[0])
-        return vibid_cfg_fail(&c->r, config_setting_get_member(q, "password_file"), "outputs.mqtt.password_file",
-                              "a password needs a username (outputs.mqtt.username)");
-    if (!cfg->mqtt.tls && (cfg->mqtt.ca_file[0] || cfg->mqtt.cert_file[0] || cfg->mqtt.key_file[0]))
-        return vibid_cfg_fail(&c->r, q, "outputs.mqtt",
-                              "ca_file, cert_file and key_file are for TLS: the url must be mqtts://");
-    if (!cfg->mqtt.cert_file[0] != !cfg->mqtt.key_file[0])
-        return vibid_cfg_fail(&c->r, q, "outputs.mqtt",
-                              "a client certificate needs both cert_file and key_file");
-    return 0;
 }
 
 int vd_check_readable_file(const char *setting, const char *path, char *err, size_t cap)
@@ -932,179 +799,36 @@ int vd_read_secret_file(const char *setting, const char *path, char *out, size_t
     return 0;
 }
 
-/* outputs.influx.http (docs/vibidd.md, "InfluxDB over HTTP"): off without the group or with
- * url = ""; the group alone writes to database "vibid" on loopback (InfluxDB 1.x). Secrets
- * come from files of their own, for the reasons given at load_mqtt. */
-static int load_influx_http(ctx *c, const config_setting_t *h)
+/* outputs: each output of the registry reads its own groups (output.h); the group's keys are
+ * the outputs' top-level groups. */
+static int load_outputs(vd_cfg_ctx *c, config_t *cf)
 {
-    vd_config *cfg = c->cfg;
-    static const char *const hk[] = {"url",      "api",           "database",   "retention_policy", "org",
-                                     "bucket",   "username",      "password_file", "token_file",    "ca_file",
-                                     "batch_size", "batch_interval", "buffer_size", "timeout",       "drain_timeout",
-                                     NULL};
-    static const char *const apis[] = {"v1", "v2", NULL};
-    const char *S = "outputs.influx.http";
-    if (h && !config_setting_is_group(h))
-        return vibid_cfg_fail(&c->r, h, S, "must be a group { url = \"http://127.0.0.1:8086\"; database = \"vibid\"; }");
-    long long v;
-    int api = 0;
-    if (check_known(c, h, S, hk) ||
-        get_string(c, h, S, "url", h ? "http://127.0.0.1:8086" : "", cfg->influx_http.url, sizeof cfg->influx_http.url) ||
-        get_enum(c, h, S, "api", 0, apis, &api) ||
-        get_string(c, h, S, "database", "vibid", cfg->influx_http.database, sizeof cfg->influx_http.database) ||
-        get_string(c, h, S, "retention_policy", "", cfg->influx_http.rp, sizeof cfg->influx_http.rp) ||
-        get_string(c, h, S, "org", "", cfg->influx_http.org, sizeof cfg->influx_http.org) ||
-        get_string(c, h, S, "bucket", "", cfg->influx_http.bucket, sizeof cfg->influx_http.bucket) ||
-        get_string(c, h, S, "username", "", cfg->influx_http.username, sizeof cfg->influx_http.username) ||
-        get_path(c, h, S, "password_file", cfg->influx_http.password_file, sizeof cfg->influx_http.password_file) ||
-        get_path(c, h, S, "token_file", cfg->influx_http.token_file, sizeof cfg->influx_http.token_file) ||
-        get_path(c, h, S, "ca_file", cfg->influx_http.ca_file, sizeof cfg->influx_http.ca_file))
+    const config_setting_t *g = config_lookup(cf, "outputs");
+    const char *known[32];
+    size_t n = 0;
+    for (size_t i = 0; i < vd_n_outputs; i++)
+        for (const char *const *gr = vd_outputs[i]->groups; gr && *gr && n + 1 < 32; gr++)
+            if (!strchr(*gr, '.'))
+                known[n++] = *gr;
+    known[n] = NULL;
+    if (vd_cfg_known(c, g, "outputs", known))
         return -1;
-    cfg->influx_http.api = api + 1;
-    /* 5000 lines: InfluxDB's own advice for a batch; a stand's line is ~0.3-2 KB */
-    if (get_int(c, h, S, "batch_size", 5000, 1, 100000, &v))
-        return -1;
-    cfg->influx_http.batch_lines = (unsigned)v;
-    if (get_double(c, h, S, "batch_interval", 1.0, 0.01, 60.0, &cfg->influx_http.batch_interval_s))
-        return -1;
-    /* MiB; 16 MiB holds ~40 000 rows of a 6-parameter stand: ~7 min at 100 rows/s */
-    if (get_int(c, h, S, "buffer_size", 16, 1, 4096, &v))
-        return -1;
-    cfg->influx_http.buffer_mib = (unsigned)v;
-    if (get_double(c, h, S, "timeout", 10.0, 0.1, 300.0, &cfg->influx_http.timeout_s) ||
-        get_double(c, h, S, "drain_timeout", 10.0, 0.0, 300.0, &cfg->influx_http.drain_timeout_s))
-        return -1;
-    if (!cfg->influx_http.url[0])
-        return 0;
-    const char *u = cfg->influx_http.url;
-    const char *host = !strncmp(u, "http://", 7) ? u + 7 : !strncmp(u, "https://", 8) ? u + 8 : NULL;
-    if (!host || !*host || *host == '/' || *host == ':' || strpbrk(u, "?#@ \t"))
-        return vibid_cfg_fail(&c->r, config_setting_get_member(h, "url"), "outputs.influx.http.url",
-                              "'%s': expected http://HOST[:PORT][/PATH] or https://HOST[:PORT][/PATH] (the "
-                              "server's base URL, without a query, fragment or credentials)",
-                              u);
-    size_t ul = strlen(cfg->influx_http.url);
-    while (ul && cfg->influx_http.url[ul - 1] == '/')
-        cfg->influx_http.url[--ul] = '\0'; /* "/write" is appended */
-    bool tls = !strncmp(u, "https://", 8);
-    if (cfg->influx_http.ca_file[0] && !tls)
-        return vibid_cfg_fail(&c->r, config_setting_get_member(h, "ca_file"), "outputs.influx.http.ca_file",
-                              "is for TLS: the url must be https://");
-    if (cfg->influx_http.api == 1) {
-        if (!cfg->influx_http.database[0])
-            return vibid_cfg_fail(&c->r, config_setting_get_member(h, "database"), "outputs.influx.http.database",
-                                  "must not be empty (api \"v1\" writes into a database)");
-        if (cfg->influx_http.org[0] || cfg->influx_http.bucket[0] || cfg->influx_http.token_file[0])
-            return vibid_cfg_fail(&c->r, h, S,
-                                  "org, bucket and token_file belong to api = \"v2\" (InfluxDB 2.x); api \"v1\" "
-                                  "uses database, retention_policy, username and password_file");
-        if (cfg->influx_http.password_file[0] && !cfg->influx_http.username[0])
-            return vibid_cfg_fail(&c->r, config_setting_get_member(h, "password_file"),
-                                  "outputs.influx.http.password_file", "a password needs a username (outputs.influx.http.username)");
-        if (cfg->influx_http.username[0] && !cfg->influx_http.password_file[0])
-            return vibid_cfg_fail(&c->r, config_setting_get_member(h, "username"), "outputs.influx.http.username",
-                                  "a username needs its password_file");
-    } else {
-        if (!cfg->influx_http.org[0] || !cfg->influx_http.bucket[0] || !cfg->influx_http.token_file[0])
-            return vibid_cfg_fail(&c->r, h, S,
-                                  "api = \"v2\" needs org, bucket and token_file (an InfluxDB 2.x API token with "
-                                  "write permission on the bucket)");
-        if (config_setting_get_member(h, "database") || cfg->influx_http.rp[0] || cfg->influx_http.username[0] ||
-            cfg->influx_http.password_file[0])
-            return vibid_cfg_fail(&c->r, h, S,
-                                  "database, retention_policy, username and password_file belong to api = "
-                                  "\"v1\"; api \"v2\" uses org, bucket and token_file");
-        cfg->influx_http.database[0] = '\0';
-    }
+    for (size_t i = 0; i < vd_n_outputs; i++)
+        if (vd_outputs[i]->load && vd_outputs[i]->load(c, g))
+            return -1;
     return 0;
 }
 
-static int load_outputs(ctx *c, config_t *cf)
-{
-    vd_config *cfg = c->cfg;
-    config_setting_t *g = config_lookup(cf, "outputs");
-    if (check_known(c, g, "outputs", out_known))
-        return -1;
-    config_setting_t *t = g ? config_setting_get_member(g, "tracks") : NULL;
-    static const char *const tk[] = {"path", "flush_interval", "fsync", NULL};
-    if (check_known(c, t, "outputs.tracks", tk) ||
-        get_path(c, t, "outputs.tracks", "path", cfg->tracks_path, sizeof cfg->tracks_path) ||
-        get_double(c, t, "outputs.tracks", "flush_interval", 1.0, 0.01, 3600.0, &cfg->flush_interval_s) ||
-        get_bool(c, t, "outputs.tracks", "fsync", false, &cfg->fsync_on_flush))
-        return -1;
-    config_setting_t *i = g ? config_setting_get_member(g, "influx") : NULL;
-    static const char *const ik[] = {"path", "udp", "http", "measurement", "site", "stand", NULL};
-    if (check_known(c, i, "outputs.influx", ik) ||
-        get_path(c, i, "outputs.influx", "path", cfg->influx_path, sizeof cfg->influx_path) ||
-        get_string(c, i, "outputs.influx", "udp", "", cfg->influx_udp, sizeof cfg->influx_udp) ||
-        get_name(c, i, "outputs.influx", "measurement", "vibid", false, cfg->influx_measurement,
-                 sizeof cfg->influx_measurement) ||
-        get_name(c, i, "outputs.influx", "site", "", true, cfg->influx_site, sizeof cfg->influx_site) ||
-        get_name(c, i, "outputs.influx", "stand", "", true, cfg->influx_stand, sizeof cfg->influx_stand) ||
-        load_influx_http(c, i ? config_setting_get_member(i, "http") : NULL))
-        return -1;
-    if (cfg->influx_udp[0]) {
-        const char *colon = strrchr(cfg->influx_udp, ':');
-        char *end = NULL;
-        long p = colon ? strtol(colon + 1, &end, 10) : 0;
-        if (!colon || colon == cfg->influx_udp || !end || *end || p < 1 || p > 65535)
-            return vibid_cfg_fail(&c->r, config_setting_get_member(i, "udp"), "outputs.influx.udp",
-                                  "'%s': expected HOST:PORT, e.g. \"127.0.0.1:8089\" or \"localhost:8089\"",
-                                  cfg->influx_udp);
-    }
-    config_setting_t *r = g ? config_setting_get_member(g, "record") : NULL;
-    static const char *const rk[] = {"path", "format", NULL};
-    static const char *const rf[] = {"csv", "candump", NULL};
-    int fi;
-    if (check_known(c, r, "outputs.record", rk) ||
-        get_path(c, r, "outputs.record", "path", cfg->record_path, sizeof cfg->record_path) ||
-        get_enum(c, r, "outputs.record", "format", 0, rf, &fi))
-        return -1;
-    cfg->record_format = (vd_record_format)fi;
-    if (cfg->record_format == VD_REC_CANDUMP && !cfg->dbc)
-        return vibid_cfg_fail(
-            &c->r, config_setting_get_member(r, "format"), "outputs.record.format",
-            "a candump recording encodes the samples with the source's DBC: it needs a CAN source "
-            "(socketcan, or a candump replay) with source.dbc; use \"csv\" for this source");
-    config_setting_t *s = g ? config_setting_get_member(g, "status") : NULL;
-    static const char *const sk[] = {"path", "interval", NULL};
-    if (check_known(c, s, "outputs.status", sk) ||
-        get_path(c, s, "outputs.status", "path", cfg->status_path, sizeof cfg->status_path) ||
-        get_double(c, s, "outputs.status", "interval", 1.0, 0.05, 3600.0, &cfg->status_interval_s))
-        return -1;
-    /* The metrics endpoint: off without the group; the group alone listens on loopback
-     * (VD_PROMETHEUS_DEFAULT); another address only when given. Only the syntax here: the
-     * bind is tried by --check (vd_metrics_check) and at start-up (vd_metrics_open). */
-    config_setting_t *p = g ? config_setting_get_member(g, "prometheus") : NULL;
-    static const char *const pk[] = {"listen", NULL};
-    if (p && !config_setting_is_group(p))
-        return vibid_cfg_fail(&c->r, p, "outputs.prometheus", "must be a group { listen = \"%s\"; }",
-                              VD_PROMETHEUS_DEFAULT);
-    if (check_known(c, p, "outputs.prometheus", pk) ||
-        get_string(c, p, "outputs.prometheus", "listen", p ? VD_PROMETHEUS_DEFAULT : "", cfg->prometheus.listen,
-                   sizeof cfg->prometheus.listen))
-        return -1;
-    if (cfg->prometheus.listen[0]) {
-        struct sockaddr_storage a;
-        socklen_t len;
-        char why[300];
-        if (vd_metrics_parse_listen(cfg->prometheus.listen, &a, &len, why, sizeof why))
-            return vibid_cfg_fail(&c->r, config_setting_get_member(p, "listen"), "outputs.prometheus.listen", "%s",
-                                  why);
-    }
-    return load_mqtt(c, g ? config_setting_get_member(g, "mqtt") : NULL);
-}
-
-static int load_alarms(ctx *c, config_t *cf)
+static int load_alarms(vd_cfg_ctx *c, config_t *cf)
 {
     vd_config *cfg = c->cfg;
     config_setting_t *g = config_lookup(cf, "alarms");
-    if (check_known(c, g, "alarms", alarm_known))
+    if (vd_cfg_known(c, g, "alarms", alarm_known))
         return -1;
     static const char *const tests[] = {"cusum", "threshold", NULL};
     int test;
-    if (get_bool(c, g, "alarms", "enabled", g != NULL, &cfg->alarms_enabled) ||
-        get_enum(c, g, "alarms", "test", (int)VD_ALARM_CUSUM, tests, &test))
+    if (vd_cfg_bool(c, g, "alarms", "enabled", g != NULL, &cfg->alarms_enabled) ||
+        vd_cfg_enum(c, g, "alarms", "test", (int)VD_ALARM_CUSUM, tests, &test))
         return -1;
     cfg->alarm_test = (vd_alarm_test)test;
     /* the settings of the other test are errors, not silently ignored */
@@ -1122,18 +846,18 @@ static int load_alarms(ctx *c, config_t *cf)
                                   config_setting_get_member(g, "test") ? "" : " (the default)");
         }
     }
-    if (get_double(c, g, "alarms", "false_alarms_per_year", VIBID_CHANGE_ALARMS_PER_YEAR_DEFAULT, 1e-6, 1e9,
+    if (vd_cfg_double(c, g, "alarms", "false_alarms_per_year", VIBID_CHANGE_ALARMS_PER_YEAR_DEFAULT, 1e-6, 1e9,
                    &cfg->alarm_false_per_year) ||
-        get_double(c, g, "alarms", "horizon", VIBID_CHANGE_HORIZON_DEFAULT, 0.001, 1e9, &cfg->alarm_horizon_s) ||
-        get_double(c, g, "alarms", "detection_probability", VIBID_CHANGE_DETECTION_DEFAULT, 0.5, 0.999,
+        vd_cfg_double(c, g, "alarms", "horizon", VIBID_CHANGE_HORIZON_DEFAULT, 0.001, 1e9, &cfg->alarm_horizon_s) ||
+        vd_cfg_double(c, g, "alarms", "detection_probability", VIBID_CHANGE_DETECTION_DEFAULT, 0.5, 0.999,
                    &cfg->alarm_detection_probability) ||
-        get_double(c, g, "alarms", "threshold", 5.0, 0.1, 1e6, &cfg->alarm_threshold) ||
-        get_double(c, g, "alarms", "min_relative", test == VD_ALARM_CUSUM ? 0.0 : 0.02, 0.0, 10.0,
+        vd_cfg_double(c, g, "alarms", "threshold", 5.0, 0.1, 1e6, &cfg->alarm_threshold) ||
+        vd_cfg_double(c, g, "alarms", "min_relative", test == VD_ALARM_CUSUM ? 0.0 : 0.02, 0.0, 10.0,
                    &cfg->alarm_min_relative) ||
-        get_double(c, g, "alarms", "hold", 2.0, 0.0, 86400.0, &cfg->alarm_hold_s) ||
-        get_double(c, g, "alarms", "learn_start", 5.0, 0.0, 1e9, &cfg->learn_start_s) ||
-        get_double(c, g, "alarms", "learn_duration", 10.0, 0.001, 1e9, &cfg->learn_duration_s) ||
-        get_path(c, g, "alarms", "reference_file", cfg->alarm_reference_file, sizeof cfg->alarm_reference_file))
+        vd_cfg_double(c, g, "alarms", "hold", 2.0, 0.0, 86400.0, &cfg->alarm_hold_s) ||
+        vd_cfg_double(c, g, "alarms", "learn_start", 5.0, 0.0, 1e9, &cfg->learn_start_s) ||
+        vd_cfg_double(c, g, "alarms", "learn_duration", 10.0, 0.001, 1e9, &cfg->learn_duration_s) ||
+        vd_cfg_path(c, g, "alarms", "reference_file", cfg->alarm_reference_file, sizeof cfg->alarm_reference_file))
         return -1;
     /* under systemd (StateDirectory=, which sets STATE_DIRECTORY) the reference is kept there
        by default; the first directory of a list */
@@ -1170,10 +894,10 @@ static int load_alarms(ctx *c, config_t *cf)
         static const char *const pk[] = {"name", "baseline", NULL};
         if (!config_setting_is_group(e))
             return vibid_cfg_fail(&c->r, e, sec, "must be a group { name = \"...\"; }");
-        if (check_known(c, e, sec, pk))
+        if (vd_cfg_known(c, e, sec, pk))
             return -1;
         char name[64];
-        if (get_name(c, e, sec, "name", "", false, name, sizeof name))
+        if (vd_cfg_name(c, e, sec, "name", "", false, name, sizeof name))
             return -1;
         size_t k = param_index(cfg, name);
         if (k == cfg->n_params) {
@@ -1183,7 +907,7 @@ static int load_alarms(ctx *c, config_t *cf)
         }
         cfg->alarm_param[k].enabled = true;
         if (config_setting_get_member(e, "baseline")) {
-            if (get_double(c, e, sec, "baseline", 0.0, -1e300, 1e300, &cfg->alarm_param[k].baseline))
+            if (vd_cfg_double(c, e, sec, "baseline", 0.0, -1e300, 1e300, &cfg->alarm_param[k].baseline))
                 return -1;
             cfg->alarm_param[k].has_baseline = true;
         }
@@ -1191,18 +915,18 @@ static int load_alarms(ctx *c, config_t *cf)
     return 0;
 }
 
-static int load_log(ctx *c, config_t *cf)
+static int load_log(vd_cfg_ctx *c, config_t *cf)
 {
     vd_config *cfg = c->cfg;
     config_setting_t *g = config_lookup(cf, "log");
-    if (check_known(c, g, "log", log_known))
+    if (vd_cfg_known(c, g, "log", log_known))
         return -1;
     static const char *const lv[] = {"error", "warning", "notice", "info", "debug", NULL};
     int li;
-    if (get_enum(c, g, "log", "level", 3, lv, &li))
+    if (vd_cfg_enum(c, g, "log", "level", 3, lv, &li))
         return -1;
     cfg->log_level = VD_LOG_ERROR + li;
-    return get_double(c, g, "log", "status_interval", 0.0, 0.0, 86400.0, &cfg->log_status_interval_s);
+    return vd_cfg_double(c, g, "log", "status_interval", 0.0, 0.0, 86400.0, &cfg->log_status_interval_s);
 }
 
 void vd_path_dir(const char *path, char *dir, size_t n)
@@ -1218,7 +942,7 @@ int vd_config_load(const char *path, vd_config *cfg, vd_config_error *err)
 {
     memset(cfg, 0, sizeof *cfg);
     memset(err, 0, sizeof *err);
-    ctx c = {{path, err}, cfg};
+    vd_cfg_ctx c = {{path, err}, cfg};
     snprintf(cfg->path, sizeof cfg->path, "%s", path);
     vd_path_dir(path, cfg->dir, sizeof cfg->dir);
     config_t cf;
@@ -1226,7 +950,7 @@ int vd_config_load(const char *path, vd_config *cfg, vd_config_error *err)
         config_destroy(&cf);
         return -1;
     }
-    int rc = check_known(&c, config_root_setting(&cf), "", top_known);
+    int rc = vd_cfg_known(&c, config_root_setting(&cf), "", top_known);
     if (!rc)
         rc = load_stand(&c, &cf);
     if (!rc)
@@ -1313,10 +1037,10 @@ int vd_config_check_paths_for(const vd_config *cfg, const char *replay, const ch
         const char *what, *path;
         bool output;
     } f[] = {
-        {"outputs.tracks.path", selected_path(outputs, "tracks", cfg->tracks_path), true},
-        {"outputs.influx.path", selected_path(outputs, "influx", cfg->influx_path), true},
-        {"outputs.record.path", selected_path(outputs, "record", cfg->record_path), true},
-        {"outputs.status.path", selected_path(outputs, "status", cfg->status_path), true},
+        {"outputs.tracks.path", selected_path(outputs, "tracks", cfg->files.tracks_path), true},
+        {"outputs.influx.path", selected_path(outputs, "influx", cfg->files.influx_path), true},
+        {"outputs.record.path", selected_path(outputs, "record", cfg->files.record_path), true},
+        {"outputs.status.path", selected_path(outputs, "status", cfg->files.status_path), true},
         {"the configuration file", cfg->path, false},       {"stand", cfg->stand_file, false},
         {"source.dbc", cfg->dbc_file, false},               {"source.channel_map", cfg->chanmap_file, false},
         {"source.register_map", cfg->regmap_file, false},
@@ -1346,11 +1070,11 @@ const char *vd_estimator_name(vibid_estimator e)
     return n ? n : "?";
 }
 
-static const char *yes(bool b) { return b ? "true" : "false"; }
+const char *vd_cfg_yes(bool b) { return b ? "true" : "false"; }
 
 /* Shortest of %.15g / %.17g that reads back to the same double, as a libconfig float
  * (always with a '.' or exponent, so that it stays a float when read back). */
-static const char *num(double v)
+const char *vd_cfg_num(double v)
 {
     static char bufs[16][40];
     static unsigned next;
@@ -1364,7 +1088,7 @@ static const char *num(double v)
 }
 
 /* A string as the inside of a libconfig string literal (quote and backslash escaped). */
-static const char *esc(const char *v)
+const char *vd_cfg_esc(const char *v)
 {
     static char bufs[12][2 * VD_PATH_MAX + 2];
     static unsigned next;
@@ -1388,7 +1112,7 @@ void vd_config_print(const vd_config *cfg, FILE *o)
     else
         fprintf(o, "# stand: inline group in %s\n", cfg->path);
     fprintf(o, "# stand \"%s\": sample_rate %s Hz, %zu unknowns, %zu channels\n", vibid_stand_name(cfg->stand),
-            num(cfg->sample_rate), cfg->n_params, cfg->n_channels);
+            vd_cfg_num(cfg->sample_rate), cfg->n_params, cfg->n_channels);
     for (size_t k = 0; k < cfg->n_params; k++) {
         vibid_param_info pi;
         vibid_model_param_info(m, k, &pi);
@@ -1408,7 +1132,7 @@ void vd_config_print(const vd_config *cfg, FILE *o)
     switch (cfg->source_kind) {
     case VD_SRC_SOCKETCAN:
         fprintf(o, "  interface = \"%s\";\n  dbc = \"%s\";\n  rcvbuf = %d;\n  hw_timestamps = %s;\n  batch = %u;\n",
-                cfg->iface, cfg->dbc_file, cfg->rcvbuf_bytes, yes(cfg->hw_timestamps), cfg->can_batch);
+                cfg->iface, cfg->dbc_file, cfg->rcvbuf_bytes, vd_cfg_yes(cfg->hw_timestamps), cfg->can_batch);
         break;
     case VD_SRC_MODBUS:
         fprintf(o, "  url = \"%s\";\n", cfg->url);
@@ -1428,20 +1152,20 @@ void vd_config_print(const vd_config *cfg, FILE *o)
                         "    { name = \"%s\"; address = %u; register = \"%s\"; type = \"%s\"; byte_order = \"%s\"; "
                         "scale = %s; offset = %s; }%s\n",
                         e->name, e->address, e->kind == VIBID_REG_HOLDING ? "holding" : "input", tn[e->type],
-                        on[e->order], num(e->scale), num(e->offset), i + 1 < cfg->regmap->n ? "," : "");
+                        on[e->order], vd_cfg_num(e->scale), vd_cfg_num(e->offset), i + 1 < cfg->regmap->n ? "," : "");
             }
             fprintf(o, "  );\n");
         }
         fprintf(o,
                 "  poll_period = %s;  # 0 = min(K h / 4, 0.05 s)\n  fifo_base = %u;\n  response_timeout = %s;\n"
                 "  backoff_initial = %s;\n  backoff_max = %s;\n  max_timeouts = %u;\n",
-                num(cfg->poll_period_s), cfg->fifo_base, num(cfg->response_timeout_s), num(cfg->backoff_initial_s),
-                num(cfg->backoff_max_s), cfg->max_timeouts);
+                vd_cfg_num(cfg->poll_period_s), cfg->fifo_base, vd_cfg_num(cfg->response_timeout_s), vd_cfg_num(cfg->backoff_initial_s),
+                vd_cfg_num(cfg->backoff_max_s), cfg->max_timeouts);
         break;
     case VD_SRC_REPLAY: {
         static const char *const fmts[] = {"auto", "candump", "csv"};
         fprintf(o, "  file = \"%s\";\n  format = \"%s\";\n  paced = %s;\n  speed = %s;\n", cfg->replay_file,
-                fmts[cfg->replay_format], yes(cfg->paced), num(cfg->speed));
+                fmts[cfg->replay_format], vd_cfg_yes(cfg->paced), vd_cfg_num(cfg->speed));
         if (cfg->dbc_file[0])
             fprintf(o, "  dbc = \"%s\";\n", cfg->dbc_file);
         break;
@@ -1477,18 +1201,18 @@ void vd_config_print(const vd_config *cfg, FILE *o)
             "acquisition = {\n  ring_size = %u;\n  read_batch = %u;\n  read_timeout = %d;  # ms\n"
             "  realtime_priority = %d;  # 0 = SCHED_OTHER\n  lock_memory = %s;\n"
             "  handoff_spin = %u;  # us the estimation thread busy-waits before sleeping\n};\n",
-            cfg->ring_size, cfg->read_batch, cfg->read_timeout_ms, cfg->rt_priority, yes(cfg->lock_memory),
+            cfg->ring_size, cfg->read_batch, cfg->read_timeout_ms, cfg->rt_priority, vd_cfg_yes(cfg->lock_memory),
             cfg->handoff_spin_us);
     /* Settings left to the automatic choice stay commented out, so that the printout
      * read back chooses again; the choices themselves follow as comments (main.c). */
     fprintf(o, "estimator = {\n  method = \"%s\";\n  forgetting = %s;\n", vd_estimator_name(cfg->method),
-            num(cfg->forgetting));
+            vd_cfg_num(cfg->forgetting));
     if (cfg->prefilter_hz >= 0.0)
-        fprintf(o, "  prefilter_hz = %s;\n", num(cfg->prefilter_hz));
+        fprintf(o, "  prefilter_hz = %s;\n", vd_cfg_num(cfg->prefilter_hz));
     else
         fprintf(o, "  # prefilter_hz: automatic\n");
     if (cfg->rls_alpha > 0.0)
-        fprintf(o, "  rls_alpha = %s;\n", num(cfg->rls_alpha));
+        fprintf(o, "  rls_alpha = %s;\n", vd_cfg_num(cfg->rls_alpha));
     else
         fprintf(o, "  # rls_alpha: automatic\n");
     if (cfg->iv_lag)
@@ -1500,62 +1224,36 @@ void vd_config_print(const vd_config *cfg, FILE *o)
     else
         fprintf(o, "  # difference_order: automatic\n");
     fprintf(o, "  decimation = %u;\n  warmup_samples = %u;\n", cfg->decimation, cfg->warmup_samples);
-    fprintf(o, "  outlier_threshold = %s;  # 0 = off\n", num(cfg->outlier_threshold));
+    fprintf(o, "  outlier_threshold = %s;  # 0 = off\n", vd_cfg_num(cfg->outlier_threshold));
     fprintf(o, "  refine_every = %s;  # s, 0 = off (refinement %s: %s)\n  refine_window = %s;  # s\n",
-            num(cfg->refine_every_s), cfg->refine_every_s > 0 ? "on" : "off", cfg->refine_why,
-            num(cfg->refine_window_s));
+            vd_cfg_num(cfg->refine_every_s), cfg->refine_every_s > 0 ? "on" : "off", cfg->refine_why,
+            vd_cfg_num(cfg->refine_window_s));
     if (cfg->has_start) {
         fprintf(o, "  start_values = (");
         for (size_t k = 0; k < cfg->n_params; k++) {
             vibid_param_info pi;
             vibid_model_param_info(m, k, &pi);
-            fprintf(o, "%s\n    { name = \"%s\"; value = %s; }", k ? "," : "", pi.name, num(cfg->start_theta[k]));
+            fprintf(o, "%s\n    { name = \"%s\"; value = %s; }", k ? "," : "", pi.name, vd_cfg_num(cfg->start_theta[k]));
         }
         fprintf(o, "\n  );\n");
     }
     fprintf(o, "};\n");
-    fprintf(o,
-            "outputs = {\n  tracks = { path = \"%s\"; flush_interval = %s; fsync = %s; };\n"
-            "  influx = {\n    path = \"%s\";\n    udp = \"%s\";\n    measurement = \"%s\";\n    site = \"%s\";  # \"\" = no site tag\n"
-            "    stand = \"%s\";  # \"\" = the stand's name\n    http = {\n      url = \"%s\";  # \"\" = off\n"
-            "      api = \"v%d\";\n      database = \"%s\";\n      retention_policy = \"%s\";\n      org = \"%s\";\n"
-            "      bucket = \"%s\";\n      username = \"%s\";\n      password_file = \"%s\";\n      token_file = \"%s\";\n"
-            "      ca_file = \"%s\";\n      batch_size = %u;\n      batch_interval = %s;\n      buffer_size = %u;  # MiB\n"
-            "      timeout = %s;\n      drain_timeout = %s;\n    };\n  };\n"
-            "  record = { path = \"%s\"; format = \"%s\"; };\n  status = { path = \"%s\"; interval = %s; };\n"
-            "  prometheus = { listen = \"%s\"; };  # \"\" = off\n",
-            cfg->tracks_path, num(cfg->flush_interval_s), yes(cfg->fsync_on_flush), cfg->influx_path, cfg->influx_udp,
-            cfg->influx_measurement, esc(cfg->influx_site), esc(cfg->influx_stand), esc(cfg->influx_http.url),
-            cfg->influx_http.api, esc(cfg->influx_http.database), esc(cfg->influx_http.rp), esc(cfg->influx_http.org),
-            esc(cfg->influx_http.bucket), esc(cfg->influx_http.username), esc(cfg->influx_http.password_file),
-            esc(cfg->influx_http.token_file), esc(cfg->influx_http.ca_file), cfg->influx_http.batch_lines,
-            num(cfg->influx_http.batch_interval_s), cfg->influx_http.buffer_mib, num(cfg->influx_http.timeout_s),
-            num(cfg->influx_http.drain_timeout_s), cfg->record_path, cfg->record_format == VD_REC_CSV ? "csv" : "candump",
-            cfg->status_path, num(cfg->status_interval_s), cfg->prometheus.listen);
-    if (!cfg->mqtt.url[0])
-        fprintf(o, "  mqtt = { url = \"\"; };  # \"\" = off\n};\n");
-    else
-        fprintf(o,
-                "  mqtt = {\n    url = \"%s\";\n    site = \"%s\";\n    stand = \"%s\";  # \"\" = the stand's name\n"
-                "    topic_prefix = \"%s\";\n    client_id = \"%s\";  # \"\" = vibidd-<site>-<stand>\n"
-                "    username = \"%s\";\n    password_file = \"%s\";\n    ca_file = \"%s\";\n    cert_file = \"%s\";\n"
-                "    key_file = \"%s\";\n    qos = %d;\n    queue_size = %u;\n    format = \"%s\";\n    keepalive = %d;\n"
-                "    protocol = \"%s\";\n    drain_timeout = %s;\n  };\n};\n",
-                esc(cfg->mqtt.url), esc(cfg->mqtt.site), esc(cfg->mqtt.stand), esc(cfg->mqtt.prefix),
-                esc(cfg->mqtt.client_id), esc(cfg->mqtt.username), esc(cfg->mqtt.password_file),
-                esc(cfg->mqtt.ca_file), esc(cfg->mqtt.cert_file), esc(cfg->mqtt.key_file), cfg->mqtt.qos, cfg->mqtt.queue_size, cfg->mqtt.format ? "line" : "json",
-                cfg->mqtt.keepalive, cfg->mqtt.protocol == 5 ? "5" : "3.1.1", num(cfg->mqtt.drain_timeout_s));
-    fprintf(o, "alarms = {\n  enabled = %s;\n", yes(cfg->alarms_enabled));
+    fprintf(o, "outputs = {\n");
+    for (size_t i = 0; i < vd_n_outputs; i++) /* each output prints its groups (output.h) */
+        if (vd_outputs[i]->print && !strchr(vd_outputs[i]->groups[0], '.'))
+            vd_outputs[i]->print(cfg, o);
+    fprintf(o, "};\n");
+    fprintf(o, "alarms = {\n  enabled = %s;\n", vd_cfg_yes(cfg->alarms_enabled));
     if (cfg->alarm_test == VD_ALARM_CUSUM)
         fprintf(o, "  test = \"cusum\";\n  false_alarms_per_year = %s;\n  horizon = %s;\n  detection_probability = %s;\n",
-                num(cfg->alarm_false_per_year), num(cfg->alarm_horizon_s), num(cfg->alarm_detection_probability));
+                vd_cfg_num(cfg->alarm_false_per_year), vd_cfg_num(cfg->alarm_horizon_s), vd_cfg_num(cfg->alarm_detection_probability));
     else
-        fprintf(o, "  test = \"threshold\";\n  threshold = %s;\n  hold = %s;\n", num(cfg->alarm_threshold),
-                num(cfg->alarm_hold_s));
+        fprintf(o, "  test = \"threshold\";\n  threshold = %s;\n  hold = %s;\n", vd_cfg_num(cfg->alarm_threshold),
+                vd_cfg_num(cfg->alarm_hold_s));
     fprintf(o, "  min_relative = %s;\n  learn_start = %s;\n  learn_duration = %s;\n",
-            num(cfg->alarm_min_relative), num(cfg->learn_start_s), num(cfg->learn_duration_s));
+            vd_cfg_num(cfg->alarm_min_relative), vd_cfg_num(cfg->learn_start_s), vd_cfg_num(cfg->learn_duration_s));
     if (cfg->alarm_test == VD_ALARM_CUSUM)
-        fprintf(o, "  reference_file = \"%s\";%s\n", esc(cfg->alarm_reference_file),
+        fprintf(o, "  reference_file = \"%s\";%s\n", vd_cfg_esc(cfg->alarm_reference_file),
                 cfg->alarm_reference_file[0] ? "" : "  # not kept: learned at every start");
     fprintf(o, "  parameters = (");
     bool first = true;
@@ -1565,11 +1263,11 @@ void vd_config_print(const vd_config *cfg, FILE *o)
             continue;
         fprintf(o, "%s\n    { name = \"%s\";", first ? "" : ",", a->name);
         if (a->has_baseline)
-            fprintf(o, " baseline = %s;", num(a->baseline));
+            fprintf(o, " baseline = %s;", vd_cfg_num(a->baseline));
         fprintf(o, " }");
         first = false;
     }
     fprintf(o, "\n  );\n};\n");
     fprintf(o, "log = {\n  level = \"%s\";\n  status_interval = %s;\n};\n",
-            vd_log_level_name((vd_log_level)cfg->log_level), num(cfg->log_status_interval_s));
+            vd_log_level_name((vd_log_level)cfg->log_level), vd_cfg_num(cfg->log_status_interval_s));
 }

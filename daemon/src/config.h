@@ -50,6 +50,23 @@ typedef struct vd_alarm_param {
 /* The settings of the network outputs (output.h), one struct each: the output reads its own
  * struct and nothing else of them; config.c fills them from the output's group. */
 
+/* outputs.tracks, outputs.influx (file, UDP, tags), outputs.record, outputs.status: the
+ * file outputs (writers.h, docs/vibidd.md "Outputs"); a path "" = that part is off */
+typedef struct vd_files_config {
+    char tracks_path[VD_PATH_MAX];
+    double flush_interval_s;     /* outputs.tracks.flush_interval: every output's flush period, s */
+    bool fsync_on_flush;
+    char influx_path[VD_PATH_MAX];
+    char influx_udp[128];        /* "HOST:PORT"; "" = off */
+    char influx_measurement[64];
+    char influx_site[64], influx_stand[64]; /* tags; influx_site "" = no site tag, influx_stand
+                                               "" = the stand's name */
+    char record_path[VD_PATH_MAX];
+    vd_record_format record_format;
+    char status_path[VD_PATH_MAX];
+    double status_interval_s;    /* outputs.status.interval: the status snapshot's period, s */
+} vd_files_config;
+
 /* outputs.prometheus (metrics.h, docs/vibidd.md "Prometheus metrics") */
 typedef struct vd_prometheus_config {
     char listen[128];            /* "HOST:PORT"; "" = off */
@@ -167,19 +184,8 @@ typedef struct vd_config {
     double start_theta[VD_MAX_PARAMS];/* RLS start values, stand parameter order; the stand's
                                          nominal value for a parameter the list leaves out */
 
-    /* outputs */
-    char tracks_path[VD_PATH_MAX];
-    char influx_path[VD_PATH_MAX];
-    char influx_udp[128];
-    char influx_measurement[64];
-    char influx_site[64], influx_stand[64]; /* tags; influx_site "" = no site tag, influx_stand
-                                               "" = the stand's name */
-    char record_path[VD_PATH_MAX];
-    vd_record_format record_format;
-    char status_path[VD_PATH_MAX];
-    double status_interval_s;
-    double flush_interval_s;
-    bool fsync_on_flush;
+    /* outputs: each output reads its settings from its groups (output.h, its load) */
+    vd_files_config files;           /* outputs.tracks, .influx, .record, .status (writers.c) */
     vd_prometheus_config prometheus; /* outputs.prometheus (metrics.c) */
     vd_mqtt_config mqtt;             /* outputs.mqtt (mqtt.c) */
     vd_influx_http_config influx_http; /* outputs.influx.http (influx_http.c) */

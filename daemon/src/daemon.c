@@ -796,15 +796,15 @@ static void housekeeping(vd_daemon *d, bool final)
         for (size_t i = 0; i < d->n_out; i++)
             if (d->out[i].ops->reopen)
                 d->out[i].ops->reopen(d->out[i].o);
-    if (final || now - d->t_last_flush >= d->cfg->flush_interval_s) {
+    if (final || now - d->t_last_flush >= d->cfg->files.flush_interval_s) {
         for (size_t i = 0; i < d->n_out; i++)
             if (d->out[i].ops->flush)
-                d->out[i].ops->flush(d->out[i].o, d->cfg->fsync_on_flush);
+                d->out[i].ops->flush(d->out[i].o, d->cfg->files.fsync_on_flush);
         d->t_last_flush = now;
     }
     /* One snapshot for all: the status file at its interval, the metrics at least every
      * second (sooner with a shorter status interval). */
-    const bool status_due = final || now - d->t_last_status >= d->cfg->status_interval_s;
+    const bool status_due = final || now - d->t_last_status >= d->cfg->files.status_interval_s;
     if (status_due)
         update_rate(d, now);
     outputs_status(d, status_due, final, now);
@@ -1064,7 +1064,7 @@ static int open_outputs(vd_daemon *d, char *err, size_t cap)
     d->out_ctx.cfg = cfg;
     d->out_ctx.rec_chanmap = &d->rec_chanmap;
     d->out_ctx.tracks_preamble = d->est.choices;
-    d->out_ctx.stand = cfg->influx_stand[0] ? cfg->influx_stand : vibid_stand_name(cfg->stand);
+    d->out_ctx.stand = cfg->files.influx_stand[0] ? cfg->files.influx_stand : vibid_stand_name(cfg->stand);
     d->out_ctx.select = d->opt.outputs;
     for (size_t i = 0; i < vd_n_outputs; i++) {
         const vd_output_ops *ops = vd_outputs[i];

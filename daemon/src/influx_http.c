@@ -659,11 +659,12 @@ static size_t op_status_lines(const vd_snapshot *sn, char *buf, size_t cap) {
     return n > 0 ? (size_t)n : 0;
 }
 
-static bool op_enabled(const vd_config *cfg) { return cfg->influx_http.url[0] != '\0'; }
-
 const vd_output_ops vd_influx_http_curl = {
     .name = "influx.http",
-    .enabled = op_enabled,
+    .groups = vd_influx_http_groups,
+    .load = vd_influx_http_load,
+    .print = vd_influx_http_print,
+    .enabled = vd_influx_http_enabled,
     .check = vd_influx_http_check,
     .open = op_open,
     .start = op_start,

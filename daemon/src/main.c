@@ -170,10 +170,10 @@ int main(int argc, char **argv)
         vd_error("%s", err.text);
         return 2;
     }
-    if ((tracks && set_override(cfg.tracks_path, sizeof cfg.tracks_path, tracks, "--tracks")) ||
-        (influx && set_override(cfg.influx_path, sizeof cfg.influx_path, influx, "--influx")) ||
-        (record && set_override(cfg.record_path, sizeof cfg.record_path, record, "--record")) ||
-        (status && set_override(cfg.status_path, sizeof cfg.status_path, status, "--status"))) {
+    if ((tracks && set_override(cfg.files.tracks_path, sizeof cfg.files.tracks_path, tracks, "--tracks")) ||
+        (influx && set_override(cfg.files.influx_path, sizeof cfg.files.influx_path, influx, "--influx")) ||
+        (record && set_override(cfg.files.record_path, sizeof cfg.files.record_path, record, "--record")) ||
+        (status && set_override(cfg.files.status_path, sizeof cfg.files.status_path, status, "--status"))) {
         vd_config_free(&cfg);
         return 2;
     }

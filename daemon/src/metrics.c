@@ -968,7 +968,7 @@ static size_t prometheus_status_lines(const vd_snapshot *sn, char *buf, size_t c
 }
 
 /* at least every second, sooner with a shorter status interval */
-static double prometheus_status_period(const vd_config *cfg) { return fmin(cfg->status_interval_s, 1.0); }
+static double prometheus_status_period(const vd_config *cfg) { return fmin(cfg->files.status_interval_s, 1.0); }
 
 static void prometheus_counters(void *o, vd_snapshot *s)
 {
@@ -986,8 +986,46 @@ static void prometheus_close(void *o)
     free(o);
 }
 
+/* ---------------------------------------------------------- settings ---- */
+
+static const char *const prometheus_groups[] = {"prometheus", NULL};
+
+/* outputs.prometheus: off without the group; the group alone listens on loopback
+ * (VD_PROMETHEUS_DEFAULT); another address only when given. Only the syntax here: the bind
+ * is tried by --check (vd_metrics_check) and at start-up (vd_metrics_open). */
+static int prometheus_load(vd_cfg_ctx *c, const config_setting_t *g)
+{
+    vd_config *cfg = c->cfg;
+    config_setting_t *p = g ? config_setting_get_member(g, "prometheus") : NULL;
+    static const char *const pk[] = {"listen", NULL};
+    if (p && !config_setting_is_group(p))
+        return vibid_cfg_fail(&c->r, p, "outputs.prometheus", "must be a group { listen = \"%s\"; }",
+                              VD_PROMETHEUS_DEFAULT);
+    if (vd_cfg_known(c, p, "outputs.prometheus", pk) ||
+        vd_cfg_string(c, p, "outputs.prometheus", "listen", p ? VD_PROMETHEUS_DEFAULT : "", cfg->prometheus.listen,
+                      sizeof cfg->prometheus.listen))
+        return -1;
+    if (cfg->prometheus.listen[0]) {
+        struct sockaddr_storage a;
+        socklen_t len;
+        char why[300];
+        if (vd_metrics_parse_listen(cfg->prometheus.listen, &a, &len, why, sizeof why))
+            return vibid_cfg_fail(&c->r, config_setting_get_member(p, "listen"), "outputs.prometheus.listen", "%s",
+                                  why);
+    }
+    return 0;
+}
+
+static void prometheus_print(const vd_config *cfg, FILE *o)
+{
+    fprintf(o, "  prometheus = { listen = \"%s\"; };  # \"\" = off\n", cfg->prometheus.listen);
+}
+
 const vd_output_ops vd_output_prometheus = {
     .name = "prometheus",
+    .groups = prometheus_groups,
+    .load = prometheus_load,
+    .print = prometheus_print,
     .enabled = prometheus_enabled,
     .check = vd_metrics_check,
     .open = prometheus_open,

@@ -1008,12 +1008,13 @@ static size_t op_status_lines(const vd_snapshot *sn, char *buf, size_t cap) {
     return n > 0 ? (size_t)n : 0;
 }
 
-static bool op_enabled(const vd_config *cfg) { return cfg->mqtt.url[0] != '\0'; }
-
 const vd_output_ops vd_mqtt_libmosquitto = {
     .name = "mqtt",
     .flags = VD_OUTPUT_STATUS_TEXT,
-    .enabled = op_enabled,
+    .groups = vd_mqtt_groups,
+    .load = vd_mqtt_load,
+    .print = vd_mqtt_print,
+    .enabled = vd_mqtt_enabled,
     .check = vd_mqtt_check,
     .open = op_open,
     .start = op_start,

@@ -30,12 +30,32 @@ bool vd_output_wanted(const vd_output_ctx *ctx, const vd_output_ops *ops)
     return false;
 }
 
+void vd_output_known_keys(const char *group, const char *const *own, const char **keys, size_t cap)
+{
+    size_t n = 0, len = strlen(group);
+    for (; own && own[n] && n + 1 < cap; n++)
+        keys[n] = own[n];
+    for (size_t i = 0; i < vd_n_outputs; i++)
+        for (const char *const *g = vd_outputs[i]->groups; g && *g; g++)
+            if (!strncmp(*g, group, len) && (*g)[len] == '.' && n + 1 < cap)
+                keys[n++] = *g + len + 1;
+    keys[n] = NULL;
+}
+
+void vd_output_print_nested(const vd_config *cfg, const char *group, FILE *out)
+{
+    size_t len = strlen(group);
+    for (size_t i = 0; i < vd_n_outputs; i++) {
+        const char *g = vd_outputs[i]->groups ? vd_outputs[i]->groups[0] : NULL;
+        if (g && vd_outputs[i]->print && !strncmp(g, group, len) && g[len] == '.')
+            vd_outputs[i]->print(cfg, out);
+    }
+}
+
 /* ------------------------------------- stand-ins for outputs.mqtt and .http ---- */
 
 /* What the registry holds for an output the core does not link until main() hands the
  * real one over (vd_daemon_use_output): configured, it is ignored with a warning. */
-static bool mqtt_enabled(const vd_config *cfg) { return cfg->mqtt.url[0] != '\0'; }
-static bool influx_http_enabled(const vd_config *cfg) { return cfg->influx_http.url[0] != '\0'; }
 
 static void *mqtt_absent(const vd_output_ctx *ctx, char *err, size_t cap)
 {
@@ -55,9 +75,18 @@ static void *influx_http_absent(const vd_output_ctx *ctx, char *err, size_t cap)
     return NULL;
 }
 
-static const vd_output_ops mqtt_standin = {.name = "mqtt", .enabled = mqtt_enabled, .open = mqtt_absent};
-static const vd_output_ops influx_http_standin = {
-    .name = "influx.http", .enabled = influx_http_enabled, .open = influx_http_absent};
+static const vd_output_ops mqtt_standin = {.name = "mqtt",
+                                           .groups = vd_mqtt_groups,
+                                           .load = vd_mqtt_load,
+                                           .print = vd_mqtt_print,
+                                           .enabled = vd_mqtt_enabled,
+                                           .open = mqtt_absent};
+static const vd_output_ops influx_http_standin = {.name = "influx.http",
+                                                  .groups = vd_influx_http_groups,
+                                                  .load = vd_influx_http_load,
+                                                  .print = vd_influx_http_print,
+                                                  .enabled = vd_influx_http_enabled,
+                                                  .open = influx_http_absent};
 
 /* ---------------------------------------------------------- the registry ---- */
 

@@ -7,12 +7,20 @@
  * says why each is one; the systemd notifications (notify.h) and the log are the service's
  * own protocol, not outputs.
  *
+ * Settings: each output reads its own groups of `outputs` (groups, load) with the one
+ * configuration reader (config_read.h), while config.c reads the file once, prints them back
+ * for --check (print) and checks what they name (check). Its settings struct is a member of
+ * vd_config (config.h). An output whose run-time code needs a library the core does not link
+ * (MQTT, InfluxDB over HTTP) keeps its settings code in the core (mqtt_settings.c,
+ * influx_http_settings.c), so that every program reads the same configuration.
+ *
  * Ownership: open allocates the output's state (the void * every other call takes) and
  * close frees it; the configuration and the context passed to open outlive the output (the
- * output keeps pointers into them). An output reads its settings from the one configuration
- * (vd_config, read once by config.c); it never reads a file of its own settings.
+ * output keeps pointers into them).
  *
  * Call order (each call optional, NULL in the table when an output has nothing to do):
+ *   configuration:           load (every output of the registry, in order, while config.c
+ *                            reads the file), print (vibidd --check)
  *   vibidd --check:          check (every output of the registry, configured or not), nothing else
  *   main thread, start-up:   enabled -> open (all outputs, registry order) -> start
  *   estimation thread:       sample, row, alarm (in the samples' order), flush (bounded
@@ -37,12 +45,14 @@
 #include <stdbool.h>
 #include <stddef.h>
 #include <stdint.h>
+#include <stdio.h>
 
 #include <vibid_drivers/channel_map.h>
 #include <vibid_drivers/source.h>
 
 #include "alarm.h"
 #include "config.h"
+#include "config_read.h"
 #include "estimator.h"
 #include "metrics.h"
 
@@ -69,6 +79,15 @@ typedef struct vd_output_ops {
     const char *name;          /* as the configuration names it: "mqtt" for outputs.mqtt */
     const char *const *parts;  /* names of the parts that can be selected on their own (NULL-terminated), or NULL */
     unsigned flags;            /* VD_OUTPUT_* */
+    /* Its groups in `outputs` (NULL-terminated): "tracks" for outputs.tracks; a dotted name,
+     * "influx.http", is a group inside another output's group (that output's load accepts
+     * the member, vd_output_known_keys, and its print prints it, vd_output_print_nested). */
+    const char *const *groups;
+    /* Reads its groups from the `outputs` group (NULL when the file has none: every default)
+     * into c->cfg with the getters of config_read.h; 0, or -1 with c->r.err. */
+    int (*load)(vd_cfg_ctx *c, const config_setting_t *outputs);
+    /* Its groups as members of `outputs`, in the file's syntax with every default (vd_config_print). */
+    void (*print)(const vd_config *cfg, FILE *out);
     /* Configured in cfg (its group is there and turns it on). */
     bool (*enabled)(const vd_config *cfg);
     /* vibidd --check: the start-up checks that create and connect nothing (directories,
@@ -109,6 +128,13 @@ typedef struct vd_output_ops {
 extern const vd_output_ops *vd_outputs[];
 extern const size_t vd_n_outputs;
 
+/* The keys of the group `group` of `outputs`: own (the owner's, NULL-terminated), then the last
+ * part of every registry output's dotted group inside it ("http" for "influx.http"), into
+ * keys (cap entries, NULL-terminated). */
+void vd_output_known_keys(const char *group, const char *const *own, const char **keys, size_t cap);
+/* Prints the groups that registry outputs keep inside group (their print) into out. */
+void vd_output_print_nested(const vd_config *cfg, const char *group, FILE *out);
+
 /* name (an output's or one of its parts') is selected by ctx. */
 bool vd_output_selected(const vd_output_ctx *ctx, const char *name);
 /* The output or any of its parts is selected by ctx. */
@@ -117,5 +143,16 @@ bool vd_output_wanted(const vd_output_ctx *ctx, const vd_output_ops *ops);
 /* The outputs of the registry (output.c), for the files that define them. */
 extern const vd_output_ops vd_output_files;      /* writers.c */
 extern const vd_output_ops vd_output_prometheus; /* metrics.c */
+
+/* The settings of the outputs whose run-time code lives outside the core (output.h,
+ * "Settings"): one definition, used by the core's stand-in and by the real output. */
+extern const char *const vd_mqtt_groups[];        /* mqtt_settings.c */
+int vd_mqtt_load(vd_cfg_ctx *c, const config_setting_t *outputs);
+void vd_mqtt_print(const vd_config *cfg, FILE *out);
+bool vd_mqtt_enabled(const vd_config *cfg);
+extern const char *const vd_influx_http_groups[]; /* influx_http_settings.c */
+int vd_influx_http_load(vd_cfg_ctx *c, const config_setting_t *outputs);
+void vd_influx_http_print(const vd_config *cfg, FILE *out);
+bool vd_influx_http_enabled(const vd_config *cfg);
 
 #endif

@@ -145,11 +145,11 @@ int vd_format_influx_row(char *buf, size_t cap, const vd_config *cfg, const char
     size_t off = 0;
     char tag[256], site[256];
     vd_influx_escape_tag(tag, sizeof tag, stand);
-    vd_influx_escape_tag(site, sizeof site, cfg->influx_site);
+    vd_influx_escape_tag(site, sizeof site, cfg->files.influx_site);
     /* tags in key order (InfluxDB's advice: the server sorts them otherwise). A refinement's
      * row (flag W) is tagged estimate=refined: it may fall on the sample of a recursive row,
      * and a point of the same series and time would overwrite that row's fields */
-    if (put(buf, cap, &off, "%s%s%s%s,stand=%s", cfg->influx_measurement,
+    if (put(buf, cap, &off, "%s%s%s%s,stand=%s", cfg->files.influx_measurement,
             (row->flags & VD_FLAG_REFINED) ? ",estimate=refined" : "", site[0] ? ",site=" : "", site, tag))
         return -1;
     const vibid_model *m = vibid_stand_model(cfg->stand);
@@ -224,9 +224,9 @@ int vd_format_influx_alarm(char *buf, size_t cap, const vd_config *cfg, const ch
     char tag[256], ptag[160], site[256];
     vd_influx_escape_tag(tag, sizeof tag, stand);
     vd_influx_escape_tag(ptag, sizeof ptag, a->param);
-    vd_influx_escape_tag(site, sizeof site, cfg->influx_site);
+    vd_influx_escape_tag(site, sizeof site, cfg->files.influx_site);
     if (put(buf, cap, &off, "%s_alarm,parameter=%s%s%s,stand=%s state=\"%s\",test=\"%s\",onset_index=%llui,index=%llui",
-            cfg->influx_measurement, ptag, site[0] ? ",site=" : "", site, tag, a->raised ? "raised" : "cleared",
+            cfg->files.influx_measurement, ptag, site[0] ? ",site=" : "", site, tag, a->raised ? "raised" : "cleared",
             a->test, (unsigned long long)a->onset_index, (unsigned long long)a->row->index))
         return -1;
     int first = 0;
@@ -414,7 +414,7 @@ static int open_output(vd_writers *w, int k, char *err, size_t cap)
         n = vd_format_tracks_header(w->linebuf + off, sizeof w->linebuf - off, cfg);
         if (n >= 0)
             n += (int)off;
-    } else if (k == VD_OUT_RECORD && cfg->record_format != VD_REC_CANDUMP) { /* a candump log has no header */
+    } else if (k == VD_OUT_RECORD && cfg->files.record_format != VD_REC_CANDUMP) { /* a candump log has no header */
         n = vd_format_recording_header(w->linebuf, sizeof w->linebuf, w->stand_name, cfg->sample_rate, w->chanmap);
     }
     o->f = open_append(w, o->path, n > 0 ? w->linebuf : NULL, n, err, cap);
@@ -500,13 +500,13 @@ static const char *part_path(const char *path, unsigned parts, unsigned part) { 
 
 static int check_parts(const vd_config *cfg, unsigned parts, char *err, size_t cap)
 {
-    if (check_output_path("outputs.tracks.path", part_path(cfg->tracks_path, parts, VD_PART_TRACKS), err, cap) ||
-        check_output_path("outputs.influx.path", part_path(cfg->influx_path, parts, VD_PART_INFLUX), err, cap) ||
-        check_output_path("outputs.record.path", part_path(cfg->record_path, parts, VD_PART_RECORD), err, cap) ||
-        check_output_path("outputs.status.path", part_path(cfg->status_path, parts, VD_PART_STATUS), err, cap))
+    if (check_output_path("outputs.tracks.path", part_path(cfg->files.tracks_path, parts, VD_PART_TRACKS), err, cap) ||
+        check_output_path("outputs.influx.path", part_path(cfg->files.influx_path, parts, VD_PART_INFLUX), err, cap) ||
+        check_output_path("outputs.record.path", part_path(cfg->files.record_path, parts, VD_PART_RECORD), err, cap) ||
+        check_output_path("outputs.status.path", part_path(cfg->files.status_path, parts, VD_PART_STATUS), err, cap))
         return -1;
     struct sockaddr_in addr;
-    if ((parts & VD_PART_INFLUX) && cfg->influx_udp[0] && resolve_udp(cfg->influx_udp, &addr, err, cap))
+    if ((parts & VD_PART_INFLUX) && cfg->files.influx_udp[0] && resolve_udp(cfg->files.influx_udp, &addr, err, cap))
         return -1;
     return 0;
 }
@@ -528,22 +528,22 @@ int vd_writers_open_parts(vd_writers *w, const vd_config *cfg, const vibid_chanm
     w->cfg = cfg;
     w->tracks_preamble = tracks_preamble;
     w->chanmap = chanmap;
-    w->stand_name = cfg->influx_stand[0] ? cfg->influx_stand : vibid_stand_name(cfg->stand);
+    w->stand_name = cfg->files.influx_stand[0] ? cfg->files.influx_stand : vibid_stand_name(cfg->stand);
     w->udp_fd = -1;
-    const char *const paths[VD_OUT_FILES] = {part_path(cfg->tracks_path, parts, VD_PART_TRACKS),
-                                             part_path(cfg->influx_path, parts, VD_PART_INFLUX),
-                                             part_path(cfg->record_path, parts, VD_PART_RECORD)};
+    const char *const paths[VD_OUT_FILES] = {part_path(cfg->files.tracks_path, parts, VD_PART_TRACKS),
+                                             part_path(cfg->files.influx_path, parts, VD_PART_INFLUX),
+                                             part_path(cfg->files.record_path, parts, VD_PART_RECORD)};
     const char *const whats[VD_OUT_FILES] = {"tracks", "influx", "raw recording"};
     for (int k = 0; k < VD_OUT_FILES; k++) {
         w->out[k].path = paths[k];
         w->out[k].what = whats[k];
     }
-    w->status_path = part_path(cfg->status_path, parts, VD_PART_STATUS);
-    if (w->out[VD_OUT_RECORD].path[0] && cfg->record_format == VD_REC_CANDUMP) {
+    w->status_path = part_path(cfg->files.status_path, parts, VD_PART_STATUS);
+    if (w->out[VD_OUT_RECORD].path[0] && cfg->files.record_format == VD_REC_CANDUMP) {
         vibid_drv_error de = {0};
         w->record_encoder = cfg->dbc ? vibid_can_assembler_create(cfg->dbc, chanmap, &de) : NULL;
         if (!w->record_encoder) {
-            snprintf(err, cap, "outputs.record (candump) %s: %s", cfg->record_path,
+            snprintf(err, cap, "outputs.record (candump) %s: %s", cfg->files.record_path,
                      cfg->dbc ? de.text : "no DBC to encode the samples with");
             return -1;
         }
@@ -552,8 +552,8 @@ int vd_writers_open_parts(vd_writers *w, const vd_config *cfg, const vibid_chanm
         vd_writers_close(w);
         return -1;
     }
-    if ((parts & VD_PART_INFLUX) && cfg->influx_udp[0]) {
-        if (resolve_udp(cfg->influx_udp, &w->udp_addr, err, cap)) {
+    if ((parts & VD_PART_INFLUX) && cfg->files.influx_udp[0]) {
+        if (resolve_udp(cfg->files.influx_udp, &w->udp_addr, err, cap)) {
             vd_writers_close(w);
             return -1;
         }
@@ -665,7 +665,7 @@ static void send_udp(vd_writers *w, const char *buf, int n)
     if (s != n) {
         w->udp_errors++;
         if (w->udp_errors == 1 || w->udp_errors % 10000 == 0)
-            vd_warning("InfluxDB UDP to %s: %s (%llu datagrams lost so far)", w->cfg->influx_udp, strerror(errno),
+            vd_warning("InfluxDB UDP to %s: %s (%llu datagrams lost so far)", w->cfg->files.influx_udp, strerror(errno),
                        (unsigned long long)w->udp_errors);
     } else {
         w->udp_sent++;
@@ -695,7 +695,7 @@ void vd_writers_sample(vd_writers *w, const vibid_record *rec)
     if (n < 0) {
         /* cannot happen for samples decoded with the same DBC; counted and logged */
         errno = ERANGE;
-        vd_writers_failed(w, "raw recording (a sample does not fit its DBC signals)", w->cfg->record_path);
+        vd_writers_failed(w, "raw recording (a sample does not fit its DBC signals)", w->cfg->files.record_path);
         return;
     }
     emit(w, VD_OUT_RECORD, w->linebuf, n);
@@ -725,7 +725,7 @@ void vd_writers_close(vd_writers *w)
 {
     if (!w->cfg)
         return;
-    vd_writers_flush(w, w->cfg->fsync_on_flush);
+    vd_writers_flush(w, w->cfg->files.fsync_on_flush);
     for (int k = 0; k < VD_OUT_FILES; k++)
         close_output(w, k);
     if (w->udp_fd >= 0)
@@ -848,10 +848,89 @@ static void files_close(void *o)
     free(o);
 }
 
+/* ---------------------------------------------------------- settings ---- */
+
+static const char *const files_groups[] = {"tracks", "influx", "record", "status", NULL};
+
+/* outputs.tracks, .influx (its file, UDP and tags; the group also holds the groups other
+ * outputs keep inside it: influx.http), .record, .status. */
+static int files_load(vd_cfg_ctx *c, const config_setting_t *g)
+{
+    vd_config *cfg = c->cfg;
+    vd_files_config *f = &cfg->files;
+    config_setting_t *t = g ? config_setting_get_member(g, "tracks") : NULL;
+    static const char *const tk[] = {"path", "flush_interval", "fsync", NULL};
+    if (vd_cfg_known(c, t, "outputs.tracks", tk) ||
+        vd_cfg_path(c, t, "outputs.tracks", "path", f->tracks_path, sizeof f->tracks_path) ||
+        vd_cfg_double(c, t, "outputs.tracks", "flush_interval", 1.0, 0.01, 3600.0, &f->flush_interval_s) ||
+        vd_cfg_bool(c, t, "outputs.tracks", "fsync", false, &f->fsync_on_flush))
+        return -1;
+    config_setting_t *i = g ? config_setting_get_member(g, "influx") : NULL;
+    static const char *const ik[] = {"path", "udp", "measurement", "site", "stand", NULL};
+    const char *ikeys[16];
+    vd_output_known_keys("influx", ik, ikeys, 16);
+    if (vd_cfg_known(c, i, "outputs.influx", ikeys) ||
+        vd_cfg_path(c, i, "outputs.influx", "path", f->influx_path, sizeof f->influx_path) ||
+        vd_cfg_string(c, i, "outputs.influx", "udp", "", f->influx_udp, sizeof f->influx_udp) ||
+        vd_cfg_name(c, i, "outputs.influx", "measurement", "vibid", false, f->influx_measurement,
+                    sizeof f->influx_measurement) ||
+        vd_cfg_name(c, i, "outputs.influx", "site", "", true, f->influx_site, sizeof f->influx_site) ||
+        vd_cfg_name(c, i, "outputs.influx", "stand", "", true, f->influx_stand, sizeof f->influx_stand))
+        return -1;
+    if (f->influx_udp[0]) {
+        const char *colon = strrchr(f->influx_udp, ':');
+        char *end = NULL;
+        long p = colon ? strtol(colon + 1, &end, 10) : 0;
+        if (!colon || colon == f->influx_udp || !end || *end || p < 1 || p > 65535)
+            return vibid_cfg_fail(&c->r, config_setting_get_member(i, "udp"), "outputs.influx.udp",
+                                  "'%s': expected HOST:PORT, e.g. \"127.0.0.1:8089\" or \"localhost:8089\"",
+                                  f->influx_udp);
+    }
+    config_setting_t *r = g ? config_setting_get_member(g, "record") : NULL;
+    static const char *const rk[] = {"path", "format", NULL};
+    static const char *const rf[] = {"csv", "candump", NULL};
+    int fi;
+    if (vd_cfg_known(c, r, "outputs.record", rk) ||
+        vd_cfg_path(c, r, "outputs.record", "path", f->record_path, sizeof f->record_path) ||
+        vd_cfg_enum(c, r, "outputs.record", "format", 0, rf, &fi))
+        return -1;
+    f->record_format = (vd_record_format)fi;
+    if (f->record_format == VD_REC_CANDUMP && !cfg->dbc)
+        return vibid_cfg_fail(
+            &c->r, config_setting_get_member(r, "format"), "outputs.record.format",
+            "a candump recording encodes the samples with the source's DBC: it needs a CAN source "
+            "(socketcan, or a candump replay) with source.dbc; use \"csv\" for this source");
+    config_setting_t *s = g ? config_setting_get_member(g, "status") : NULL;
+    static const char *const sk[] = {"path", "interval", NULL};
+    return vd_cfg_known(c, s, "outputs.status", sk) ||
+                   vd_cfg_path(c, s, "outputs.status", "path", f->status_path, sizeof f->status_path) ||
+                   vd_cfg_double(c, s, "outputs.status", "interval", 1.0, 0.05, 3600.0, &f->status_interval_s)
+               ? -1
+               : 0;
+}
+
+static void files_print(const vd_config *cfg, FILE *o)
+{
+    const vd_files_config *f = &cfg->files;
+    fprintf(o,
+            "  tracks = { path = \"%s\"; flush_interval = %s; fsync = %s; };\n"
+            "  influx = {\n    path = \"%s\";\n    udp = \"%s\";\n    measurement = \"%s\";\n"
+            "    site = \"%s\";  # \"\" = no site tag\n    stand = \"%s\";  # \"\" = the stand's name\n",
+            f->tracks_path, vd_cfg_num(f->flush_interval_s), vd_cfg_yes(f->fsync_on_flush), f->influx_path,
+            f->influx_udp, f->influx_measurement, vd_cfg_esc(f->influx_site), vd_cfg_esc(f->influx_stand));
+    vd_output_print_nested(cfg, "influx", o);
+    fprintf(o, "  };\n  record = { path = \"%s\"; format = \"%s\"; };\n  status = { path = \"%s\"; interval = %s; };\n",
+            f->record_path, f->record_format == VD_REC_CSV ? "csv" : "candump", f->status_path,
+            vd_cfg_num(f->status_interval_s));
+}
+
 const vd_output_ops vd_output_files = {
     .name = "files",
     .parts = files_parts,
     .flags = VD_OUTPUT_STATUS_TEXT | VD_OUTPUT_STATUS_AFTER_DRAIN,
+    .groups = files_groups,
+    .load = files_load,
+    .print = files_print,
     .enabled = files_enabled,
     .check = files_check,
     .open = files_open,

@@ -40,10 +40,10 @@ vibid_py_replay *vibid_py_replay_open(const char *config, const char *capture, c
     }
     r->cfg_loaded = 1;
     vd_config *cfg = &r->cfg;
-    if (strlen(tracks) >= sizeof cfg->tracks_path || (influx && strlen(influx) >= sizeof cfg->influx_path) ||
+    if (strlen(tracks) >= sizeof cfg->files.tracks_path || (influx && strlen(influx) >= sizeof cfg->files.influx_path) ||
         (reference && strlen(reference) >= sizeof cfg->alarm_reference_file)) {
         snprintf(err, cap, "tracks, influx or reference path too long (at most %zu characters)",
-                 sizeof cfg->tracks_path - 1);
+                 sizeof cfg->files.tracks_path - 1);
         vibid_py_replay_close(r);
         return NULL;
     }
@@ -55,10 +55,10 @@ vibid_py_replay *vibid_py_replay_open(const char *config, const char *capture, c
      * process; neither changes a value. */
     static const char *const tracks_only[] = {"tracks", NULL}, *const with_influx[] = {"tracks", "influx", NULL};
     const char *const *outputs = influx ? with_influx : tracks_only;
-    snprintf(cfg->tracks_path, sizeof cfg->tracks_path, "%s", tracks);
+    snprintf(cfg->files.tracks_path, sizeof cfg->files.tracks_path, "%s", tracks);
     if (influx) { /* the file, not a server: the influx output's file part alone */
-        snprintf(cfg->influx_path, sizeof cfg->influx_path, "%s", influx);
-        cfg->influx_udp[0] = '\0';
+        snprintf(cfg->files.influx_path, sizeof cfg->files.influx_path, "%s", influx);
+        cfg->files.influx_udp[0] = '\0';
     }
     if (reference)
         snprintf(cfg->alarm_reference_file, sizeof cfg->alarm_reference_file, "%s", reference);

@@ -84,8 +84,8 @@ static void test_config(void **state) {
     assert_int_equal(c.influx_http.api, 2);
     assert_string_equal(c.influx_http.url, "https://h.example/influx");
     assert_string_equal(c.influx_http.token_file, "/tmp/tok");
-    assert_string_equal(c.influx_site, "plant1");
-    assert_string_equal(c.influx_stand, "rig-7.b");
+    assert_string_equal(c.files.influx_site, "plant1");
+    assert_string_equal(c.files.influx_stand, "rig-7.b");
     vd_config_free(&c);
     /* refusals name the field */
     static const struct {

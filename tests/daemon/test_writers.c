@@ -126,7 +126,7 @@ static void test_influx(void **state)
                              "change=-150000,change_se=12500 1700000000123456000\n");
     /* outputs.influx.site: a tag of its own, escaped, tags in key order */
     vd_config with_site = cfg;
-    snprintf(with_site.influx_site, sizeof with_site.influx_site, "plant 1");
+    snprintf(with_site.files.influx_site, sizeof with_site.files.influx_site, "plant 1");
     assert_true(vd_format_influx_row(buf, sizeof buf, &with_site, "s", &r) > 0);
     assert_true(!strncmp(buf, "vibid,site=plant\\ 1,stand=s c1=250000,", 38));
     const vd_output_alarm cleared = {"c2", 0, &r, "threshold", 1.35e6, 1.5e6, 12.0, 12.0, 5.0, -1.5e5, NAN, 42};
