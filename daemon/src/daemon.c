@@ -686,15 +686,7 @@ static void format_status(vd_daemon *d, const vd_snapshot *sn)
           (unsigned long long)sn->refine_done, (unsigned long long)sn->refine_failed,
           (unsigned long long)sn->refine_overruns, (unsigned long long)sn->refine_skipped, sn->refine_last_s);
     S("latency_us_p50=%.1f\nlatency_us_p99=%.1f\n", sn->lat_p50_us, sn->lat_p99_us);
-    S("write_errors=%llu\ntorn_lines=%llu\ninflux_udp_sent=%llu\ninflux_udp_errors=%llu\n",
-      (unsigned long long)sn->write_errors, (unsigned long long)sn->torn_lines, (unsigned long long)sn->udp_sent,
-      (unsigned long long)sn->udp_errors);
-    S("outputs_closed=%u\noutput_open_failures=%llu\ntracks_lost_rows=%llu\ninflux_lost_lines=%llu\n"
-      "record_lost_samples=%llu\n",
-      sn->outputs_closed,
-      (unsigned long long)(sn->output_open_failures[0] + sn->output_open_failures[1] + sn->output_open_failures[2]),
-      (unsigned long long)sn->output_lost[0], (unsigned long long)sn->output_lost[1],
-      (unsigned long long)sn->output_lost[2]);
+    off += vd_snapshot_status_lines(sn, buf + (off < cap ? off : cap), off < cap ? cap - off : 0);
     S("alarms_raised=%llu\nalarms_active=", (unsigned long long)sn->alarms_raised);
     bool first = true;
     for (size_t k = 0; k < sn->n_params; k++)

@@ -225,16 +225,28 @@ static void op_alarm(void *p, const vd_output_alarm *a) {
 
 static void op_counters(void *p, vd_snapshot *s) {
     vd_influx_http *h = p;
-    s->influx_http_on = true;
-    s->influx_http_ok = atomic_load(&h->ok) != 0;
-    s->influx_http_written = atomic_load(&h->written);
-    s->influx_http_requests = atomic_load(&h->requests);
-    s->influx_http_failures = atomic_load(&h->failures);
-    s->influx_http_rejected = atomic_load(&h->rejected);
-    s->influx_http_dropped = atomic_load(&h->dropped);
-    s->influx_http_waiting = atomic_load(&h->lines_in) - atomic_load(&h->lines_out);
-    s->influx_http_buffer_fill = atomic_load(&h->head) - atomic_load(&h->tail);
-    s->influx_http_buffer_capacity = h->cap;
+    vd_snapshot_add(s, "influx_http_ok", "vibid_influx_http_ok", NULL,
+                    "1 while the last InfluxDB write request was answered 2xx.", true,
+                    atomic_load(&h->ok) != 0 ? 1.0 : 0.0);
+    vd_snapshot_add(s, "influx_http_written", "vibid_influx_http_written_lines_total", NULL,
+                    "Lines InfluxDB accepted.", false, (double)atomic_load(&h->written));
+    vd_snapshot_add(s, "influx_http_requests", "vibid_influx_http_requests_total", NULL,
+                    "InfluxDB write requests answered 2xx.", false, (double)atomic_load(&h->requests));
+    vd_snapshot_add(s, "influx_http_failures", "vibid_influx_http_failures_total", NULL,
+                    "InfluxDB write requests that failed and are retried (no answer, 401, 403, 404, 408, 429, 5xx).",
+                    false, (double)atomic_load(&h->failures));
+    vd_snapshot_add(s, "influx_http_rejected", "vibid_influx_http_rejected_lines_total", NULL,
+                    "Lines InfluxDB refused for good (400, 422: e.g. a field type conflict); not sent again.", false,
+                    (double)atomic_load(&h->rejected));
+    vd_snapshot_add(s, "influx_http_dropped", "vibid_influx_http_dropped_lines_total", NULL,
+                    "Lines dropped because the buffer was full.", false, (double)atomic_load(&h->dropped));
+    vd_snapshot_add(s, "influx_http_waiting", "vibid_influx_http_waiting_lines", NULL,
+                    "Lines in the buffer, not yet written.", true,
+                    (double)(atomic_load(&h->lines_in) - atomic_load(&h->lines_out)));
+    vd_snapshot_add(s, "influx_http_buffer_fill", "vibid_influx_http_buffer_fill_bytes", NULL,
+                    "Bytes of the buffer in use.", true, (double)(atomic_load(&h->head) - atomic_load(&h->tail)));
+    vd_snapshot_add(s, "influx_http_buffer_capacity", "vibid_influx_http_buffer_capacity_bytes", NULL,
+                    "Bytes the buffer holds (outputs.influx.http.buffer_size).", true, (double)h->cap);
 }
 
 /* --------------------------------------------------------- writer thread ---- */
@@ -646,19 +658,6 @@ static void op_close(void *p) {
     free(h);
 }
 
-static size_t op_status_lines(const vd_snapshot *sn, char *buf, size_t cap) {
-    int n = snprintf(
-        buf, cap,
-        "influx_http_ok=%d\ninflux_http_written=%llu\ninflux_http_requests=%llu\ninflux_http_failures=%llu\n"
-        "influx_http_rejected=%llu\ninflux_http_dropped=%llu\ninflux_http_waiting=%llu\n"
-        "influx_http_buffer_fill=%zu\ninflux_http_buffer_capacity=%zu\n",
-        sn->influx_http_ok ? 1 : 0, (unsigned long long)sn->influx_http_written,
-        (unsigned long long)sn->influx_http_requests, (unsigned long long)sn->influx_http_failures,
-        (unsigned long long)sn->influx_http_rejected, (unsigned long long)sn->influx_http_dropped,
-        (unsigned long long)sn->influx_http_waiting, sn->influx_http_buffer_fill, sn->influx_http_buffer_capacity);
-    return n > 0 ? (size_t)n : 0;
-}
-
 const vd_output_ops vd_influx_http_curl = {
     .name = "influx.http",
     .groups = vd_influx_http_groups,
@@ -670,7 +669,6 @@ const vd_output_ops vd_influx_http_curl = {
     .start = op_start,
     .row = op_row,
     .alarm = op_alarm,
-    .status_lines = op_status_lines,
     .counters = op_counters,
     .drain = op_drain,
     .close = op_close,

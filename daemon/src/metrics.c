@@ -126,6 +126,39 @@ static void per_mode(vd_text *o, const vd_snapshot *s, const char *name, const c
     }
 }
 
+void vd_snapshot_add(vd_snapshot *s, const char *key, const char *metric, const char *label, const char *help,
+                     bool gauge, double value)
+{
+    if (s->n_out_counters < VD_OUTPUT_COUNTERS_MAX)
+        s->out_counter[s->n_out_counters++] =
+            (vd_output_counter){.key = key, .metric = metric, .label = label, .help = help, .gauge = gauge, .value = value};
+}
+
+double vd_snapshot_value(const vd_snapshot *s, const char *key)
+{
+    for (size_t i = 0; i < s->n_out_counters; i++)
+        if (s->out_counter[i].key && !strcmp(s->out_counter[i].key, key))
+            return s->out_counter[i].value;
+    return NAN;
+}
+
+size_t vd_snapshot_status_lines(const vd_snapshot *s, char *buf, size_t cap)
+{
+    size_t off = 0;
+    for (size_t i = 0; i < s->n_out_counters; i++) {
+        const vd_output_counter *q = &s->out_counter[i];
+        if (!q->key)
+            continue;
+        int n = q->gauge && q->value != floor(q->value)
+                    ? snprintf(buf + (off < cap ? off : cap), off < cap ? cap - off : 0, "%s=%.10g\n", q->key, q->value)
+                    : snprintf(buf + (off < cap ? off : cap), off < cap ? cap - off : 0, "%s=%llu\n", q->key,
+                               (unsigned long long)q->value);
+        if (n > 0)
+            off += (size_t)n;
+    }
+    return off;
+}
+
 int vd_metrics_render(char *buf, size_t cap, const vd_snapshot *s)
 {
     vd_text o = {buf, cap, 0, cap == 0};
@@ -222,30 +255,24 @@ int vd_metrics_render(char *buf, size_t cap, const vd_snapshot *s)
     dbl(&o, "vibid_run_latency_seconds", "quantile=\"0.99\"", s->lat_p99_us / 1e6);
     dbl(&o, "vibid_run_latency_seconds_sum", "", s->lat_sum_s);
     u64(&o, "vibid_run_latency_seconds_count", "", s->lat_n);
-    counter(&o, "vibid_write_errors_total", "Failed writes of any output (status file included).", s->write_errors);
-    counter(&o, "vibid_torn_lines_total", "Torn last lines cut off the outputs at open.", s->torn_lines);
-    gauge(&o, "vibid_outputs_closed", "File outputs closed now because a reopen failed (retried).",
-          (double)s->outputs_closed);
-    static const char *const out_name[3] = {"tracks", "influx", "record"};
-    if (s->output_on[0] || s->output_on[1] || s->output_on[2]) { /* a family without a series is not written */
-        family(&o, "vibid_output_open_failures_total", "counter",
-               "Failed reopens of a file output (SIGHUP, retries); each also counts in vibid_write_errors_total.");
-        for (int k = 0; k < 3; k++)
-            if (s->output_on[k]) {
-                snprintf(a, sizeof a, "output=\"%s\"", out_name[k]);
-                u64(&o, "vibid_output_open_failures_total", a, s->output_open_failures[k]);
+    /* the outputs' own counters, each family's series one after the other (vd_snapshot_add) */
+    for (size_t i = 0; i < s->n_out_counters; i++) {
+        const vd_output_counter *q = &s->out_counter[i];
+        if (!q->metric)
+            continue;
+        bool first = true; /* of its family: the HELP and TYPE lines */
+        for (size_t j = i; j-- > 0;)
+            if (s->out_counter[j].metric) {
+                first = strcmp(s->out_counter[j].metric, q->metric) != 0;
+                break;
             }
-        family(&o, "vibid_output_lost_records_total", "counter",
-               "Records not written to a file output while it was closed (tracks: rows, influx: lines, record: "
-               "samples).");
-        for (int k = 0; k < 3; k++)
-            if (s->output_on[k]) {
-                snprintf(a, sizeof a, "output=\"%s\"", out_name[k]);
-                u64(&o, "vibid_output_lost_records_total", a, s->output_lost[k]);
-            }
+        if (first)
+            family(&o, q->metric, q->gauge ? "gauge" : "counter", q->help);
+        if (q->gauge)
+            dbl(&o, q->metric, q->label ? q->label : "", q->value);
+        else
+            u64(&o, q->metric, q->label ? q->label : "", (uint64_t)q->value);
     }
-    counter(&o, "vibid_influx_udp_sent_total", "InfluxDB line-protocol datagrams sent.", s->udp_sent);
-    counter(&o, "vibid_influx_udp_errors_total", "InfluxDB datagrams that could not be sent.", s->udp_errors);
     counter(&o, "vibid_alarms_raised_total", "Drift alarms raised.", s->alarms_raised);
     unsigned active = 0;
     for (size_t k = 0; k < s->n_params; k++)
@@ -344,49 +371,6 @@ int vd_metrics_render(char *buf, size_t cap, const vd_snapshot *s)
             snprintf(a, sizeof a, "reason=\"%s\"", vd_refusal_name((vd_refusal)r));
             u64(&o, "vibid_metrics_refused_total", a, s->refused[r]);
         }
-    }
-    if (s->mqtt_on) {
-        gauge(&o, "vibid_mqtt_connected", "1 while connected to the MQTT broker.", s->mqtt_connected ? 1.0 : 0.0);
-        counter(&o, "vibid_mqtt_published_total", "MQTT messages acknowledged by the broker.", s->mqtt_published);
-        counter(&o, "vibid_mqtt_refused_total",
-                "MQTT messages the broker refused (MQTT 5 reason codes, e.g. an ACL; always 0 with MQTT 3.1.1).",
-                s->mqtt_refused);
-        counter(&o, "vibid_mqtt_dropped_total", "MQTT messages dropped because the queue was full.",
-                s->mqtt_dropped);
-        gauge(&o, "vibid_mqtt_queue_fill", "MQTT messages waiting in the queue for the broker.",
-              (double)s->mqtt_queue_fill);
-        gauge(&o, "vibid_mqtt_queue_capacity", "MQTT messages the queue holds (outputs.mqtt.queue_size).",
-              (double)s->mqtt_queue_capacity);
-        gauge(&o, "vibid_mqtt_inflight", "MQTT messages sent and not yet acknowledged (resent after a reconnection).",
-              (double)s->mqtt_inflight);
-        counter(&o, "vibid_mqtt_reconnects_total", "MQTT connections after the first one.", s->mqtt_reconnects);
-        counter(&o, "vibid_mqtt_connect_failures_total",
-                "Failed MQTT connection attempts (unreachable, TLS, refused by the broker, CONNECT unanswered).",
-                s->mqtt_connect_failures);
-        counter(&o, "vibid_mqtt_unsent_total",
-                "MQTT messages not acknowledged by the broker when vibidd stopped (queued or sent; 0 until the end).",
-                s->mqtt_unsent);
-    }
-    if (s->influx_http_on) {
-        gauge(&o, "vibid_influx_http_ok", "1 while the last InfluxDB write request was answered 2xx.",
-              s->influx_http_ok ? 1.0 : 0.0);
-        counter(&o, "vibid_influx_http_written_lines_total", "Lines InfluxDB accepted.", s->influx_http_written);
-        counter(&o, "vibid_influx_http_requests_total", "InfluxDB write requests answered 2xx.",
-                s->influx_http_requests);
-        counter(&o, "vibid_influx_http_failures_total",
-                "InfluxDB write requests that failed and are retried (no answer, 401, 403, 404, 408, 429, 5xx).",
-                s->influx_http_failures);
-        counter(&o, "vibid_influx_http_rejected_lines_total",
-                "Lines InfluxDB refused for good (400, 422: e.g. a field type conflict); not sent again.",
-                s->influx_http_rejected);
-        counter(&o, "vibid_influx_http_dropped_lines_total", "Lines dropped because the buffer was full.",
-                s->influx_http_dropped);
-        gauge(&o, "vibid_influx_http_waiting_lines", "Lines in the buffer, not yet written.",
-              (double)s->influx_http_waiting);
-        gauge(&o, "vibid_influx_http_buffer_fill_bytes", "Bytes of the buffer in use.",
-              (double)s->influx_http_buffer_fill);
-        gauge(&o, "vibid_influx_http_buffer_capacity_bytes", "Bytes the buffer holds (outputs.influx.http.buffer_size).",
-              (double)s->influx_http_buffer_capacity);
     }
     return o.full ? -1 : (int)o.off;
 }

@@ -78,6 +78,20 @@ typedef enum vd_refusal {
 
 const char *vd_refusal_name(vd_refusal r);
 
+/* One counter or gauge of an output (output.h, counters), as the status file and the
+ * exposition show it. The output names it; neither the status file's code nor the
+ * exposition's knows any output's counters. */
+#define VD_OUTPUT_COUNTERS_MAX 64
+typedef struct vd_output_counter {
+    const char *key;    /* status-file key ("mqtt_published"); NULL: the exposition only */
+    const char *metric; /* exposition family ("vibid_mqtt_published_total"); NULL: the status file only */
+    const char *label;  /* the series' labels ("output=\"tracks\""); NULL: none. The series of a
+                           family are added one after the other. */
+    const char *help;   /* the family's HELP (its first series gives it) */
+    bool gauge;         /* a gauge (goes up and down); else a counter (a whole number) */
+    double value;       /* counters: whole numbers, exact up to 2^53 */
+} vd_output_counter;
+
 /* Everything the status file and the exposition show, at one instant. Strings point to
  * storage that lives as long as the daemon (stand name, source kind, fault names). */
 typedef struct vd_snapshot {
@@ -107,13 +121,9 @@ typedef struct vd_snapshot {
     uint64_t lat_n;
     uint64_t lat_le[VD_METRICS_LAT_BOUNDS]; /* cumulative counts at vd_metrics_lat_bounds_us */
     double lat_sum_s;
-    /* outputs */
-    uint64_t write_errors, torn_lines, udp_sent, udp_errors;
-    /* the file outputs (tracks, influx, record: writers.h's VD_OUT_*): configured, failed
-     * (re)opens, records (rows, lines, samples) lost while closed; how many are closed now */
-    bool output_on[3];
-    uint64_t output_open_failures[3], output_lost[3];
-    unsigned outputs_closed;
+    /* the outputs' counters (each output's counters call adds its own, output.h) */
+    size_t n_out_counters;
+    vd_output_counter out_counter[VD_OUTPUT_COUNTERS_MAX];
     uint64_t alarms_raised;
     /* parameters and modes (names in stand order; modes numbered 1..n_modes) */
     size_t n_params, n_modes;
@@ -140,25 +150,17 @@ typedef struct vd_snapshot {
     bool metrics_on;
     const char *metrics_listen;      /* the bound address, "127.0.0.1:18813" */
     uint64_t scrapes, refused[VD_REFUSED_N];
-    /* outputs.mqtt (mqtt.h), when configured */
-    bool mqtt_on, mqtt_connected;
-    uint64_t mqtt_published;        /* acknowledged by the broker */
-    uint64_t mqtt_refused;          /* refused by the broker (MQTT 5 reason codes; an ACL) */
-    uint64_t mqtt_dropped;          /* dropped because the queue was full */
-    uint64_t mqtt_reconnects, mqtt_connect_failures;
-    uint64_t mqtt_inflight;         /* handed to libmosquitto, not yet acknowledged */
-    uint64_t mqtt_unsent;           /* left unacknowledged at the end (queued or sent): after the drain */
-    size_t mqtt_queue_fill, mqtt_queue_capacity;
-    /* outputs.influx.http (influx_http.h), when configured */
-    bool influx_http_on, influx_http_ok; /* ok: the last request was answered 2xx */
-    uint64_t influx_http_written;        /* lines the server accepted (2xx) */
-    uint64_t influx_http_requests;       /* requests answered 2xx */
-    uint64_t influx_http_failures;       /* requests that failed and will be retried */
-    uint64_t influx_http_rejected;       /* lines refused for good (400, 422, ...) */
-    uint64_t influx_http_dropped;        /* lines dropped because the buffer was full */
-    uint64_t influx_http_waiting;        /* lines in the buffer, not yet written */
-    size_t influx_http_buffer_fill, influx_http_buffer_capacity; /* bytes */
 } vd_snapshot;
+
+/* Adds an output's counter (gauge false) or gauge to s (vd_output_counter says what each
+ * argument is); the strings must outlive s (literals). More than VD_OUTPUT_COUNTERS_MAX are
+ * not kept (the unit test of every output's counters checks the room). */
+void vd_snapshot_add(vd_snapshot *s, const char *key, const char *metric, const char *label, const char *help,
+                     bool gauge, double value);
+/* The value of the output counter with status-file key key, NaN when s has none. */
+double vd_snapshot_value(const vd_snapshot *s, const char *key);
+/* The status file's key=value lines of s's output counters (snprintf's contract). */
+size_t vd_snapshot_status_lines(const vd_snapshot *s, char *buf, size_t cap);
 
 /* The exposition text of s into buf. Returns its length, or -1 if cap is too small (the
  * text is then incomplete and must not be served). */

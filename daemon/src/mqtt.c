@@ -412,17 +412,32 @@ static bool op_status(void *p, const vd_snapshot *snap, const char *text, size_t
 
 static void op_counters(void *p, vd_snapshot *s) {
     vd_mqtt *m = p;
-    s->mqtt_on = true;
-    s->mqtt_connected = atomic_load(&m->connected) != 0;
-    s->mqtt_published = atomic_load(&m->published);
-    s->mqtt_refused = atomic_load(&m->refused);
-    s->mqtt_dropped = atomic_load(&m->dropped);
-    s->mqtt_reconnects = atomic_load(&m->reconnects);
-    s->mqtt_connect_failures = atomic_load(&m->connect_failures);
-    s->mqtt_unsent = atomic_load(&m->unsent);
-    s->mqtt_inflight = atomic_load(&m->inflight);
-    s->mqtt_queue_capacity = m->n_slots;
-    s->mqtt_queue_fill = atomic_load(&m->head) - atomic_load(&m->tail);
+    vd_snapshot_add(s, "mqtt_connected", "vibid_mqtt_connected", NULL, "1 while connected to the MQTT broker.", true,
+                    atomic_load(&m->connected) != 0 ? 1.0 : 0.0);
+    vd_snapshot_add(s, "mqtt_published", "vibid_mqtt_published_total", NULL,
+                    "MQTT messages acknowledged by the broker.", false, (double)atomic_load(&m->published));
+    vd_snapshot_add(s, "mqtt_refused", "vibid_mqtt_refused_total", NULL,
+                    "MQTT messages the broker refused (MQTT 5 reason codes, e.g. an ACL; always 0 with MQTT 3.1.1).",
+                    false, (double)atomic_load(&m->refused));
+    vd_snapshot_add(s, "mqtt_dropped", "vibid_mqtt_dropped_total", NULL,
+                    "MQTT messages dropped because the queue was full.", false, (double)atomic_load(&m->dropped));
+    vd_snapshot_add(s, "mqtt_queue_fill", "vibid_mqtt_queue_fill", NULL,
+                    "MQTT messages waiting in the queue for the broker.", true,
+                    (double)(atomic_load(&m->head) - atomic_load(&m->tail)));
+    vd_snapshot_add(s, "mqtt_queue_capacity", "vibid_mqtt_queue_capacity", NULL,
+                    "MQTT messages the queue holds (outputs.mqtt.queue_size).", true, (double)m->n_slots);
+    vd_snapshot_add(s, "mqtt_inflight", "vibid_mqtt_inflight", NULL,
+                    "MQTT messages sent and not yet acknowledged (resent after a reconnection).", true,
+                    (double)atomic_load(&m->inflight));
+    vd_snapshot_add(s, "mqtt_reconnects", "vibid_mqtt_reconnects_total", NULL, "MQTT connections after the first one.",
+                    false, (double)atomic_load(&m->reconnects));
+    vd_snapshot_add(s, "mqtt_connect_failures", "vibid_mqtt_connect_failures_total", NULL,
+                    "Failed MQTT connection attempts (unreachable, TLS, refused by the broker, CONNECT unanswered).",
+                    false, (double)atomic_load(&m->connect_failures));
+    vd_snapshot_add(s, "mqtt_unsent", "vibid_mqtt_unsent_total", NULL,
+                    "MQTT messages not acknowledged by the broker when vibidd stopped (queued or sent; 0 until the "
+                    "end).",
+                    false, (double)atomic_load(&m->unsent));
 }
 
 /* ------------------------------------------------------ publisher thread ---- */
@@ -995,19 +1010,6 @@ static void op_close(void *p) {
     free(m);
 }
 
-static size_t op_status_lines(const vd_snapshot *sn, char *buf, size_t cap) {
-    int n = snprintf(
-        buf, cap,
-        "mqtt_connected=%d\nmqtt_published=%llu\nmqtt_refused=%llu\nmqtt_dropped=%llu\nmqtt_queue_fill=%zu\n"
-        "mqtt_queue_capacity=%zu\nmqtt_inflight=%llu\nmqtt_reconnects=%llu\nmqtt_connect_failures=%llu\n"
-        "mqtt_unsent=%llu\n",
-        sn->mqtt_connected ? 1 : 0, (unsigned long long)sn->mqtt_published, (unsigned long long)sn->mqtt_refused,
-        (unsigned long long)sn->mqtt_dropped, sn->mqtt_queue_fill, sn->mqtt_queue_capacity,
-        (unsigned long long)sn->mqtt_inflight, (unsigned long long)sn->mqtt_reconnects,
-        (unsigned long long)sn->mqtt_connect_failures, (unsigned long long)sn->mqtt_unsent);
-    return n > 0 ? (size_t)n : 0;
-}
-
 const vd_output_ops vd_mqtt_libmosquitto = {
     .name = "mqtt",
     .flags = VD_OUTPUT_STATUS_TEXT,
@@ -1021,7 +1023,6 @@ const vd_output_ops vd_mqtt_libmosquitto = {
     .row = op_track,
     .alarm = op_alarm,
     .status = op_status,
-    .status_lines = op_status_lines,
     .counters = op_counters,
     .drain = op_drain,
     .close = op_close,

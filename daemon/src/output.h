@@ -107,14 +107,16 @@ typedef struct vd_output_ops {
      * (the output may wait for its lock). false when the output was busy: offered again at
      * the next housekeeping. */
     bool (*status)(void *o, const vd_snapshot *s, const char *text, size_t len, bool final);
-    /* The output's own key=value lines of the status file, from s (its counters), into buf
-     * (snprintf's contract: the length of the whole text, written as far as cap allows). */
+    /* The output's own key=value lines of the status file that are not counters (its
+     * counters come with them already: counters), from s, into buf (snprintf's contract: the
+     * length of the whole text, written as far as cap allows). */
     size_t (*status_lines)(const vd_snapshot *s, char *buf, size_t cap);
     /* Seconds between status calls when not the status interval (0: the status interval). */
     double (*status_period)(const vd_config *cfg);
     void (*flush)(void *o, bool sync);
     void (*reopen)(void *o);
-    /* The output's counters into s (which starts zeroed). */
+    /* Adds the output's counters and gauges to s (vd_snapshot_add, metrics.h): the status file
+     * and the exposition show them under the names the output gives; s starts zeroed. */
     void (*counters)(void *o, vd_snapshot *s);
     /* Sends what is left (bounded by the output's drain_timeout), stops its thread. */
     void (*drain)(void *o);

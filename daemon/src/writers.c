@@ -826,16 +826,37 @@ static void files_reopen(void *o) { (void)vd_writers_reopen(o); }
 static void files_counters(void *o, vd_snapshot *s)
 {
     const vd_writers *w = o;
-    s->write_errors = w->write_errors;
-    s->torn_lines = w->torn_lines;
-    for (int k = 0; k < VD_OUT_FILES; k++) {
-        s->output_on[k] = w->out[k].path && w->out[k].path[0];
-        s->output_open_failures[k] = w->out[k].open_failures;
-        s->output_lost[k] = w->out[k].lost;
-    }
-    s->outputs_closed = vd_writers_closed(w);
-    s->udp_sent = w->udp_sent;
-    s->udp_errors = w->udp_errors;
+    vd_snapshot_add(s, "write_errors", "vibid_write_errors_total", NULL,
+                    "Failed writes of any output (status file included).", false, (double)w->write_errors);
+    vd_snapshot_add(s, "torn_lines", "vibid_torn_lines_total", NULL, "Torn last lines cut off the outputs at open.",
+                    false, (double)w->torn_lines);
+    vd_snapshot_add(s, "influx_udp_sent", "vibid_influx_udp_sent_total", NULL,
+                    "InfluxDB line-protocol datagrams sent.", false, (double)w->udp_sent);
+    vd_snapshot_add(s, "influx_udp_errors", "vibid_influx_udp_errors_total", NULL,
+                    "InfluxDB datagrams that could not be sent.", false, (double)w->udp_errors);
+    vd_snapshot_add(s, "outputs_closed", "vibid_outputs_closed", NULL,
+                    "File outputs closed now because a reopen failed (retried).", true, (double)vd_writers_closed(w));
+    /* per file output: its label, the status file's key of its losses (whose unit it names) */
+    static const char *const label[VD_OUT_FILES] = {"output=\"tracks\"", "output=\"influx\"", "output=\"record\""};
+    static const char *const lost_key[VD_OUT_FILES] = {"tracks_lost_rows", "influx_lost_lines", "record_lost_samples"};
+    uint64_t open_failures = 0;
+    for (int k = 0; k < VD_OUT_FILES; k++)
+        open_failures += w->out[k].open_failures;
+    vd_snapshot_add(s, "output_open_failures", NULL, NULL, NULL, false, (double)open_failures);
+    for (int k = 0; k < VD_OUT_FILES; k++) /* a family without a series is not written */
+        if (w->out[k].path && w->out[k].path[0])
+            vd_snapshot_add(s, NULL, "vibid_output_open_failures_total", label[k],
+                            "Failed reopens of a file output (SIGHUP, retries); each also counts in "
+                            "vibid_write_errors_total.",
+                            false, (double)w->out[k].open_failures);
+    for (int k = 0; k < VD_OUT_FILES; k++)
+        vd_snapshot_add(s, lost_key[k], NULL, NULL, NULL, false, (double)w->out[k].lost);
+    for (int k = 0; k < VD_OUT_FILES; k++)
+        if (w->out[k].path && w->out[k].path[0])
+            vd_snapshot_add(s, NULL, "vibid_output_lost_records_total", label[k],
+                            "Records not written to a file output while it was closed (tracks: rows, influx: "
+                            "lines, record: samples).",
+                            false, (double)w->out[k].lost);
 }
 
 static bool files_failed(void *o) { return ((const vd_writers *)o)->write_errors != 0; }

@@ -200,13 +200,13 @@ static void test_buffer_full(void **state) {
     vd_snapshot s;
     memset(&s, 0, sizeof s);
     vd_influx_http_curl.counters(h, &s);
-    assert_true(s.influx_http_on);
-    assert_false(s.influx_http_ok);
-    assert_int_equal(s.influx_http_waiting, fit);
-    assert_int_equal(s.influx_http_dropped, 25);
-    assert_int_equal(s.influx_http_buffer_fill, fit * rec);
-    assert_int_equal(s.influx_http_buffer_capacity, 1u << 20);
-    assert_int_equal(s.influx_http_written, 0);
+    assert_int_equal(s.n_out_counters, 9); /* the output's nine counters and gauges, each once */
+    assert_true(vd_snapshot_value(&s, "influx_http_ok") == 0.0);
+    assert_true(vd_snapshot_value(&s, "influx_http_waiting") == (double)fit);
+    assert_true(vd_snapshot_value(&s, "influx_http_dropped") == 25.0);
+    assert_true(vd_snapshot_value(&s, "influx_http_buffer_fill") == (double)(fit * rec));
+    assert_true(vd_snapshot_value(&s, "influx_http_buffer_capacity") == (double)(1u << 20));
+    assert_true(vd_snapshot_value(&s, "influx_http_written") == 0.0);
     vd_influx_http_curl.close(h); /* never started: nothing to drain */
     vd_config_free(&c);
 }

@@ -25,6 +25,8 @@
 #include "config.h"
 #include "estimator.h"
 #include "metrics.h"
+#include "output.h"
+#include "writers.h"
 
 static vd_snapshot snap;
 
@@ -49,13 +51,24 @@ static void fill_snapshot(vd_snapshot *s)
     s->ring_capacity = 65536;
     s->ring_fill = 12;
     s->ring_overflows = 2;
-    s->write_errors = 5;
-    s->torn_lines = 1;
-    s->output_on[0] = s->output_on[2] = true; /* tracks and record; no influx file */
-    s->output_open_failures[0] = 3;
-    s->output_lost[0] = 401;
-    s->output_lost[2] = 8017;
-    s->outputs_closed = 1;
+    /* the file outputs' counters as their output gives them (writers.c): tracks and record
+     * configured, no influx file; the tracks closed after 3 failed reopens */
+    static vd_writers w;
+    memset(&w, 0, sizeof w);
+    w.write_errors = 5;
+    w.torn_lines = 1;
+    w.out[0].path = "tracks.csv";
+    w.out[1].path = "";
+    w.out[2].path = "raw.csv";
+    w.out[0].open_failures = 3;
+    w.out[0].closed = true;
+    w.out[0].lost = 401;
+    w.out[2].lost = 8017;
+    vd_output_files.counters(&w, s);
+    /* 5 counters, the open-failure sum, 2 labelled open-failure series, 3 losses, 2 labelled
+     * loss series; with every file output 15 at most, MQTT's 10 and InfluxDB's 9 (their
+     * tests): 34 of the VD_OUTPUT_COUNTERS_MAX a snapshot holds */
+    assert_int_equal(s->n_out_counters, 13);
     s->rows = 617;
     s->est_errors = 1;
     s->implausible_rows = 2;

@@ -262,7 +262,7 @@ static void test_status_json(void **state) {
 static uint64_t dropped(vd_mqtt *m, vd_snapshot *s) {
     memset(s, 0, sizeof *s);
     vd_mqtt_libmosquitto.counters(m, s);
-    return s->mqtt_dropped;
+    return (uint64_t)vd_snapshot_value(s, "mqtt_dropped");
 }
 
 /* No broker, no thread: the queue of 5 takes 5 rows; the others are dropped and counted, each
@@ -285,10 +285,10 @@ static void test_queue_drops(void **state) {
     clock_gettime(CLOCK_MONOTONIC, &t1);
     double dt = (double)(t1.tv_sec - t0.tv_sec) + 1e-9 * (double)(t1.tv_nsec - t0.tv_nsec);
     assert_int_equal(dropped(m, &s), 8); /* 7 rows and the alarm */
-    assert_true(s.mqtt_on);
-    assert_false(s.mqtt_connected);
-    assert_int_equal(s.mqtt_queue_fill, 5);
-    assert_int_equal(s.mqtt_queue_capacity, 5);
+    assert_int_equal(s.n_out_counters, 10); /* the output's ten counters and gauges, each once */
+    assert_true(vd_snapshot_value(&s, "mqtt_connected") == 0.0);
+    assert_true(vd_snapshot_value(&s, "mqtt_queue_fill") == 5.0);
+    assert_true(vd_snapshot_value(&s, "mqtt_queue_capacity") == 5.0);
     assert_true(dt < 0.5);
     assert_true(vd_mqtt_libmosquitto.status(m, NULL, "state=running\n", 14, false));
     vd_mqtt_libmosquitto.close(m); /* never started: nothing to drain */
