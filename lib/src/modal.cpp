@@ -5,6 +5,7 @@
 
 #include "api_guard.hpp"
 #include "model_internal.hpp"
+#include "modal_work.hpp"
 
 #include <Eigen/Dense>
 
@@ -18,63 +19,125 @@ using vibid::throw_error;
 
 namespace {
 
-struct Mode {
-    double freq_hz;
-    double zeta;
-    Eigen::VectorXcd shape;
-    // the eigenvalue(s) of the state matrix behind the mode: root (Im > 0) of an oscillating
-    // pair, or the two real roots of an overdamped / rigid-body pair (pair = -1 otherwise)
-    Eigen::Index root = -1, pair = -1;
-};
-
-// The state matrix of (1.6), A = [0 I; -M^-1 C  -M^-1 D] (2n x 2n).
-MatrixXd state_matrix(const MatrixXd &M, const MatrixXd &D, const MatrixXd &C) {
-    const Eigen::Index n = M.rows();
-    Eigen::FullPivLU<MatrixXd> lu(M);
-    if (!lu.isInvertible()) throw_error(VIBID_E_NUMERICAL, "mass matrix is singular");
-    MatrixXd A = MatrixXd::Zero(2 * n, 2 * n);
-    A.topRightCorner(n, n).setIdentity();
-    A.bottomLeftCorner(n, n) = -lu.solve(C);
-    A.bottomRightCorner(n, n) = -lu.solve(D);
-    return A;
+// The status of an unstable model, for the API function `fn`: its outputs are written all
+// the same.
+vibid_status unstable(const char *fn, double growth) {
+    vibid::set_last_error(fn,
+                      "the model is unstable: an eigenvalue has real part %g 1/s > 0 (negative damping gives "
+                      "zeta < 0; a negative stiffness a non-oscillating divergent pair, reported as f = 0, "
+                      "zeta = 1)",
+                      growth);
+    return VIBID_E_UNSTABLE;
 }
 
-// shapes = false skips the eigenvectors (Mode::shape stays empty): the perturbed solves of
-// the standard-error propagation need only the eigenvalues, at about half the cost.
-// growth (may be null): the largest eigenvalue real part above 1e-12 of the state
-// matrix's norm (an unstable model), 0 when there is none.
-// es (may be null): the eigen decomposition of the state matrix, for the caller (computed
-// with eigenvectors then, whatever shapes says).
-std::vector<Mode> modes_of(const MatrixXd &M, const MatrixXd &D, const MatrixXd &C, bool shapes = true,
-                           double *growth = nullptr, Eigen::EigenSolver<MatrixXd> *es_out = nullptr) {
-    const Eigen::Index n = M.rows();
-    const MatrixXd A = state_matrix(M, D, C);
-    Eigen::EigenSolver<MatrixXd> es_local;
-    Eigen::EigenSolver<MatrixXd> &es = es_out ? *es_out : es_local;
-    es.compute(A, shapes || es_out);
-    if (es.info() != Eigen::Success) throw_error(VIBID_E_NUMERICAL, "eigen solver did not converge");
-    std::vector<Mode> modes;
-    std::vector<std::pair<double, Eigen::Index>> real_roots;
-    const double scale = std::max(A.norm(), 1e-300);
+}  // namespace
+
+namespace vibid {
+
+ModalWork::ModalWork(const vibid_model *model) : ModalWork(model->nodes.size()) {
+    model_ = model;
+    p_ = static_cast<Eigen::Index>(model->param_term.size());
+    th_.resize(static_cast<std::size_t>(p_));
+    tp_.resize(static_cast<std::size_t>(p_));
+    tm_.resize(static_cast<std::size_t>(p_));
+    J_.resize(2 * n_, p_);
+    JC_.resize(2 * n_, p_);
+}
+
+ModalWork::ModalWork(std::size_t n)
+    : n_(static_cast<Eigen::Index>(n)), lu_(static_cast<Eigen::Index>(n)), es_(2 * static_cast<Eigen::Index>(n)),
+      luV_(2 * static_cast<Eigen::Index>(n)) {
+    const Eigen::Index N = 2 * n_;
+    M_.setZero(n_, n_);
+    D_.setZero(n_, n_);
+    C_.setZero(n_, n_);
+    A_.setZero(N, N);
+    Ap_.setZero(N, N);
+    S_.setZero(n_, n_);
+    V_.setZero(N, N);
+    W_.setZero(N, N);
+    I_.setIdentity(N, N);
+    shape_.setZero(n_);
+    Cv_.setZero(N, N);
+    modes_.resize(n);
+    modes_p_.resize(n);
+    modes_m_.resize(n);
+    real_roots_.reserve(static_cast<std::size_t>(N));
+}
+
+void ModalWork::assemble(const double *theta) {
+    if (vibid_model_assemble(model_, theta, M_.data(), D_.data(), C_.data(), nullptr, nullptr, nullptr) != VIBID_OK)
+        throw_error(VIBID_E_NUMERICAL, "assembling the model failed: %s", vibid_last_error());
+}
+
+// The state matrix of (1.6), A = [0 I; -M^-1 C  -M^-1 D] (2n x 2n), of M_, D_, C_.
+void ModalWork::state_matrix(Eigen::MatrixXd &A) {
+    const Eigen::Index n = n_;
+    lu_.compute(M_);
+    // singular: a pivot below the rank threshold of a full-pivoting LU (n eps of the largest)
+    const auto piv = lu_.matrixLU().diagonal().cwiseAbs();
+    if (!(piv.minCoeff() > piv.maxCoeff() * static_cast<double>(n) * Eigen::NumTraits<double>::epsilon()))
+        throw_error(VIBID_E_NUMERICAL, "mass matrix is singular");
+    A.setZero();
+    A.topRightCorner(n, n).setIdentity();
+    S_ = lu_.solve(C_);
+    A.bottomLeftCorner(n, n) = -S_;
+    S_ = lu_.solve(D_);
+    A.bottomRightCorner(n, n) = -S_;
+}
+
+// The eigenvectors of es_ as complex columns into V_ (EigenSolver::eigenvectors(), which
+// returns a new matrix: the same arithmetic, into the preallocated one).
+void ModalWork::complex_vectors() {
+    const Eigen::MatrixXd &E = es_.pseudoEigenvectors();
+    const auto &lam = es_.eigenvalues();
+    const Eigen::Index N = 2 * n_;
+    for (Eigen::Index j = 0; j < N; ++j) {
+        if (Eigen::internal::isMuchSmallerThan(lam(j).imag(), lam(j).real()) || j + 1 == N) {
+            V_.col(j) = E.col(j).cast<std::complex<double>>();
+            V_.col(j).normalize();
+        } else {
+            for (Eigen::Index i = 0; i < N; ++i) {
+                V_(i, j) = std::complex<double>(E(i, j), E(i, j + 1));
+                V_(i, j + 1) = std::complex<double>(E(i, j), -E(i, j + 1));
+            }
+            V_.col(j).normalize();
+            V_.col(j + 1).normalize();
+            ++j;
+        }
+    }
+}
+
+// The modes of A_ (state_matrix done) into modes, sorted by frequency. vectors: the
+// eigenvectors too (V_), for shapes or the Jacobian. growth (may be null): the largest
+// eigenvalue real part above 1e-12 of the state matrix's norm (an unstable model), 0 when
+// there is none.
+void ModalWork::analyse(bool vectors, std::vector<Mode> &modes, double *growth) {
+    const Eigen::Index n = n_;
+    es_.compute(A_, vectors);
+    if (es_.info() != Eigen::Success) throw_error(VIBID_E_NUMERICAL, "eigen solver did not converge");
+    if (vectors) complex_vectors();
+    std::size_t nm = 0;
+    real_roots_.clear();
+    const double scale = std::max(A_.norm(), 1e-300);
     if (growth) *growth = 0.0;
     for (Eigen::Index i = 0; i < 2 * n; ++i) {
-        const std::complex<double> l = es.eigenvalues()(i);
+        const std::complex<double> l = es_.eigenvalues()(i);
         // A rigid-body root is 0 up to rounding: only a clearly positive part is growth.
         if (growth && l.real() > 1e-12 * scale) *growth = std::max(*growth, l.real());
         if (std::fabs(l.imag()) > 1e-12 * scale) {
             if (l.imag() < 0) continue;  // the conjugate describes the same mode
             const double w = std::abs(l);
-            modes.push_back(Mode{w / (2.0 * M_PI), -l.real() / w,
-                                 shapes ? Eigen::VectorXcd(es.eigenvectors().col(i).head(n)) : Eigen::VectorXcd(), i,
-                                 -1});
+            if (nm < modes.size()) modes[nm] = Mode{w / (2.0 * M_PI), -l.real() / w, i, -1, i};
+            ++nm;
         } else {
-            real_roots.emplace_back(l.real(), i);
+            real_roots_.emplace_back(l.real(), i);  // reserved: no allocation
         }
     }
     // Overdamped (or rigid-body) modes: pair the real roots in ascending order.
-    std::sort(real_roots.begin(), real_roots.end());
-    for (std::size_t k = 0; k + 1 < real_roots.size(); k += 2) {
-        const double l1 = real_roots[k].first, l2 = real_roots[k + 1].first;
+    std::sort(real_roots_.begin(), real_roots_.end());
+    for (std::size_t k = 0; k + 1 < real_roots_.size(); k += 2, ++nm) {
+        const double l1 = real_roots_[k].first, l2 = real_roots_[k + 1].first;
         const double prod = l1 * l2;
         Mode md;
         if (prod > 0.0) {
@@ -85,91 +148,92 @@ std::vector<Mode> modes_of(const MatrixXd &M, const MatrixXd &D, const MatrixXd 
             md.freq_hz = 0.0;  // a zero root: rigid-body motion
             md.zeta = 1.0;
         }
-        if (shapes) md.shape = es.eigenvectors().col(real_roots[k + 1].second).head(n);
-        md.root = real_roots[k].second;
-        md.pair = real_roots[k + 1].second;
-        modes.push_back(md);
+        md.root = real_roots_[k].second;
+        md.pair = real_roots_[k + 1].second;
+        md.vec = md.pair;
+        if (nm < modes.size()) modes[nm] = md;
     }
-    if (static_cast<Eigen::Index>(modes.size()) != n)
+    if (static_cast<Eigen::Index>(nm) != n)
         throw_error(VIBID_E_NUMERICAL, "could not pair the %ld eigenvalues into %ld modes", static_cast<long>(2 * n),
                     static_cast<long>(n));
-    for (auto &md : modes) {
-        if (!shapes) break;
-        Eigen::Index imax = 0;
-        md.shape.cwiseAbs().maxCoeff(&imax);
-        const std::complex<double> pivot = md.shape(imax);
-        if (std::abs(pivot) > 0) md.shape /= pivot;
-        md.shape(imax) = 1.0;
-    }
     std::sort(modes.begin(), modes.end(), [](const Mode &a, const Mode &b) { return a.freq_hz < b.freq_hz; });
-    return modes;
 }
 
-void write_modes(const std::vector<Mode> &modes, std::size_t n, double *freq_hz, double *zeta, double *shape_re,
-                 double *shape_im) {
+void ModalWork::write(const std::vector<Mode> &modes, double *freq_hz, double *zeta, double *shape_re,
+                      double *shape_im) {
+    const std::size_t n = static_cast<std::size_t>(n_);
     for (std::size_t j = 0; j < n; ++j) {
         if (freq_hz) freq_hz[j] = modes[j].freq_hz;
         if (zeta) zeta[j] = modes[j].zeta;
+        if (!shape_re && !shape_im) continue;
+        // the first n components of the eigenvector, the largest one exactly 1 (real)
+        shape_ = V_.col(modes[j].vec).head(n_);
+        Eigen::Index imax = 0;
+        shape_.cwiseAbs().maxCoeff(&imax);
+        const std::complex<double> pivot = shape_(imax);
+        if (std::abs(pivot) > 0) shape_ /= pivot;
+        shape_(imax) = 1.0;
         for (std::size_t i = 0; i < n; ++i) {
-            if (shape_re) shape_re[i + j * n] = modes[j].shape(static_cast<Eigen::Index>(i)).real();
-            if (shape_im) shape_im[i + j * n] = modes[j].shape(static_cast<Eigen::Index>(i)).imag();
+            if (shape_re) shape_re[i + j * n] = shape_(static_cast<Eigen::Index>(i)).real();
+            if (shape_im) shape_im[i + j * n] = shape_(static_cast<Eigen::Index>(i)).imag();
         }
     }
 }
 
-void assemble(const vibid_model *model, const double *theta, MatrixXd &M, MatrixXd &D, MatrixXd &C) {
-    const Eigen::Index n = static_cast<Eigen::Index>(model->nodes.size());
-    M.resize(n, n);
-    D.resize(n, n);
-    C.resize(n, n);
-    if (vibid_model_assemble(model, theta, M.data(), D.data(), C.data(), nullptr, nullptr, nullptr) != VIBID_OK)
-        throw_error(VIBID_E_NUMERICAL, "assembling the model failed: %s", vibid_last_error());
-}
-
-std::vector<Mode> model_modes(const vibid_model *model, const double *theta, bool shapes = true,
-                              double *growth = nullptr, Eigen::EigenSolver<MatrixXd> *es = nullptr) {
-    MatrixXd M, D, C;
-    assemble(model, theta, M, D, C);
-    return modes_of(M, D, C, shapes, growth, es);
-}
-
 // The sensitivities of every mode's frequency (rows 0..n-1) and damping ratio (rows
-// n..2n-1) to the parameters (p columns) by eigenvalue perturbation: for a simple eigenvalue
-// l of the state matrix A with right eigenvector v and left eigenvector w (w^H = the row of
-// V^-1), dl = w^H dA v (w^H v = 1 with W^H = V^-1). dA/dtheta_i comes from central
-// differences of the assembled M, D, C (exact up to rounding where they are linear in theta,
-// as stiffness and damping terms are). One eigen decomposition instead of 2p + 1: this runs
-// for every track row. false when V is too ill-conditioned for it (a defective or nearly
-// repeated eigenvalue, where the perturbation is not first order): the caller then
-// differentiates the eigenvalues numerically.
-bool modal_jacobian(const vibid_model *model, const std::vector<double> &th, const std::vector<Mode> &modes,
-                    const Eigen::EigenSolver<MatrixXd> &es, MatrixXd &J) {
-    const std::size_t n = model->nodes.size(), p = th.size();
-    const Eigen::MatrixXcd V = es.eigenvectors();
-    Eigen::PartialPivLU<Eigen::MatrixXcd> lu(V);
-    // rcond of V: below 1e-10 the eigenvector basis is nearly singular and first-order
-    // perturbation loses more digits than the numerical difference would
-    if (!(lu.rcond() > 1e-10)) return false;
-    const Eigen::MatrixXcd W = lu.inverse();  // row i: w_i^H
-    const Eigen::VectorXcd lam = es.eigenvalues();
-    J.setZero(static_cast<Eigen::Index>(2 * n), static_cast<Eigen::Index>(p));
-    std::vector<double> tp = th, tm = th;
-    MatrixXd M, D, C;
+// n..2n-1) to the parameters (p columns) into J_, by eigenvalue perturbation: for a simple
+// eigenvalue l of the state matrix A with right eigenvector v and left eigenvector w (w^H =
+// the row of V^-1), dl = w^H dA v. dA/dtheta_i comes from central differences of the
+// assembled M, D, C (exact up to rounding where they are linear in theta, as stiffness and
+// damping terms are). One eigen decomposition instead of 2p + 1: this runs for every track
+// row. false when V is too ill-conditioned for it (a defective or nearly repeated
+// eigenvalue, where the perturbation is not first order): the caller then differentiates
+// the eigenvalues numerically. Needs analyse(vectors) of th_ into modes_ first.
+bool ModalWork::jacobian() {
+    const Eigen::Index n = n_, N = 2 * n_;
+    luV_.compute(V_);
+    W_ = luV_.solve(I_);  // V^-1, row i: w_i^H (inverse() would copy the decomposition)
+    // the reciprocal 1-norm condition of V, exact from V and its inverse: below 1e-10 the
+    // eigenvector basis is nearly singular and first-order perturbation loses more digits
+    // than the numerical difference would
+    double nv = 0.0, nw = 0.0;
+    for (Eigen::Index j = 0; j < N; ++j) {
+        double sv = 0.0, sw = 0.0;
+        for (Eigen::Index i = 0; i < N; ++i) {
+            sv += std::abs(V_(i, j));
+            sw += std::abs(W_(i, j));
+        }
+        nv = std::max(nv, sv);
+        nw = std::max(nw, sw);
+    }
+    if (!(1.0 / (nv * nw) > 1e-10)) return false;
+    const auto &lam = es_.eigenvalues();
+    J_.setZero();
+    const std::size_t p = static_cast<std::size_t>(p_);
     for (std::size_t i = 0; i < p; ++i) {
-        const double step = 1e-6 * std::max(std::fabs(th[i]), 1e-12);
-        tp[i] = th[i] + step;
-        tm[i] = th[i] - step;
-        assemble(model, tp.data(), M, D, C);
-        MatrixXd dA = state_matrix(M, D, C);
-        assemble(model, tm.data(), M, D, C);
-        dA -= state_matrix(M, D, C);
-        dA /= 2.0 * step;
-        tp[i] = tm[i] = th[i];
-        const Eigen::MatrixXcd dAV = dA.cast<std::complex<double>>() * V;
-        // dl_r = w_r^H dA v_r = sum_k W(r, k) (dA V)(k, r)
-        auto dl = [&](Eigen::Index r) { return W.row(r).transpose().cwiseProduct(dAV.col(r)).sum(); };
-        for (std::size_t j = 0; j < n; ++j) {
-            const Mode &md = modes[j];
+        const double step = 1e-6 * std::max(std::fabs(th_[i]), 1e-12);
+        tp_ = th_;
+        tm_ = th_;
+        tp_[i] = th_[i] + step;
+        tm_[i] = th_[i] - step;
+        assemble(tp_.data());
+        state_matrix(Ap_);
+        assemble(tm_.data());
+        state_matrix(A_);
+        Ap_ -= A_;
+        Ap_ /= 2.0 * step;  // dA
+        // dl_r = w_r^H dA v_r = sum_k W(r, k) (dA V)(k, r), for the roots the modes use
+        auto dl = [&](Eigen::Index r) {
+            std::complex<double> sum = 0.0;
+            for (Eigen::Index k = 0; k < N; ++k) {
+                std::complex<double> av = 0.0;
+                for (Eigen::Index m = 0; m < N; ++m) av += Ap_(k, m) * V_(m, r);
+                sum += W_(r, k) * av;
+            }
+            return sum;
+        };
+        for (Eigen::Index j = 0; j < n; ++j) {
+            const Mode &md = modes_[static_cast<std::size_t>(j)];
             double df = 0.0, dz = 0.0;
             if (md.pair < 0) {
                 // f = |l| / 2 pi, zeta = -Re l / |l|
@@ -188,25 +252,88 @@ bool modal_jacobian(const vibid_model *model, const std::vector<double> &th, con
                     dz = -(d1 + d2) / (2.0 * w) + (l1 + l2) * dw / (2.0 * w * w);
                 }
             }
-            J(static_cast<Eigen::Index>(j), static_cast<Eigen::Index>(i)) = df;
-            J(static_cast<Eigen::Index>(n + j), static_cast<Eigen::Index>(i)) = dz;
+            J_(j, static_cast<Eigen::Index>(i)) = df;
+            J_(n + j, static_cast<Eigen::Index>(i)) = dz;
         }
     }
     return true;
 }
 
-// The status of an unstable model, for the API function `fn`: its outputs are written all
-// the same.
-vibid_status unstable(const char *fn, double growth) {
-    vibid::set_last_error(fn,
-                      "the model is unstable: an eigenvalue has real part %g 1/s > 0 (negative damping gives "
-                      "zeta < 0; a negative stiffness a non-oscillating divergent pair, reported as f = 0, "
-                      "zeta = 1)",
-                      growth);
-    return VIBID_E_UNSTABLE;
+// J_ by central differences of the eigenvalues (2p decompositions): where jacobian() cannot.
+void ModalWork::numeric_jacobian() {
+    const std::size_t p = static_cast<std::size_t>(p_);
+    for (std::size_t i = 0; i < p; ++i) {
+        const double step = 1e-6 * std::max(std::fabs(th_[i]), 1e-12);
+        tp_ = th_;
+        tm_ = th_;
+        tp_[i] += step;
+        tm_[i] -= step;
+        assemble(tp_.data());
+        state_matrix(A_);
+        analyse(false, modes_p_, nullptr);
+        assemble(tm_.data());
+        state_matrix(A_);
+        analyse(false, modes_m_, nullptr);
+        for (Eigen::Index j = 0; j < n_; ++j) {
+            const std::size_t jj = static_cast<std::size_t>(j);
+            J_(j, static_cast<Eigen::Index>(i)) = (modes_p_[jj].freq_hz - modes_m_[jj].freq_hz) / (2 * step);
+            J_(n_ + j, static_cast<Eigen::Index>(i)) = (modes_p_[jj].zeta - modes_m_[jj].zeta) / (2 * step);
+        }
+    }
 }
 
-}  // namespace
+vibid_status ModalWork::model_modal(const double *theta, const double *cov, double *freq_hz, double *freq_se,
+                                    double *zeta, double *zeta_se, double *shape_re, double *shape_im, const char *fn) {
+    if (!freq_hz || !zeta) throw_error(VIBID_E_NULL_ARGUMENT, "freq_hz and zeta are required");
+    const std::size_t n = static_cast<std::size_t>(n_), p = static_cast<std::size_t>(p_);
+    if (theta)
+        std::copy(theta, theta + p, th_.begin());
+    else
+        vibid_model_nominal(model_, th_.data());
+    if (!vibid::all_finite(th_.data(), p)) throw_error(VIBID_E_NONFINITE, "theta has NaN or Inf");
+    const bool se_wanted = cov && (freq_se || zeta_se);
+    if (se_wanted && !vibid::all_finite(cov, p * p)) throw_error(VIBID_E_NONFINITE, "cov has NaN or Inf");
+    double growth = 0.0;
+    assemble(th_.data());
+    state_matrix(A_);
+    analyse(shape_re || shape_im || se_wanted, modes_, &growth);
+    write(modes_, freq_hz, zeta, shape_re, shape_im);
+    if (se_wanted) {
+        // First-order propagation: se^2 = diag(J cov J^T), J (2n x p) by eigenvalue
+        // perturbation, or by central differences of the eigenvalues where that fails.
+        if (!jacobian()) numeric_jacobian();
+        const Eigen::Map<const Eigen::MatrixXd> Cm(cov, p_, p_);
+        JC_.noalias() = J_ * Cm;
+        for (std::size_t j = 0; j < n; ++j) {
+            const Eigen::Index a = static_cast<Eigen::Index>(j), b = static_cast<Eigen::Index>(n + j);
+            if (freq_se) freq_se[j] = std::sqrt(std::max(JC_.row(a).dot(J_.row(a)), 0.0));
+            if (zeta_se) zeta_se[j] = std::sqrt(std::max(JC_.row(b).dot(J_.row(b)), 0.0));
+        }
+    } else {
+        for (std::size_t j = 0; j < n; ++j) {
+            if (freq_se) freq_se[j] = 0.0;
+            if (zeta_se) zeta_se[j] = 0.0;
+        }
+    }
+    return growth > 0.0 ? unstable(fn, growth) : VIBID_OK;
+}
+
+vibid_status ModalWork::matrices_modal(const double *M, const double *D, const double *C, double *freq_hz,
+                                       double *zeta, double *shape_re, double *shape_im, const char *fn) {
+    M_ = Eigen::Map<const Eigen::MatrixXd>(M, n_, n_);
+    if (D)
+        D_ = Eigen::Map<const Eigen::MatrixXd>(D, n_, n_);
+    else
+        D_.setZero();
+    C_ = Eigen::Map<const Eigen::MatrixXd>(C, n_, n_);
+    double growth = 0.0;
+    state_matrix(A_);
+    analyse(shape_re || shape_im, modes_, &growth);
+    write(modes_, freq_hz, zeta, shape_re, shape_im);
+    return growth > 0.0 ? unstable(fn, growth) : VIBID_OK;
+}
+
+}  // namespace vibid
 
 extern "C" {
 
@@ -217,13 +344,8 @@ VIBID_API vibid_status vibid_modal(size_t n, const double *M, const double *D, c
         if (!M || !C || !freq_hz || !zeta) throw_error(VIBID_E_NULL_ARGUMENT, "M, C, freq_hz and zeta are required");
         if (!vibid::all_finite(M, n * n) || !vibid::all_finite(C, n * n) || (D && !vibid::all_finite(D, n * n)))
             throw_error(VIBID_E_NONFINITE, "matrix with NaN or Inf");
-        const Eigen::Index N = static_cast<Eigen::Index>(n);
-        MatrixXd Dm = D ? MatrixXd(Eigen::Map<const MatrixXd>(D, N, N)) : MatrixXd::Zero(N, N);
-        double growth = 0.0;
-        auto modes = modes_of(Eigen::Map<const MatrixXd>(M, N, N), Dm, Eigen::Map<const MatrixXd>(C, N, N),
-                              shape_re || shape_im, &growth);
-        write_modes(modes, n, freq_hz, zeta, shape_re, shape_im);
-        return growth > 0.0 ? unstable("vibid_modal", growth) : VIBID_OK;);
+        vibid::ModalWork w(n);
+        return w.matrices_modal(M, D, C, freq_hz, zeta, shape_re, shape_im, "vibid_modal"););
 }
 
 VIBID_API vibid_status vibid_model_modal(const vibid_model *model, const double *theta, const double *cov,
@@ -232,52 +354,8 @@ VIBID_API vibid_status vibid_model_modal(const vibid_model *model, const double 
     VIBID_GUARD(
         vibid::require_finalized(model);
         if (!freq_hz || !zeta) throw_error(VIBID_E_NULL_ARGUMENT, "freq_hz and zeta are required");
-        const std::size_t n = model->nodes.size(), p = model->param_term.size();
-        std::vector<double> th(p);
-        if (theta)
-            std::copy(theta, theta + p, th.begin());
-        else
-            vibid_model_nominal(model, th.data());
-        if (!vibid::all_finite(th.data(), p)) throw_error(VIBID_E_NONFINITE, "theta has NaN or Inf");
-        double growth = 0.0;
-        const bool se_wanted = cov && (freq_se || zeta_se);
-        Eigen::EigenSolver<MatrixXd> es;
-        const auto modes = model_modes(model, th.data(), shape_re || shape_im, &growth, se_wanted ? &es : nullptr);
-        write_modes(modes, n, freq_hz, zeta, shape_re, shape_im);
-        if (se_wanted) {
-            if (!vibid::all_finite(cov, p * p)) throw_error(VIBID_E_NONFINITE, "cov has NaN or Inf");
-            // First-order propagation: se^2 = diag(J cov J^T), J (2n x p) by eigenvalue
-            // perturbation, or by central differences of the eigenvalues where that fails.
-            MatrixXd J(2 * n, p);
-            if (!modal_jacobian(model, th, modes, es, J)) {
-                for (std::size_t i = 0; i < p; ++i) {
-                    const double step = 1e-6 * std::max(std::fabs(th[i]), 1e-12);
-                    std::vector<double> tp = th, tm = th;
-                    tp[i] += step;
-                    tm[i] -= step;
-                    const auto mp = model_modes(model, tp.data(), false), mm = model_modes(model, tm.data(), false);
-                    for (std::size_t j = 0; j < n; ++j) {
-                        J(static_cast<Eigen::Index>(j), static_cast<Eigen::Index>(i)) =
-                            (mp[j].freq_hz - mm[j].freq_hz) / (2 * step);
-                        J(static_cast<Eigen::Index>(n + j), static_cast<Eigen::Index>(i)) =
-                            (mp[j].zeta - mm[j].zeta) / (2 * step);
-                    }
-                }
-            }
-            const Eigen::Index P = static_cast<Eigen::Index>(p);
-            const MatrixXd V = J * Eigen::Map<const MatrixXd>(cov, P, P) * J.transpose();
-            for (std::size_t j = 0; j < n; ++j) {
-                const Eigen::Index a = static_cast<Eigen::Index>(j), b = static_cast<Eigen::Index>(n + j);
-                if (freq_se) freq_se[j] = std::sqrt(std::max(V(a, a), 0.0));
-                if (zeta_se) zeta_se[j] = std::sqrt(std::max(V(b, b), 0.0));
-            }
-        } else {
-            for (std::size_t j = 0; j < n; ++j) {
-                if (freq_se) freq_se[j] = 0.0;
-                if (zeta_se) zeta_se[j] = 0.0;
-            }
-        }
-        return growth > 0.0 ? unstable("vibid_model_modal", growth) : VIBID_OK;);
+        vibid::ModalWork w(model);
+        return w.model_modal(theta, cov, freq_hz, freq_se, zeta, zeta_se, shape_re, shape_im, "vibid_model_modal"););
 }
 
 }  // extern "C"

@@ -174,10 +174,17 @@ struct Assembled {
 };
 
 // Linear part of the equation at theta; with only_param >= 0 the derivative with respect
-// to that unknown (the structure matrix of (4.1)).
-Assembled assemble(const vibid_model &m, const double *theta, long only_param) {
+// to that unknown (the structure matrix of (4.1)), into the caller's column-major arrays
+// (M, D, C n x n, B n x r, d_base, c_base n; any may be NULL: not written). Allocates
+// nothing (vibid_model_assemble runs on a reported row's path: modal_work.hpp).
+void assemble_into(const vibid_model &m, const double *theta, long only_param, double *M, double *D, double *C,
+                   double *B, double *d_base, double *c_base) {
     const std::size_t n = m.nodes.size(), r = m.inputs.size();
-    Assembled a{MatX::Zero(n, n), MatX::Zero(n, n), MatX::Zero(n, n), MatX::Zero(n, r), VecX::Zero(n), VecX::Zero(n)};
+    for (double *x : {M, D, C})
+        if (x) std::fill(x, x + n * n, 0.0);
+    if (B) std::fill(B, B + n * r, 0.0);
+    for (double *x : {d_base, c_base})
+        if (x) std::fill(x, x + n, 0.0);
     for (const auto &t : m.terms) {
         double v;
         if (only_param >= 0)
@@ -188,22 +195,31 @@ Assembled assemble(const vibid_model &m, const double *theta, long only_param) {
         for (const auto &e : t.entries) {
             const double cv = e.coef * v;
             const Signal &s = e.signal;
-            MatX *target = nullptr;
-            VecX *base = nullptr;
+            double *target = nullptr, *base = nullptr;
             switch (s.type) {
-            case SignalType::Acceleration: target = &a.M; break;
-            case SignalType::Velocity: target = &a.D; base = &a.d_base; break;
-            case SignalType::Displacement: target = &a.C; base = &a.c_base; break;
+            case SignalType::Acceleration: target = M; break;
+            case SignalType::Velocity: target = D; base = d_base; break;
+            case SignalType::Displacement: target = C; base = c_base; break;
             case SignalType::Cubic: continue;  // nonlinear: not part of the linear matrices
-            case SignalType::Input: a.B(e.row, s.a) -= cv; continue;
+            case SignalType::Input:
+                if (B) B[e.row + s.a * n] -= cv;
+                continue;
             }
-            (*target)(e.row, s.a) += cv;
-            if (s.b < n)
-                (*target)(e.row, s.b) -= cv;
-            else if (s.b == VIBID_BASE && base)
-                (*base)(e.row) += cv;  // coef v (y_a - s): the s part moves to the right-hand side
+            if (target) target[e.row + s.a * n] += cv;
+            if (s.b < n) {
+                if (target) target[e.row + s.b * n] -= cv;
+            } else if (s.b == VIBID_BASE && base) {
+                base[e.row] += cv;  // coef v (y_a - s): the s part moves to the right-hand side
+            }
         }
     }
+}
+
+Assembled assemble(const vibid_model &m, const double *theta, long only_param) {
+    const std::size_t n = m.nodes.size(), r = m.inputs.size();
+    Assembled a{MatX(n, n), MatX(n, n), MatX(n, n), MatX(n, r), VecX(n), VecX(n)};
+    assemble_into(m, theta, only_param, a.M.data(), a.D.data(), a.C.data(), a.B.data(), a.d_base.data(),
+                  a.c_base.data());
     return a;
 }
 
@@ -819,14 +835,7 @@ VIBID_API vibid_status vibid_model_assemble(const vibid_model *model, const doub
         vibid::require_finalized(model);
         if (theta && !vibid::all_finite(theta, model->param_term.size()))
             throw_error(VIBID_E_NONFINITE, "theta has NaN or Inf");
-        Assembled a = assemble(*model, theta, -1);
-        const std::size_t n = model->nodes.size(), r = model->inputs.size();
-        if (M) Eigen::Map<MatX>(M, n, n) = a.M;
-        if (D) Eigen::Map<MatX>(D, n, n) = a.D;
-        if (C) Eigen::Map<MatX>(C, n, n) = a.C;
-        if (B && r) Eigen::Map<MatX>(B, n, r) = a.B;
-        if (d_base) Eigen::Map<VecX>(d_base, n) = a.d_base;
-        if (c_base) Eigen::Map<VecX>(c_base, n) = a.c_base;
+        assemble_into(*model, theta, -1, M, D, C, model->inputs.empty() ? nullptr : B, d_base, c_base);
         return VIBID_OK;);
 }
 
@@ -836,14 +845,8 @@ VIBID_API vibid_status vibid_model_structure(const vibid_model *model, size_t in
         vibid::require_finalized(model);
         if (index >= model->param_term.size())
             throw_error(VIBID_E_OUT_OF_RANGE, "parameter %zu of %zu", index, model->param_term.size());
-        Assembled a = assemble(*model, nullptr, static_cast<long>(index));
-        const std::size_t n = model->nodes.size(), r = model->inputs.size();
-        if (M_i) Eigen::Map<MatX>(M_i, n, n) = a.M;
-        if (D_i) Eigen::Map<MatX>(D_i, n, n) = a.D;
-        if (C_i) Eigen::Map<MatX>(C_i, n, n) = a.C;
-        if (B_i && r) Eigen::Map<MatX>(B_i, n, r) = a.B;
-        if (d_base_i) Eigen::Map<VecX>(d_base_i, n) = a.d_base;
-        if (c_base_i) Eigen::Map<VecX>(c_base_i, n) = a.c_base;
+        assemble_into(*model, nullptr, static_cast<long>(index), M_i, D_i, C_i,
+                      model->inputs.empty() ? nullptr : B_i, d_base_i, c_base_i);
         return VIBID_OK;);
 }
 

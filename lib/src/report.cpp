@@ -5,6 +5,7 @@
 #include <vibid/modal.h>
 
 #include "api_guard.hpp"
+#include "modal_work.hpp"
 #include "model_internal.hpp"
 
 #include <cmath>
@@ -17,6 +18,7 @@ using vibid::throw_error;
 
 struct vibid_report {
     vibid_model *model = nullptr;  // the caller's model, cloned
+    std::unique_ptr<vibid::ModalWork> modal;  // of model: the rows' modal analysis, allocated once
     double h = 0.0;
     std::size_t p = 0, n = 0;
     std::vector<double> cov;        // p x p, when the caller wants none
@@ -79,9 +81,12 @@ void describe(vibid_report *r, const double *cov, bool have_cov, vibid_report_ro
     // An unstable estimate (VIBID_E_UNSTABLE) keeps its modes: a negative zeta or f = 0 is
     // what the plausibility check flags, and what the reader needs to see. Without a
     // covariance the modes' standard errors stay NaN (not modal.h's 0).
-    const vibid_status ms =
-        vibid_model_modal(r->model, out->theta, have_cov ? cov : nullptr, out->freq, have_cov ? out->freq_se : nullptr,
-                          out->zeta, have_cov ? out->zeta_se : nullptr, nullptr, nullptr);
+    // vibid_model_modal on the report's scratch (modal_work.hpp): nothing allocated
+    const vibid_status ms = vibid::guard("vibid_model_modal", [&]() {
+        return r->modal->model_modal(out->theta, have_cov ? cov : nullptr, out->freq, have_cov ? out->freq_se : nullptr,
+                                     out->zeta, have_cov ? out->zeta_se : nullptr, nullptr, nullptr,
+                                     "vibid_model_modal");
+    });
     // copied now: the plausibility check may replace the last error
     if (ms == VIBID_E_UNSTABLE) std::snprintf(r->unstable, sizeof r->unstable, "%s", vibid_last_error());
     if (ms != VIBID_OK && ms != VIBID_E_UNSTABLE) {
@@ -137,6 +142,7 @@ VIBID_API vibid_report *vibid_report_create(const vibid_model *model, double sam
         std::unique_ptr<vibid_report> r(new vibid_report);
         r->model = vibid_model_clone(model);
         if (!r->model) throw_error(VIBID_E_NO_MEMORY, "copying the model: %s", vibid_last_error());
+        r->modal = std::make_unique<vibid::ModalWork>(r->model);
         r->h = sample_time;
         r->p = model->param_term.size();
         r->n = model->nodes.size();

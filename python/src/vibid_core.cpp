@@ -20,6 +20,7 @@ extern "C" {
 #include <vibid/plausibility.h>
 #include <vibid/regressor.h>
 #include <vibid/report.h>
+#include <vibid/simulate.h>
 #include <vibid/stand_file.h>
 #include <vibid/units.h>
 }
@@ -440,214 +441,32 @@ std::tuple<std::vector<long>, Array2, Array1> stand_regression(const Stand &st,
     return {rows, to_numpy(std::move(cm), nr, p), to_numpy(std::move(ys))};
 }
 
-// The model at theta driven by the capture's measured inputs (force channels, base
-// displacement): M y'' = vibid_model_forces(theta, y, y', [s, s'], u), classical RK4 with
-// `substeps` steps per sample. Smooth inputs are cubic Hermite between samples with slopes
-// from five-point central differences (a measured base velocity is used as the base's
-// slope), so the input is right to O(h^4); held inputs (vibid_model_set_hold) are
-// constant over [t_k, t_k + h), and a held base's jumps reach the dampers to it as the
-// impulse d_base (s_k - s_{k-1}) (model.h). The run starts at sample 2 from the measured
-// displacements and velocities (five-point differences of the displacements where the
-// velocity is not measured; 0 for a node without displacement sensor, whose start
-// transient then decays with the system's damping). Returns the channels in the model's
-// layout: node channels simulated, input channels as measured, rows 0 and 1 NaN.
+// The model at theta driven by the capture's measured inputs (vibid_model_simulate,
+// vibid/simulate.h: RK4 with `substeps` steps per sample, smooth inputs cubic Hermite between
+// samples, held inputs constant, disturbances zero, the start at sample 2 from the measured
+// state). Returns the channels in the model's layout: node channels simulated, input
+// channels as measured, rows 0 and 1 NaN.
 Array2 stand_simulate(const Stand &st, const std::vector<double> &th, nb::ndarray<const double, nb::ndim<2>, nb::device::cpu> data,
                       unsigned substeps) {
     check_theta(st, th, "simulate");
     const vibid_model_dims &dm = st.dims();
-    const size_t N = data.shape(0), nc = data.shape(1), n = dm.n_dof, r = dm.n_inputs;
+    const size_t N = data.shape(0), nc = data.shape(1);
     if (nc != dm.n_channels)
         throw std::invalid_argument("simulate: " + std::to_string(nc) + " columns for " +
                                     std::to_string(dm.n_channels) + " channels");
-    if (substeps < 1) throw std::invalid_argument("simulate: substeps >= 1");
+    if (substeps < 1 || substeps > 1000) throw std::invalid_argument("simulate: substeps in 1..1000");
     if (N < 5) throw std::invalid_argument("simulate: at least 5 samples are needed");
-    const vibid_model *model = st.model();
-    const double h = 1.0 / st.sample_rate();
     const int64_t rs = data.stride(0), cs = data.stride(1);
     const double *base = data.data();
-    auto at = [&](size_t k, size_t c) { return base[k * rs + c * cs]; };
-    // channel layout
-    std::vector<long> disp(n, -1), vel(n, -1);
-    long s_ch = -1, sd_ch = -1;
-    std::vector<long> u_ch(r, -1);
-    std::vector<vibid_channel_info> info(nc);
-    for (size_t c = 0; c < nc; ++c) {
-        vibid_status s = vibid_model_channel_info(model, c, &info[c]);
-        if (s != VIBID_OK) raise_status("vibid_model_channel_info", s);
-        const vibid_channel_info &ci = info[c];
-        if (ci.kind == VIBID_CHANNEL_INPUT) u_ch[ci.index] = static_cast<long>(c);
-        else if (ci.index == VIBID_BASE) {
-            if (ci.kind == VIBID_CHANNEL_DISPLACEMENT) s_ch = static_cast<long>(c);
-            if (ci.kind == VIBID_CHANNEL_VELOCITY) sd_ch = static_cast<long>(c);
-        } else if (ci.kind == VIBID_CHANNEL_DISPLACEMENT) disp[ci.index] = static_cast<long>(c);
-        else if (ci.kind == VIBID_CHANNEL_VELOCITY) vel[ci.index] = static_cast<long>(c);
-    }
-    if (dm.has_base && s_ch < 0)
-        throw VibidError("simulate: the stand's base moves but its displacement is not measured: no input to drive "
-                         "the model with");
-    for (size_t j = 0; j < r; ++j)
-        if (u_ch[j] < 0) throw VibidError("simulate: input " + std::to_string(j) + " has no channel");
-    // M at theta, inverted once (symmetric positive definite for a plausible estimate;
-    // Gauss-Jordan with partial pivoting so that an implausible one is still simulated).
-    std::vector<double> M(n * n), Mi(n * n, 0.0), dbase(n, 0.0);
-    vibid_status s = vibid_model_assemble(model, th.data(), M.data(), nullptr, nullptr, nullptr, dbase.data(), nullptr);
-    if (s != VIBID_OK) raise_status("vibid_model_assemble", s);
-    for (size_t i = 0; i < n; ++i) Mi[i + i * n] = 1.0;
-    for (size_t col = 0; col < n; ++col) {
-        size_t piv = col;
-        for (size_t i = col + 1; i < n; ++i)
-            if (std::fabs(M[i + col * n]) > std::fabs(M[piv + col * n])) piv = i;
-        if (!(std::fabs(M[piv + col * n]) > 0.0))
-            throw VibidError("simulate: the mass matrix at these parameters is singular");
-        for (size_t j = 0; j < n; ++j) {
-            std::swap(M[col + j * n], M[piv + j * n]);
-            std::swap(Mi[col + j * n], Mi[piv + j * n]);
-        }
-        const double d = M[col + col * n];
-        for (size_t j = 0; j < n; ++j) {
-            M[col + j * n] /= d;
-            Mi[col + j * n] /= d;
-        }
-        for (size_t i = 0; i < n; ++i) {
-            if (i == col) continue;
-            const double f = M[i + col * n];
-            if (f == 0.0) continue;
-            for (size_t j = 0; j < n; ++j) {
-                M[i + j * n] -= f * M[col + j * n];
-                Mi[i + j * n] -= f * Mi[col + j * n];
-            }
-        }
-    }
-    // Interpolated inputs: column c's value and slope at t_k + tau h, tau in [0, 1].
-    auto slope = [&](size_t c, size_t k) {
-        if (k >= 2 && k + 2 < N)
-            return (at(k - 2, c) - 8.0 * at(k - 1, c) + 8.0 * at(k + 1, c) - at(k + 2, c)) / (12.0 * h);
-        if (k >= 1 && k + 1 < N) return (at(k + 1, c) - at(k - 1, c)) / (2.0 * h);
-        return k == 0 ? (at(1, c) - at(0, c)) / h : (at(k, c) - at(k - 1, c)) / h;
-    };
-    auto hermite = [&](size_t c, size_t k, double tau, double m0, double m1, double *val, double *der) {
-        const double p0 = at(k, c), p1 = at(k + 1, c);
-        const double t2 = tau * tau, t3 = t2 * tau;
-        *val = (2 * t3 - 3 * t2 + 1) * p0 + (t3 - 2 * t2 + tau) * h * m0 + (-2 * t3 + 3 * t2) * p1 + (t3 - t2) * h * m1;
-        *der = ((6 * t2 - 6 * tau) * p0 + (3 * t2 - 4 * tau + 1) * h * m0 + (-6 * t2 + 6 * tau) * p1 +
-                (3 * t2 - 2 * tau) * h * m1) / h;
-    };
-    std::vector<int> u_held(r, 0);
-    for (size_t j = 0; j < r; ++j) {
-        vibid_hold hd;
-        if (vibid_model_get_hold(model, j, &hd) == VIBID_OK) u_held[j] = hd == VIBID_HOLD_ZOH;
-    }
-    int s_held = 0;
-    if (dm.has_base) {
-        vibid_hold hd;
-        if (vibid_model_get_hold(model, VIBID_BASE, &hd) == VIBID_OK) s_held = hd == VIBID_HOLD_ZOH;
-    }
-    std::vector<double> out(N * nc, NAN);  // column-major N x nc
-    std::vector<double> y(n, 0.0), yd(n, 0.0), u(r, 0.0), f(n), acc(n);
-    double bs[2] = {0.0, 0.0};
-    // accelerations M^-1 f(y, yd) with the inputs at (k, tau)
-    auto inputs_at = [&](size_t k, double tau, const std::vector<double> &m0, const std::vector<double> &m1) {
-        for (size_t j = 0; j < r; ++j) {
-            double d;
-            if (u_held[j] || k + 1 >= N) u[j] = at(k, u_ch[j]);
-            else hermite(u_ch[j], k, tau, m0[1 + j], m1[1 + j], &u[j], &d);
-        }
-        if (dm.has_base) {
-            if (s_held || k + 1 >= N) {
-                bs[0] = at(k, s_ch);
-                bs[1] = s_held ? 0.0 : m0[0];
-            } else {
-                hermite(s_ch, k, tau, m0[0], m1[0], &bs[0], &bs[1]);
-            }
-        }
-    };
-    auto accel = [&](const double *yy, const double *vv, double *a) {
-        vibid_status fs = vibid_model_forces(model, th.data(), yy, vv, dm.has_base ? bs : nullptr,
-                                             r ? u.data() : nullptr, f.data());
-        for (size_t i = 0; i < n; ++i) {
-            double sum = 0.0;
-            for (size_t j = 0; j < n; ++j) sum += Mi[i + j * n] * f[j];
-            a[i] = sum;
-        }
-        return fs;
-    };
-    // slopes of the inputs at sample k: [base, u_0 .. u_{r-1}]
-    auto slopes = [&](size_t k, std::vector<double> &m) {
-        m[0] = dm.has_base ? (sd_ch >= 0 ? at(k, sd_ch) : slope(s_ch, k)) : 0.0;
-        for (size_t j = 0; j < r; ++j) m[1 + j] = slope(u_ch[j], k);
-    };
-    s = VIBID_OK;
+    std::vector<double> in(N * nc), out(N * nc);  // column-major, as the library takes them
+    for (size_t c = 0; c < nc; ++c)
+        for (size_t k = 0; k < N; ++k) in[k + c * N] = base[k * rs + c * cs];
+    vibid_status s;
     {
         nb::gil_scoped_release release;
-        const size_t k0 = 2;
-        for (size_t i = 0; i < n; ++i) {
-            if (disp[i] >= 0) y[i] = at(k0, disp[i]);
-            if (vel[i] >= 0) yd[i] = at(k0, vel[i]);
-            else if (disp[i] >= 0) yd[i] = slope(disp[i], k0);
-        }
-        std::vector<double> m0(1 + r), m1(1 + r);
-        std::vector<double> k1y(n), k1v(n), k2y(n), k2v(n), k3y(n), k3v(n), k4y(n), k4v(n), ty(n), tv(n);
-        const double hs = h / substeps;
-        for (size_t k = k0; k < N && s == VIBID_OK; ++k) {
-            slopes(k, m0);
-            if (k + 1 < N) slopes(k + 1, m1);
-            else m1 = m0;
-            if (s_held && k > k0) {
-                // the held base jumped at t_k: the dampers to it kick the velocities
-                const double jump = at(k, s_ch) - at(k - 1, s_ch);
-                for (size_t i = 0; i < n; ++i) {
-                    double sum = 0.0;
-                    for (size_t j = 0; j < n; ++j) sum += Mi[i + j * n] * dbase[j] * jump;
-                    yd[i] += sum;
-                }
-            }
-            // this sample's outputs
-            inputs_at(k, 0.0, m0, m1);
-            s = accel(y.data(), yd.data(), acc.data());
-            for (size_t c = 0; c < nc; ++c) {
-                const vibid_channel_info &ci = info[c];
-                double v;
-                if (ci.kind == VIBID_CHANNEL_INPUT || ci.index == VIBID_BASE) v = at(k, c);
-                else if (ci.kind == VIBID_CHANNEL_DISPLACEMENT) v = y[ci.index];
-                else if (ci.kind == VIBID_CHANNEL_VELOCITY) v = yd[ci.index];
-                else v = acc[ci.index];
-                out[k + c * N] = v;
-            }
-            if (k + 1 >= N) break;
-            for (unsigned q = 0; q < substeps && s == VIBID_OK; ++q) {
-                const double t0 = static_cast<double>(q) / substeps, tm = (q + 0.5) / substeps,
-                             t1 = (q + 1.0) / substeps;
-                inputs_at(k, t0, m0, m1);
-                accel(y.data(), yd.data(), k1v.data());
-                for (size_t i = 0; i < n; ++i) {
-                    k1y[i] = yd[i];
-                    ty[i] = y[i] + 0.5 * hs * k1y[i];
-                    tv[i] = yd[i] + 0.5 * hs * k1v[i];
-                }
-                inputs_at(k, tm, m0, m1);
-                accel(ty.data(), tv.data(), k2v.data());
-                for (size_t i = 0; i < n; ++i) {
-                    k2y[i] = tv[i];
-                    ty[i] = y[i] + 0.5 * hs * k2y[i];
-                    tv[i] = yd[i] + 0.5 * hs * k2v[i];
-                }
-                accel(ty.data(), tv.data(), k3v.data());
-                for (size_t i = 0; i < n; ++i) {
-                    k3y[i] = tv[i];
-                    ty[i] = y[i] + hs * k3y[i];
-                    tv[i] = yd[i] + hs * k3v[i];
-                }
-                inputs_at(k, t1, m0, m1);
-                s = accel(ty.data(), tv.data(), k4v.data());
-                for (size_t i = 0; i < n; ++i) {
-                    k4y[i] = tv[i];
-                    y[i] += hs / 6.0 * (k1y[i] + 2 * k2y[i] + 2 * k3y[i] + k4y[i]);
-                    yd[i] += hs / 6.0 * (k1v[i] + 2 * k2v[i] + 2 * k3v[i] + k4v[i]);
-                }
-            }
-        }
+        s = vibid_model_simulate(st.model(), th.data(), 1.0 / st.sample_rate(), N, in.data(), substeps, out.data());
     }
-    if (s != VIBID_OK) raise_status("vibid_model_forces", s);
+    if (s != VIBID_OK) raise_status("vibid_model_simulate", s);
     return to_numpy(std::move(out), N, nc);
 }
 

@@ -325,7 +325,7 @@ def _settle_samples(result: Result, n: int) -> int:
 
 def model_response(result: Result, block: np.ndarray, theta: Optional[np.ndarray] = None) -> tuple[np.ndarray, int]:
     """The stand's model at theta (default: the estimate) driven by the capture's measured
-    inputs (_core.stand_simulate: RK4 over vibid_model_forces), channels in stand order, and
+    inputs (_core.stand_simulate: vibid_model_simulate, vibid/simulate.h), channels in stand order, and
     the first sample after the start transient (see _settle_samples)."""
     th = result.parameters["value"].to_numpy(float) if theta is None else np.asarray(theta, float)
     sim = _core.stand_simulate(result.stand._core, list(th), block)

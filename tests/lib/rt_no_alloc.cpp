@@ -1,5 +1,6 @@
 // rt_no_alloc.cpp: the per-sample functions allocate nothing, and a reported row
-// (vibid/report.h) allocates nothing beyond what its estimate and modal analysis do.
+// (vibid/report.h) of a recursive estimator allocates nothing at all, its modes and their
+// standard errors included.
 //
 // Linked against vibid_rtcheck (the library built with EIGEN_RUNTIME_NO_MALLOC and
 // assertions on) with -Wl,--wrap=malloc,--wrap=calloc,--wrap=realloc, so that every
@@ -209,17 +210,20 @@ void test_outlier_no_alloc(void **state) {
 }
 
 // Counts allocations without Eigen's abort: for the calls a row makes that allocate by
-// design (the batch estimate, the modal analysis's scratch).
+// design (a regression estimator's estimate).
 void count_only() {
     n_alloc = 0;
     armed = true;
 }
 
-// vibid_report_row (vibid/report.h) adds no allocation of its own: on the same estimator
-// state it allocates exactly what its parts (estimate, covariance, modes, plausibility,
-// quality) allocate when called one by one, and gives the same values; a row without an
-// estimate (vibid_report_no_estimate, and the error paths) allocates nothing at all, with
-// Eigen's check armed.
+// A reported row (vibid/report.h) adds no allocation to its estimator's: the report's own
+// work (modes and their standard errors on the report's scratch, modal_work.hpp, the
+// plausibility, the flags) allocates nothing, with Eigen's check armed
+// (vibid_report_estimate); vibid_report_row of an RLS twin (vibidd's way) allocates exactly
+// what its estimator's calls (estimate, covariance, quality) allocate when called one by
+// one (the regression estimate's own scratch, identify.cpp), and gives the values of its
+// parts (vibid_model_modal allocating its own scratch); a row without an estimate
+// (vibid_report_no_estimate, and the error paths) allocates nothing at all.
 void test_report_row_no_alloc(void **state) {
     (void)state;
     vibid_model *m = example1_model(0);
@@ -258,35 +262,61 @@ void test_report_row_no_alloc(void **state) {
     unsigned found = 0;
     char why[1024];
     vibid_ident_quality q;
-    // a first estimate first: the identification's lazily made buffers are not the row's
-    (void)vibid_report_row(rep, id, &out);
+    // vibidd's way: the row of a twin synchronised at the sample the estimate is due
+    // (identify.h), whose RLS estimate allocates nothing; a first row first: the twin's
+    // lazily made buffers are not the row's
+    vibid_ident *tw = vibid_ident_twin_create(id);
+    assert_non_null(tw);
+    assert_int_equal(vibid_ident_twin_sync(tw, id), VIBID_OK);
+    (void)vibid_report_row(rep, tw, &out);
+    assert_int_equal(vibid_ident_twin_sync(tw, id), VIBID_OK);
+    vibid_ident_info info{};
     count_only();
-    const vibid_status es = vibid_ident_estimate(id, t2, s2, nullptr);
-    const vibid_status cs = vibid_ident_covariance(id, c2);
-    (void)vibid_model_modal(m, t2, c2, f2, fse2, z2, zse2, nullptr, nullptr);
+    const vibid_status es = vibid_ident_estimate(tw, t2, s2, &info);
+    const vibid_status cs = vibid_ident_covariance(tw, c2);
+    const vibid_status qs = vibid_ident_get_quality(tw, &q, nullptr);
+    const std::size_t n_estimator = disarm();
+    const vibid_status ms = vibid_model_modal(m, t2, c2, f2, fse2, z2, zse2, nullptr, nullptr);
     const vibid_status ps = vibid_plausibility_check(m, h, t2, f2, z2, n,
                                                      vibid_report_reference(rep), &found, nullptr, nullptr, why,
                                                      sizeof why);
-    const vibid_status qs = vibid_ident_get_quality(id, &q, nullptr);
-    const std::size_t n_parts = disarm();
+    assert_int_equal(vibid_ident_twin_sync(tw, id), VIBID_OK);
     assert_int_equal(es, VIBID_OK);
+    assert_int_equal(ms, VIBID_OK);
     assert_int_equal(cs, VIBID_OK);
     assert_int_equal(ps, VIBID_OK);
     assert_int_equal(qs, VIBID_OK);
 
     count_only();
-    const vibid_status rs = vibid_report_row(rep, id, &out);
+    const vibid_status rs = vibid_report_row(rep, tw, &out);
     const std::size_t n_row = disarm();
     assert_int_equal(rs, VIBID_OK);
     assert_int_equal(out.est_status, VIBID_OK);
-    assert_int_equal(n_row, n_parts);
+    assert_int_equal(n_row, n_estimator);
+    assert_true(std::isfinite(fse[0]) && fse[0] > 0.0 && std::isfinite(zse[1]));  // the modes' errors ran
     assert_memory_equal(theta, t2, sizeof theta);
     assert_memory_equal(se, s2, sizeof se);
     assert_memory_equal(cov, c2, sizeof cov);
     assert_memory_equal(f, f2, sizeof f);
+    assert_memory_equal(fse, fse2, sizeof fse);
+    assert_memory_equal(z, z2, sizeof z);
     assert_memory_equal(zse, zse2, sizeof zse);
     assert_int_equal(out.implausible, found);
     assert_int_equal((out.flags & VIBID_ROW_SE_INVALID) != 0, (q.flags & VIBID_QUALITY_SE_INVALID) != 0);
+
+    // an estimate made elsewhere: the report's own work allocates nothing, Eigen's check armed
+    double t3[p], s3[p], c3[p * p];
+    std::memcpy(t3, t2, sizeof t3);
+    std::memcpy(s3, s2, sizeof s3);
+    std::memcpy(c3, c2, sizeof c3);
+    arm();
+    const vibid_status re = vibid_report_estimate(rep, t3, s3, c3, 0u, 3000, &out);
+    const std::size_t n_own = disarm();
+    assert_int_equal(re, VIBID_OK);
+    assert_int_equal(n_own, 0);
+    assert_memory_equal(f, f2, sizeof f);
+    assert_memory_equal(fse, fse2, sizeof fse);
+    assert_memory_equal(zse, zse2, sizeof zse);
 
     // no estimate: nothing allocated, Eigen's check armed
     std::size_t bad_status = 0;
@@ -301,6 +331,7 @@ void test_report_row_no_alloc(void **state) {
     assert_int_equal(out.flags, VIBID_ROW_NOEST);
     assert_true(std::isnan(theta[0]) && std::isnan(f[1]));
     vibid_report_destroy(rep);
+    vibid_ident_destroy(tw);
     vibid_ident_destroy(id);
     vibid_model_destroy(m);
 }

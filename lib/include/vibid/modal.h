@@ -11,7 +11,9 @@
  * components of the state eigenvector of the eigenvalue with Im >= 0), scaled so that
  * the component of largest modulus is exactly 1 (real).
  *
- * All functions allocate scratch (not for real-time use).
+ * Both functions allocate their scratch at every call (not for real-time use); a reported
+ * row (report.h) runs the same analysis on scratch its report made once and allocates
+ * nothing.
  */
 #ifndef VIBID_MODAL_H
 #define VIBID_MODAL_H

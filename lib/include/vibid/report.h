@@ -21,12 +21,13 @@
  *
  * Real time: vibid_report_create allocates everything the report itself needs (a copy of
  * the model, the covariance, the plausibility reference with the model's nominal modes,
- * the message buffers). vibid_report_row allocates nothing of its own
- * (tests/lib/rt_no_alloc.cpp); what it calls allocates as documented there:
- * vibid_ident_estimate for the batch estimators (none for a twin's RLS, the EKF and
- * KF+RLS) and vibid_model_modal's scratch (modal.h). So a row costs what those calls cost
- * (vibidd: 30-100 us at the decimated rate, computed from a twin while no sample waits),
- * and nothing more. vibid_report_no_estimate allocates nothing at all.
+ * the message buffers, and the scratch of the modal analysis: every matrix and
+ * decomposition sized for the model). vibid_report_row and vibid_report_estimate then
+ * allocate nothing of their own, the modes included (tests/lib/rt_no_alloc.cpp, with
+ * Eigen's allocation check armed); what vibid_report_row calls allocates as documented
+ * there: vibid_ident_estimate for the batch estimators (LS, IV, block IV), none for RLS,
+ * a twin's RLS, the EKF and KF+RLS. So vibidd's rows from a recursive estimator allocate
+ * nothing. vibid_report_no_estimate allocates nothing at all.
  *
  * Threads: one report per thread at a time (it holds the row's buffers); different
  * reports are independent. The model given to create may be destroyed after it.
@@ -101,7 +102,7 @@ VIBID_API vibid_status vibid_report_row(vibid_report *report, vibid_ident *ident
  * p column-major, NULL: none; then the modes' standard errors are NaN), quality
  * (VIBID_QUALITY_* the caller found for it; VIBID_QUALITY_NOT_EXCITED is added where an se
  * is not finite), n_samples behind it. z_consistency NaN, n_blocks 0. VIBID_OK when written;
- * VIBID_E_NULL_ARGUMENT for missing arrays. Allocates only vibid_model_modal's scratch. */
+ * VIBID_E_NULL_ARGUMENT for missing arrays. Allocates nothing. */
 VIBID_API vibid_status vibid_report_estimate(vibid_report *report, const double *theta, const double *se,
                                              const double *cov, unsigned quality, unsigned long long n_samples,
                                              vibid_report_row_out *out);

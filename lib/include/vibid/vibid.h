@@ -16,4 +16,5 @@
 #include <vibid/kf_rls.h>
 #include <vibid/plausibility.h>
 #include <vibid/report.h>
+#include <vibid/simulate.h>
 #endif
