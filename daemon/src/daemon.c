@@ -424,14 +424,18 @@ static void run_cusum(vd_daemon *d, vd_row *row)
                         100.0 * mdc_rel, d->cfg->alarm_horizon_s, d->cfg->alarm_detection_probability,
                         d->cfg->alarm_false_per_year);
             for (size_t j = 0; j < d->cfg->n_covariates; j++) {
-                const size_t q = d->cfg->n_covariates;
-                const double g = ref.gram_inv[j * q + j];
+                const size_t q = d->cfg->n_covariates, T = ref.n_terms ? ref.n_terms : q;
+                const double g = ref.gram_inv[j * T + j];
                 vd_info("alarm reference of %s against covariate %s: slope %.4g +- %.2g per %s, learned over [%.6g, "
                         "%.6g]%s",
                         pi.name, d->cfg->chanmap.ch[d->cfg->cov_chan[j]].name, ref.slope[j],
                         ref.block_sd * sqrt(g), d->cfg->cov_unit[j][0] ? d->cfg->cov_unit[j] : "unit", ref.low[j],
                         ref.high[j], g > 0.0 ? "" : " (did not vary: not modelled)");
             }
+            if (d->cfg->n_covariates && ref.n_terms > d->cfg->n_covariates)
+                vd_info("alarm reference of %s: second-order model (squares and products of the covariates: "
+                        "the linear one did not explain the reference's blocks)",
+                        pi.name);
         }
     } else if (d->cusum.learning_extended && !d->cusum_extended_reported) {
         vd_warning("alarm reference not complete after [%g, %g) s of sample time: %s; learning goes on",

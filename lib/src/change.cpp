@@ -97,38 +97,135 @@ double threshold_for(double k, double arl, double n_mean, double n_sd) {
 }
 
 constexpr size_t kMaxCov = VIBID_CHANGE_MAX_COVARIATES;
+constexpr size_t kMaxTerms = VIBID_CHANGE_MAX_TERMS;
 constexpr unsigned kBatch = 10;  // blocks per batch of the long-run variance (Learn)
+
+// Terms of q covariates: q linear, then the second-order model's q (q + 1) / 2 products.
+size_t full_terms(size_t q) { return q + q * (q + 1) / 2; }
+// The terms a reference uses: n_terms, or q for the first (linear) form of the struct.
+size_t terms_of(const vibid_change_reference &r, size_t q) { return r.n_terms ? r.n_terms : q; }
+
+// x(c) of n_t terms measured from origin o (change.h point 6).
+void terms(size_t q, size_t n_t, const double *c, const double *o, double *x) {
+    double e[kMaxCov];
+    for (size_t j = 0; j < q; ++j) e[j] = c[j] - o[j];
+    for (size_t j = 0; j < q && j < n_t; ++j) x[j] = e[j];
+    size_t t = q;
+    for (size_t i = 0; i < q; ++i)
+        for (size_t j = i; j < q; ++j, ++t)
+            if (t < n_t) x[t] = e[i] * e[j];
+}
+
+// d = x(c) - xbar of a reference: its deviation from the reference's conditions; the term count.
+size_t deviation(const vibid_change_reference &r, size_t q, const double *c, double *d) {
+    if (!r.n_terms) {  // the first form: linear, from the centre
+        for (size_t j = 0; j < q; ++j) d[j] = c[j] - r.centre[j];
+        return q;
+    }
+    terms(q, r.n_terms, c, r.origin, d);
+    for (size_t t = 0; t < r.n_terms; ++t) d[t] -= r.term_mean[t];
+    return r.n_terms;
+}
+
 // v(c) = 1 / n_mean + d^T G d of a reference (point 6 of change.h); INFINITY when c lies
 // outside the range of a covariate that is not modelled (G's diagonal 0).
 double prediction_v(const vibid_change_reference &r, size_t q, const double *c) {
     double v = std::isfinite(r.n_mean) ? 1.0 / r.n_mean : 0.0;
-    double d[kMaxCov];
+    double d[kMaxTerms];
+    const size_t T = deviation(r, q, c, d);
     for (size_t j = 0; j < q; ++j) {
-        d[j] = c[j] - r.centre[j];
         const double tol = 1e-9 * std::max(r.high[j] - r.low[j], std::fabs(c[j]));
-        if (!(r.gram_inv[j * q + j] > 0.0) && (c[j] < r.low[j] - tol || c[j] > r.high[j] + tol)) return kInf;
+        if (!(r.gram_inv[j * T + j] > 0.0) && (c[j] < r.low[j] - tol || c[j] > r.high[j] + tol)) return kInf;
     }
-    for (size_t i = 0; i < q; ++i)
-        for (size_t j = 0; j < q; ++j) v += d[i] * r.gram_inv[i * q + j] * d[j];
+    for (size_t i = 0; i < T; ++i)
+        for (size_t j = 0; j < T; ++j) v += d[i] * r.gram_inv[i * T + j] * d[j];
     return std::max(v, 0.0);
 }
 
-// Per-parameter learning sums (Welford on x = (c_0 .. c_(q-1), b)): mean and co-moment.
+using SmallMat = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, 0, kMaxTerms, kMaxTerms>;
+using SmallVec = Eigen::Matrix<double, Eigen::Dynamic, 1, 0, kMaxTerms, 1>;
+
+// A regression of the last column of co-moments m2 (m x m, m = T + 1) on the first n_t of its
+// T terms: which terms are kept (greedy by the pivots of a Cholesky: a term whose variance
+// left after the kept ones is below 1e-10 of its own, or 0, is not modelled), their slopes,
+// G, and the residual sum of squares.
+struct Fit {
+    size_t keep[kMaxTerms] = {}, nk = 0;
+    SmallMat G;
+    SmallVec beta;
+    double rss = 0.0;
+};
+
+Fit regress(const double *m2, size_t m, size_t n_t, const bool *varies) {
+    const size_t yi = m - 1;
+    Fit f;
+    for (size_t j = 0; j < n_t; ++j) {
+        const double own = m2[j * m + j];
+        bool ok = varies[j] && own > 0.0 && std::isfinite(own);
+        if (ok && f.nk > 0) {
+            SmallMat A(f.nk, f.nk);
+            SmallVec sv(f.nk);
+            for (size_t a = 0; a < f.nk; ++a) {
+                sv(a) = m2[f.keep[a] * m + j];
+                for (size_t b = 0; b < f.nk; ++b) A(a, b) = m2[f.keep[a] * m + f.keep[b]];
+            }
+            const double left = own - sv.dot(A.inverse() * sv);
+            ok = left > 1e-10 * own;
+        }
+        if (ok) f.keep[f.nk++] = j;
+    }
+    f.rss = m2[yi * m + yi];
+    if (f.nk > 0) {
+        SmallMat A(f.nk, f.nk);
+        SmallVec sv(f.nk);
+        for (size_t a = 0; a < f.nk; ++a) {
+            sv(a) = m2[f.keep[a] * m + yi];
+            for (size_t b = 0; b < f.nk; ++b) A(a, b) = m2[f.keep[a] * m + f.keep[b]];
+        }
+        f.G = A.inverse();
+        f.beta = f.G * sv;
+        f.rss -= sv.dot(f.beta);
+    }
+    f.rss = std::max(f.rss, 0.0);
+    return f;
+}
+
+// The co-moments of the first n_t terms and the parameter (the last of m) out of m x m ones.
+void sub_moments(const double *m2, size_t m, size_t n_t, double *out) {
+    const size_t k = n_t + 1;
+    for (size_t a = 0; a < k; ++a)
+        for (size_t b = 0; b < k; ++b) {
+            const size_t ia = a < n_t ? a : m - 1, ib = b < n_t ? b : m - 1;
+            out[a * k + b] = m2[ia * m + ib];
+        }
+}
+
+// The (1 - alpha) quantile of chi2(dof) (Wilson-Hilferty), z its normal quantile.
+double chi2_quantile(double dof, double z) {
+    const double a = 2.0 / (9.0 * dof);
+    return dof * std::pow(1.0 - a + z * std::sqrt(a), 3.0);
+}
+
+// Per-parameter learning sums (Welford on x = (terms of c, b), the terms measured from the
+// first learned block's covariates): mean and co-moment, over the blocks and over batches of
+// kBatch consecutive blocks.
 struct Learn {
+    static constexpr size_t kM = kMaxTerms + 1;
     uint64_t n = 0;
-    double mean[kMaxCov + 1] = {};
-    double m2[(kMaxCov + 1) * (kMaxCov + 1)] = {};
+    double origin[kMaxCov] = {};
+    double mean[kM] = {};
+    double m2[kM * kM] = {};
     double low[kMaxCov] = {}, high[kMaxCov] = {};
     // the same over batches of kBatch consecutive learned blocks (their means): the long-run
     // variance of the blocks, which neighbouring blocks' correlation raises above theirs
     uint64_t nb = 0;
-    double bmean[kMaxCov + 1] = {};
-    double bm2[(kMaxCov + 1) * (kMaxCov + 1)] = {};
-    double cur[kMaxCov + 1] = {};
+    double bmean[kM] = {};
+    double bm2[kM * kM] = {};
+    double cur[kM] = {};
     unsigned in_batch = 0;
 
     static void welford(uint64_t n, size_t m, const double *x, double *mean, double *m2) {
-        double dx[kMaxCov + 1];
+        double dx[kM];
         for (size_t j = 0; j < m; ++j) {
             dx[j] = x[j] - mean[j];
             mean[j] += dx[j] / (double)n;
@@ -138,11 +235,13 @@ struct Learn {
     }
 
     void add(size_t q, const double *c, double b) {
-        double x[kMaxCov + 1], dx[kMaxCov + 1];
-        for (size_t j = 0; j < q; ++j) x[j] = c[j];
-        x[q] = b;
+        const size_t T = full_terms(q), m = T + 1;
+        if (n == 0)
+            for (size_t j = 0; j < q; ++j) origin[j] = c[j];
+        double x[kM];
+        terms(q, T, c, origin, x);
+        x[T] = b;
         ++n;
-        const size_t m = q + 1;
         for (size_t j = 0; j < m; ++j) cur[j] += x[j];
         if (++in_batch == kBatch) {
             for (size_t j = 0; j < m; ++j) cur[j] /= (double)kBatch;
@@ -150,71 +249,56 @@ struct Learn {
             std::fill(cur, cur + m, 0.0);
             in_batch = 0;
         }
-        for (size_t j = 0; j < m; ++j) {
-            dx[j] = x[j] - mean[j];
-            mean[j] += dx[j] / (double)n;
-        }
-        for (size_t i = 0; i < m; ++i)
-            for (size_t j = 0; j < m; ++j) m2[i * m + j] += dx[i] * (x[j] - mean[j]);
+        welford(n, m, x, mean, m2);
         for (size_t j = 0; j < q; ++j) {
             if (n == 1 || c[j] < low[j]) low[j] = c[j];
             if (n == 1 || c[j] > high[j]) high[j] = c[j];
         }
     }
 
-    // The regression of b on the covariates (change.h point 6). The covariates that vary
-    // (their variance left after the earlier ones > 1e-10 of their own, and > 0) are
-    // modelled; the others get slope 0 and a zero row and column in G.
+    // The regression of b on the covariates' terms (change.h point 6): the linear model, or
+    // the second-order one where the batches reject the linear one.
     vibid_change_reference reference(size_t q) const {
-        const size_t m = q + 1;
+        const size_t Tf = full_terms(q), m = Tf + 1;
         vibid_change_reference r{};
         const double N = (double)n;
-        size_t keep[kMaxCov], nk = 0;
-        // greedy selection by the pivots of a Cholesky of the covariates' co-moments
-        Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, 0, kMaxCov, kMaxCov> S(q, q);
-        for (size_t i = 0; i < q; ++i)
-            for (size_t j = 0; j < q; ++j) S(i, j) = m2[i * m + j];
-        for (size_t j = 0; j < q; ++j) {
-            const double own = S(j, j);
-            bool ok = own > 0.0 && std::isfinite(own) && high[j] > low[j];
-            if (ok && nk > 0) {
-                Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, 0, kMaxCov, kMaxCov> A(nk, nk);
-                Eigen::Matrix<double, Eigen::Dynamic, 1, 0, kMaxCov, 1> s(nk);
-                for (size_t a = 0; a < nk; ++a) {
-                    s(a) = S(keep[a], j);
-                    for (size_t b = 0; b < nk; ++b) A(a, b) = S(keep[a], keep[b]);
-                }
-                const double left = own - s.dot(A.inverse() * s);
-                ok = left > 1e-10 * own;
-            }
-            if (ok) keep[nk++] = j;
-        }
-        double resid = m2[q * m + q];
-        if (nk > 0) {
-            Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, 0, kMaxCov, kMaxCov> A(nk, nk);
-            Eigen::Matrix<double, Eigen::Dynamic, 1, 0, kMaxCov, 1> s(nk);
-            for (size_t a = 0; a < nk; ++a) {
-                s(a) = m2[keep[a] * m + q];
-                for (size_t b = 0; b < nk; ++b) A(a, b) = S(keep[a], keep[b]);
-            }
-            const auto G = A.inverse().eval();
-            const auto beta = (G * s).eval();
-            resid -= s.dot(beta);
-            for (size_t a = 0; a < nk; ++a) {
-                r.slope[keep[a]] = beta(a);
-                for (size_t b = 0; b < nk; ++b) r.gram_inv[keep[a] * q + keep[b]] = G(a, b);
+        // a term varies when its covariates do (a product of a constant covariate is not modelled)
+        bool varies[kMaxTerms] = {};
+        for (size_t j = 0; j < q; ++j) varies[j] = high[j] > low[j];
+        for (size_t i = 0, t = q; i < q; ++i)
+            for (size_t j = i; j < q; ++j, ++t) varies[t] = varies[i] && varies[j];
+        // the model: linear unless the batches reject it (change.h point 6)
+        size_t T = q;
+        if (q > 0 && nb > 0) {
+            double lin[kM * kM];
+            sub_moments(bm2, m, q, lin);
+            const Fit bl = regress(lin, q + 1, q, varies), bf = regress(bm2, m, Tf, varies);
+            const double added = (double)bf.nk - (double)bl.nk, dof = (double)nb - 1.0 - (double)bf.nk;
+            if (added > 0.0 && dof >= 20.0 && bf.rss > 0.0) {
+                const double drop = (bl.rss - bf.rss) / (bf.rss / dof);
+                if (drop > chi2_quantile(added, 3.090)) T = Tf;  // 99.9 %
             }
         }
+        double mm[kM * kM];
+        sub_moments(m2, m, T, mm);
+        const Fit f = regress(mm, T + 1, T, varies);
+        r.n_terms = T;
+        for (size_t a = 0; a < f.nk; ++a) {
+            r.slope[f.keep[a]] = f.beta(a);
+            for (size_t b = 0; b < f.nk; ++b) r.gram_inv[f.keep[a] * T + f.keep[b]] = f.G(a, b);
+        }
+        for (size_t t = 0; t < T; ++t) r.term_mean[t] = mean[t];
         for (size_t j = 0; j < q; ++j) {
-            r.centre[j] = mean[j];
+            r.origin[j] = origin[j];
+            r.centre[j] = origin[j] + mean[j];
             r.low[j] = low[j];
             r.high[j] = high[j];
         }
-        const double dof = N - 1.0 - (double)nk;
-        r.mean = mean[q];
-        r.block_sd = dof > 0.0 && resid > 0.0 ? std::sqrt(resid / dof) : 0.0;
+        const double dof = N - 1.0 - (double)f.nk;
+        r.mean = mean[Tf];
+        r.block_sd = dof > 0.0 && f.rss > 0.0 ? std::sqrt(f.rss / dof) : 0.0;
         r.n_mean = N;
-        r.n_sd = N - (double)nk;
+        r.n_sd = N - (double)f.nk;
         // The long-run standard deviation: kBatch x the variance of the batch means' residuals
         // (the blocks' slopes). The rows of IV with a pre-filter, difference windows and an
         // instrument lag straddle the block boundaries: neighbouring blocks correlate (0.3-0.45
@@ -222,18 +306,18 @@ struct Learn {
         // sums grow with the long-run variance, and a threshold for independent blocks gave
         // false alarms at 1 a year within an hour. Used when larger than the blocks' own, with
         // the batches' degrees of freedom for its uncertainty.
-        const double bdof = (double)nb - 1.0 - (double)nk;
+        const double bdof = (double)nb - 1.0 - (double)f.nk;
         if (bdof >= 2.0) {
-            double vb = bm2[q * m + q];
-            for (size_t a = 0; a < q; ++a) {
-                vb -= 2.0 * r.slope[a] * bm2[a * m + q];
-                for (size_t b = 0; b < q; ++b) vb += r.slope[a] * r.slope[b] * bm2[a * m + b];
+            double vb = bm2[Tf * m + Tf];
+            for (size_t a = 0; a < T; ++a) {
+                vb -= 2.0 * r.slope[a] * bm2[a * m + Tf];
+                for (size_t b = 0; b < T; ++b) vb += r.slope[a] * r.slope[b] * bm2[a * m + b];
             }
             const double lr = std::sqrt(std::max(0.0, (double)kBatch * vb / bdof));
             // only when the data show it: the batches' variance above the 95 % quantile of
             // what independent blocks give (chi2(bdof) / bdof, Wilson-Hilferty), so that
             // independent blocks keep their own (more precise) spread
-            const double a = 2.0 / (9.0 * bdof), q95 = std::pow(1.0 - a + 1.645 * std::sqrt(a), 3.0);
+            const double q95 = chi2_quantile(bdof, 1.645) / bdof;
             if (lr * lr > q95 * r.block_sd * r.block_sd) {
                 r.block_sd = lr;
                 r.n_sd = bdof + 1.0;
@@ -315,9 +399,16 @@ struct vibid_change {
         // equivalent n_mean (point 6)
         const size_t q = cfg.n_covariates;
         double vmax = std::isfinite(p.ref.n_mean) ? 1.0 / p.ref.n_mean : 0.0;
-        for (size_t corner = 0; q > 0 && corner < ((size_t)1 << q); ++corner) {
+        // over the box's corners, edge midpoints and centre (3^q points: v of the second-order
+        // terms is a quartic, whose largest value need not lie at a corner)
+        size_t points = q > 0 ? 1 : 0;
+        for (size_t j = 0; j < q; ++j) points *= 3;
+        for (size_t pt = 0; pt < points; ++pt) {
             double c[kMaxCov];
-            for (size_t j = 0; j < q; ++j) c[j] = (corner >> j & 1) ? p.ref.high[j] : p.ref.low[j];
+            for (size_t j = 0, code = pt; j < q; ++j, code /= 3) {
+                const double lo = p.ref.low[j], hi = p.ref.high[j];
+                c[j] = code % 3 == 0 ? lo : code % 3 == 1 ? hi : 0.5 * (lo + hi);
+            }
             vmax = std::max(vmax, prediction_v(p.ref, q, c));
         }
         p.v_ref = vmax;
@@ -375,8 +466,12 @@ struct vibid_change {
         const size_t q = cfg.n_covariates;
         double m = p.ref.mean, weight = 1.0;
         bool out = false;
+        if (q) {
+            double d[kMaxTerms];
+            const size_t T = deviation(p.ref, q, cov, d);
+            for (size_t t = 0; t < T; ++t) m += p.ref.slope[t] * d[t];
+        }
         for (size_t j = 0; j < q; ++j) {
-            m += p.ref.slope[j] * (cov[j] - p.ref.centre[j]);
             // outside by more than rounding (1e-9 of the range, or of the value without one)
             const double tol = 1e-9 * std::max(p.ref.high[j] - p.ref.low[j], std::fabs(cov[j]));
             out = out || cov[j] < p.ref.low[j] - tol || cov[j] > p.ref.high[j] + tol;
@@ -658,16 +753,27 @@ VIBID_API vibid_status vibid_change_set_reference(vibid_change *det, const vibid
                               "ref[%zu]: mean %g, block_sd %g, n_mean %g, n_sd %g (need finite mean, "
                               "block_sd > 0, n_mean >= 1, n_sd >= 2)",
                               i, r.mean, r.block_sd, r.n_mean, r.n_sd);
-        const size_t q = det->cfg.n_covariates;
+        const size_t q = det->cfg.n_covariates, T = terms_of(r, q);
+        if (r.n_terms && r.n_terms != q && r.n_terms != full_terms(q))
+            return VIBID_FAIL(VIBID_E_OUT_OF_RANGE, "ref[%zu]: n_terms %zu (need 0, %zu or %zu for %zu covariates)", i,
+                              r.n_terms, q, full_terms(q), q);
         for (size_t j = 0; j < q; ++j) {
-            bool ok = std::isfinite(r.slope[j]) && std::isfinite(r.centre[j]) && std::isfinite(r.low[j]) &&
-                      std::isfinite(r.high[j]) && r.low[j] <= r.high[j] && r.gram_inv[j * q + j] >= 0.0;
-            for (size_t l = 0; l < q; ++l) ok = ok && std::isfinite(r.gram_inv[j * q + l]);
+            const bool ok = std::isfinite(r.centre[j]) && std::isfinite(r.low[j]) && std::isfinite(r.high[j]) &&
+                            r.low[j] <= r.high[j] && (!r.n_terms || std::isfinite(r.origin[j]));
             if (!ok)
                 return VIBID_FAIL(VIBID_E_OUT_OF_RANGE,
-                                  "ref[%zu], covariate %zu: slope %g, centre %g, range [%g, %g], G_jj %g (need "
-                                  "finite values, low <= high, G_jj >= 0)",
-                                  i, j, r.slope[j], r.centre[j], r.low[j], r.high[j], r.gram_inv[j * q + j]);
+                                  "ref[%zu], covariate %zu: centre %g, range [%g, %g], origin %g (need finite "
+                                  "values, low <= high)",
+                                  i, j, r.centre[j], r.low[j], r.high[j], r.origin[j]);
+        }
+        for (size_t t = 0; t < T; ++t) {
+            bool ok = std::isfinite(r.slope[t]) && r.gram_inv[t * T + t] >= 0.0 &&
+                      (!r.n_terms || std::isfinite(r.term_mean[t]));
+            for (size_t l = 0; l < T; ++l) ok = ok && std::isfinite(r.gram_inv[t * T + l]);
+            if (!ok)
+                return VIBID_FAIL(VIBID_E_OUT_OF_RANGE,
+                                  "ref[%zu], term %zu: slope %g, mean %g, G_tt %g (need finite values, G_tt >= 0)", i,
+                                  t, r.slope[t], r.term_mean[t], r.gram_inv[t * T + t]);
         }
     }
     for (size_t i = 0; i < det->par.size(); ++i) {

@@ -19,19 +19,11 @@ import pytest
 import vibid
 from vibid import _core
 from vibid._monitor import covariate_columns, parse_alarm_lines
-from conftest import sim_path, vibidd_path
+from conftest import REPO, sim_path, vibidd_path
 
 pytestmark = pytest.mark.skipif(not _core.HAVE_DAEMON, reason="vibid built without vibidd's core")
 
-STAND = """stand = { name = "base2"; sample_rate = 1000.0;
-  nodes = ( { name = "m1"; mass = 1.5; measure = { displacement = "x1"; }; },
-            { name = "m2"; mass = 3.0; measure = { displacement = "x2"; }; } );
-  base = { hold = "zoh"; measure = { displacement = "s"; }; };
-  elements = ( { name = "c1"; kind = "spring"; between = ["m1", "m2"]; unknown = true; true_value = 6.0e4; },
-               { name = "d1"; kind = "damper"; between = ["m1", "m2"]; unknown = true; true_value = 15.0; },
-               { name = "c2"; kind = "spring"; between = ["m2", "base"]; unknown = true; true_value = 1.2e5; },
-               { name = "d2"; kind = "damper"; between = ["m2", "base"]; unknown = true; true_value = 30.0; } ); };
-"""
+STAND = (REPO / "examples" / "stands" / "base2.cfg").read_text()
 SIM = """simulation = {{ seed = {seed};
   excitation = ( {{ target = "base"; kind = "noise"; amplitude = 1.0e-4; f_high = 100.0; }} );
   noise = ( {{ channel = "x1"; snr_db = 60.0; }}, {{ channel = "x2"; snr_db = 60.0; }}, {{ channel = "s"; snr_db = 60.0; }} );

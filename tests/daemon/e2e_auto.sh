@@ -7,20 +7,13 @@
 # The base-excited 2-DOF stand of the issue: base displacement held between samples
 # (a DAC-driven shaker), a damper to the base, x1, x2 and s measured; the lower spring c2
 # loses 10 % at t = 30 s (a crack). 1 kHz, band-limited random base motion, 60 dB noise.
-cat > stand.cfg <<'EOF'
-stand = { name = "base2"; sample_rate = 1000.0;
-  nodes = ( { name = "m1"; mass = 1.5; measure = { displacement = "x1"; }; },
-            { name = "m2"; mass = 3.0; measure = { displacement = "x2"; }; } );
-  base = { hold = "zoh"; measure = { displacement = "s"; }; };
-  elements = ( { name = "c1"; kind = "spring"; between = ["m1", "m2"]; unknown = true; true_value = 6.0e4; },
-               { name = "d1"; kind = "damper"; between = ["m1", "m2"]; unknown = true; true_value = 15.0; },
-               { name = "c2"; kind = "spring"; between = ["m2", "base"]; unknown = true; true_value = 1.2e5; },
-               { name = "d2"; kind = "damper"; between = ["m2", "base"]; unknown = true; true_value = 30.0; } ); };
+{ cat "$SRC/examples/stands/base2.cfg"; cat <<'EOF'
 simulation = { seed = 7;
   excitation = ( { target = "base"; kind = "noise"; amplitude = 1.0e-4; f_high = 100.0; } );
   noise = ( { channel = "x1"; snr_db = 60.0; }, { channel = "x2"; snr_db = 60.0; }, { channel = "s"; snr_db = 60.0; } );
   changes = ( { parameter = "c2"; at = 30.0; factor = 0.9; } ); };
 EOF
+} > stand.cfg
 
 config() {
     cat > v.cfg <<EOF
@@ -219,13 +212,25 @@ alarms = { };'
     [ "$(echo "$ev3" | wc -l)" -eq 1 ] && [ "${ev3% raised *}" = c2 ] ||
         fail "run 3: expected c2's alarm alone: $ev3"
     [ "${ev3##* }" -ge 150000 ] && [ "${ev3##* }" -le 155000 ] || fail "run 3: c2 raised at ${ev3##* }, not within 5 s"
-    # 4: the saved reference read back (slopes, centre, range, G: the covariate's fields) gives
-    # the same test: the same event at the same sample
-    grep -q '^c2.slope_0=' ref_t.txt && grep -q '^c2.gram_inv_00=' ref_t.txt || fail "ref_t.txt: $(cat ref_t.txt)"
+    # 4: the saved reference read back (slopes, centre, range, G: the covariate's fields; format
+    # 2, the regression's terms: one linear term here, the dependence being linear) gives the
+    # same test: the same event at the same sample
+    grep -q '^format=2$' ref_t.txt && grep -q '^c2.n_terms=1$' ref_t.txt && grep -q '^c2.slope_0=' ref_t.txt &&
+        grep -q '^c2.gram_inv_0_0=' ref_t.txt || fail "ref_t.txt: $(cat ref_t.txt)"
     rm -f tracks.influx tracks.csv
     timeout 120 "$VIBIDD" -c v.cfg 2> log4 || fail "run 4: $(cat log4)"
     grep -q 'alarm reference read from .*ref_t.txt' log4 || fail "run 4 did not read the reference"
     [ "$(events)" = "$ev3" ] || fail "run 4 (the saved reference): $(events), run 3: $ev3"
+    # 5: the same reference written as format 1 (the linear reference before the second-order
+    # terms: slope_J, centre_J, low_J, high_J, gram_inv_JL; no origin, term means, n_terms) is
+    # read as the same regression: the same event
+    sed -e 's/^format=2$/format=1/' -e '/\.origin_0=/d' -e '/\.term_mean_0=/d' -e '/\.n_terms=/d' \
+        -e 's/\.gram_inv_0_0=/.gram_inv_00=/' ref_t.txt > ref_t1.txt
+    mv ref_t1.txt ref_t.txt
+    rm -f tracks.influx tracks.csv
+    timeout 120 "$VIBIDD" -c v.cfg 2> log5 || fail "run 5: $(cat log5)"
+    grep -q 'alarm reference read from .*ref_t.txt' log5 || fail "run 5 did not read the format-1 reference: $(cat log5)"
+    [ "$(events)" = "$ev3" ] || fail "run 5 (format 1): $(events), run 3: $ev3"
     note "temperature +-3 %, c2 -1 % at 150 s: unmapped $early1 false alarm(s) before the crack; mapped (10 s reference, $nC rows C, slope $slope N/m/degC): c2 at sample ${first2#* }; 60 s reference: c2 at sample ${ev3##* }, nothing else"
     ;;
 *)

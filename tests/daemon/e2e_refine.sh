@@ -6,19 +6,12 @@
 
 # A base-excited 2-DOF stand (the one of e2e_auto.sh, without its change): x1, x2 and the
 # base displacement s measured, so the output-error fit accepts it.
-cat > stand.cfg <<'EOF'
-stand = { name = "base2"; sample_rate = 1000.0;
-  nodes = ( { name = "m1"; mass = 1.5; measure = { displacement = "x1"; }; },
-            { name = "m2"; mass = 3.0; measure = { displacement = "x2"; }; } );
-  base = { hold = "zoh"; measure = { displacement = "s"; }; };
-  elements = ( { name = "c1"; kind = "spring"; between = ["m1", "m2"]; unknown = true; true_value = 6.0e4; },
-               { name = "d1"; kind = "damper"; between = ["m1", "m2"]; unknown = true; true_value = 15.0; },
-               { name = "c2"; kind = "spring"; between = ["m2", "base"]; unknown = true; true_value = 1.2e5; },
-               { name = "d2"; kind = "damper"; between = ["m2", "base"]; unknown = true; true_value = 30.0; } ); };
+{ cat "$SRC/examples/stands/base2.cfg"; cat <<'EOF'
 simulation = { seed = 7;
   excitation = ( { target = "base"; kind = "noise"; amplitude = 1.0e-4; f_high = 100.0; } );
   noise = ( { channel = "x1"; snr_db = 60.0; }, { channel = "x2"; snr_db = 60.0; }, { channel = "s"; snr_db = 60.0; } ); };
 EOF
+} > stand.cfg
 
 config() {
     cat > v.cfg <<EOF

@@ -70,20 +70,29 @@
  * 6. Operating conditions (covariates: temperature, speed, load). A stiffness that
  *    follows the temperature is no damage. With n_covariates > 0 each row comes with the
  *    covariates' values over its block (their mean over the samples since the previous
- *    row) and the reference is a linear regression of the block estimates on them:
- *        b_k = m + slope^T (c_k - centre) + e_k,   e_k ~ (0, sigma_b^2),
- *    fitted over the learned blocks (sigma_b from N - 1 - q degrees of freedom, q the
- *    covariates that varied). The test runs on the compensated deviation
- *    b_k - m - slope^T (c_k - centre). The prediction's own error has the variance
- *    sigma_b^2 v(c), v(c) = 1 / N + d^T G d, d = c - centre, G = (sum d_k d_k^T)^-1: it
- *    grows with the distance from the reference's conditions. The thresholds (3) take the
- *    prediction at the edge of its 95 % interval where it is worst (the mean's shift
- *    1.96 sqrt(v_ref), v_ref the largest v over the box of covariate ranges the reference
- *    saw: n_mean = 1 / v_ref in (3)), so inside that box the false-alarm rate holds as in (3). A block
+ *    row) and the reference is a regression of the block estimates on them:
+ *        b_k = m + slope^T (x(c_k) - xbar) + e_k,   e_k ~ (0, sigma_b^2),
+ *    x(c) the terms: the covariates (linear model), and where the data need it their
+ *    squares and products (second-order model: a stiffness that follows temperature and
+ *    load as k (1 + a dT)(1 + b dL) has the product dT dL; left out, its pattern returns
+ *    in every cycle of the two, and a CUSUM sums it into false alarms: 19 raised in 6 h at
+ *    a rate of 1 an hour, 6 expected, in the service benchmark). The second-order model is
+ *    taken when the batches of 10 blocks (nearly independent, point 2) reject the linear
+ *    one: their drop of the residual sum of squares against the second-order residual
+ *    variance above the 99.9 % quantile of chi2 with the added terms' degrees of freedom,
+ *    and at least 20 batches' degrees of freedom left. Fitted over the learned blocks
+ *    (sigma_b from N - 1 - T degrees of freedom, T the terms modelled). The test runs on
+ *    the compensated deviation b_k - m - slope^T (x(c_k) - xbar). The prediction's own
+ *    error has the variance sigma_b^2 v(c), v(c) = 1 / N + d^T G d, d = x(c) - xbar,
+ *    G = (sum_k d_k d_k^T)^-1: it grows with the distance from the reference's conditions.
+ *    The thresholds (3) take the prediction at the edge of its 95 % interval where it is
+ *    worst (the mean's shift 1.96 sqrt(v_ref), v_ref the largest v over the box of
+ *    covariate ranges the reference saw, its corners, edge midpoints and centre:
+ *    n_mean = 1 / v_ref in (3)), so inside that box the false-alarm rate holds as in (3). A block
  *    whose covariates lie outside the box is FLAGGED (vibid_change_state.out_of_range) and
  *    its deviation is weighed down by sqrt(v_ref / v(c)) < 1, which keeps the prediction's
  *    error within the thresholds' allowance (a conservative test: less power, never more
- *    false alarms) rather than trusting a straight line beyond the data. A covariate that
+ *    false alarms) rather than trusting a fitted curve beyond the data. A covariate that
  *    did not vary over the reference (or duplicates another) is not modelled: a block with
  *    it outside its range is not tested at all (weight 0). The minimum detectable change is
  *    the one inside the box. A block with a non-finite covariate is neither learned nor
@@ -133,6 +142,9 @@ extern "C" {
 #define VIBID_CHANGE_MIN_BLOCKS 10             /* learned blocks a reference needs per parameter
                                                   (plus one per covariate) */
 #define VIBID_CHANGE_MAX_COVARIATES 4
+/* terms of the covariate regression (point 6): q linear, and with the second-order model
+ * q (q + 1) / 2 products, 14 at q = 4 */
+#define VIBID_CHANGE_MAX_TERMS 14
 
 typedef struct vibid_change vibid_change;
 
@@ -157,18 +169,26 @@ typedef struct vibid_change_reference {
                          INFINITY: m known exactly */
     double n_sd;      /* sigma_b's degrees of freedom + 1 (n_sd - 1 of them), >= 2; learned:
                          the blocks minus the modelled covariates; INFINITY: known exactly */
-    /* With covariates (entries 0 .. n_covariates - 1; 0 without; point 6 above): */
-    double slope[VIBID_CHANGE_MAX_COVARIATES];  /* d m / d c_j: the parameter's unit per the
-                                                   covariate's */
-    double centre[VIBID_CHANGE_MAX_COVARIATES]; /* c_j's mean over the reference: m is the
-                                                   parameter at the centre */
+    /* With covariates (q = n_covariates; point 6 above). Per covariate (entries 0 .. q - 1): */
+    double centre[VIBID_CHANGE_MAX_COVARIATES]; /* c_j's mean over the reference */
     double low[VIBID_CHANGE_MAX_COVARIATES], high[VIBID_CHANGE_MAX_COVARIATES]; /* c_j's range
                                                    over the reference, low <= high */
-    double gram_inv[VIBID_CHANGE_MAX_COVARIATES * VIBID_CHANGE_MAX_COVARIATES];
-                      /* G = (sum_k d_k d_k^T)^-1, n_covariates x n_covariates row-major in the
-                         first n_covariates^2 entries (the covariates' units^-2): the slopes'
-                         covariance over sigma_b^2, symmetric, positive semi-definite; a
-                         covariate that is not modelled has its row and column 0 (and slope 0) */
+    double origin[VIBID_CHANGE_MAX_COVARIATES]; /* o_j: where the terms are measured from */
+    /* The regression's terms x_t(c), t < n_terms: t < q the linear c_t - o_t; then, when
+     * n_terms = q + q (q + 1) / 2 (the second-order model), the products
+     * (c_i - o_i)(c_j - o_j) for i <= j in the order (0,0), (0,1) .. (0,q-1), (1,1) ..
+     * n_terms 0: the first form of this struct, linear with x_j(c) - term_mean_j = c_j - centre_j
+     * (origin and term_mean unused). */
+    size_t n_terms;
+    double term_mean[VIBID_CHANGE_MAX_TERMS];   /* x_t's mean over the reference */
+    double slope[VIBID_CHANGE_MAX_TERMS];       /* d m / d x_t: the parameter's unit per the
+                                                   term's */
+    double gram_inv[VIBID_CHANGE_MAX_TERMS * VIBID_CHANGE_MAX_TERMS];
+                      /* G = (sum_k d_k d_k^T)^-1 over the terms, T x T row-major in the first
+                         T^2 entries (T = n_terms, or q for n_terms 0): the slopes' covariance
+                         over sigma_b^2, symmetric, positive semi-definite; a term that is not
+                         modelled (a covariate that did not vary, a product that duplicates
+                         others) has its row and column 0 (and slope 0) */
 } vibid_change_reference;
 
 typedef enum vibid_change_phase {
@@ -236,7 +256,8 @@ VIBID_API vibid_status vibid_change_push(vibid_change *det, uint64_t index, cons
 VIBID_API vibid_status vibid_change_end_learning(vibid_change *det);
 
 /* A given reference (n_params entries), e.g. a saved one; replaces any other. The covariate
- * fields are checked (finite, low <= high, G's diagonal >= 0). */
+ * fields are checked (finite, low <= high, G's diagonal >= 0, n_terms 0, q or
+ * q + q (q + 1) / 2). */
 VIBID_API vibid_status vibid_change_set_reference(vibid_change *det, const vibid_change_reference *ref);
 /* The reference in use (n_params entries); VIBID_E_STATE without one. */
 VIBID_API vibid_status vibid_change_get_reference(const vibid_change *det, vibid_change_reference *ref);
