@@ -358,4 +358,81 @@ VIBID_API vibid_status vibid_model_modal(const vibid_model *model, const double 
         return w.model_modal(theta, cov, freq_hz, freq_se, zeta, zeta_se, shape_re, shape_im, "vibid_model_modal"););
 }
 
+VIBID_API vibid_status vibid_model_frf(const vibid_model *model, const double *theta, double sample_time,
+                                       size_t n_freq, const double *freq_hz, double *re, double *im) {
+    VIBID_GUARD(
+        vibid::require_finalized(model);
+        if (!freq_hz || !re || !im) throw_error(VIBID_E_NULL_ARGUMENT, "freq_hz, re and im are required");
+        if (!(sample_time >= 0.0) || !std::isfinite(sample_time))
+            throw_error(VIBID_E_OUT_OF_RANGE, "sample_time = %g s must be >= 0 and finite", sample_time);
+        for (size_t k = 0; k < n_freq; ++k)
+            if (!(freq_hz[k] >= 0.0) || !std::isfinite(freq_hz[k]))
+                throw_error(VIBID_E_OUT_OF_RANGE, "freq_hz[%zu] = %g must be >= 0 and finite", k, freq_hz[k]);
+        vibid_model_dims dm{};
+        if (vibid_model_get_dims(model, &dm) != VIBID_OK) throw_error(VIBID_E_STATE, "%s", vibid_last_error());
+        const std::size_t p = dm.n_params, n = dm.n_dof, r = dm.n_inputs, nc = dm.n_channels;
+        const std::size_t ne = r + (dm.has_base ? 1 : 0);
+        std::vector<double> th(p);
+        if (theta)
+            std::copy(theta, theta + p, th.begin());
+        else
+            vibid_model_nominal(model, th.data());
+        if (!vibid::all_finite(th.data(), p)) throw_error(VIBID_E_NONFINITE, "theta has NaN or Inf");
+        const Eigen::Index N = static_cast<Eigen::Index>(n);
+        MatrixXd M(N, N), D(N, N), C(N, N), B(N, std::max<Eigen::Index>(static_cast<Eigen::Index>(r), 1));
+        Eigen::VectorXd db(N), cb(N);
+        if (vibid_model_assemble(model, th.data(), M.data(), D.data(), C.data(), r ? B.data() : nullptr, db.data(),
+                                 cb.data()) != VIBID_OK)
+            throw_error(VIBID_E_STATE, "%s", vibid_last_error());
+        std::vector<bool> held(ne, false);
+        for (std::size_t e = 0; e < ne; ++e) {
+            vibid_hold hd;
+            if (vibid_model_get_hold(model, e < r ? e : VIBID_BASE, &hd) == VIBID_OK) held[e] = hd == VIBID_HOLD_ZOH;
+        }
+        std::vector<vibid_channel_info> info(nc);
+        for (std::size_t c = 0; c < nc; ++c)
+            if (vibid_model_channel_info(model, c, &info[c]) != VIBID_OK)
+                throw_error(VIBID_E_STATE, "%s", vibid_last_error());
+        using cd = std::complex<double>;
+        Eigen::MatrixXcd Z(N, N), R(N, static_cast<Eigen::Index>(std::max<std::size_t>(ne, 1))), X;
+        for (std::size_t k = 0; k < n_freq; ++k) {
+            const double w = 2.0 * M_PI * freq_hz[k];
+            const cd jw(0.0, w);
+            Z = C.cast<cd>() - w * w * M.cast<cd>() + jw * D.cast<cd>();
+            for (std::size_t e = 0; e < ne; ++e) {
+                const Eigen::Index ei = static_cast<Eigen::Index>(e);
+                if (e < r)
+                    R.col(ei) = B.col(ei).cast<cd>();
+                else
+                    R.col(ei) = cb.cast<cd>() + jw * db.cast<cd>();
+            }
+            X = Z.partialPivLu().solve(R);
+            for (std::size_t e = 0; e < ne; ++e) {
+                // the zero-order hold's factor for a held excitation, sampled
+                cd hold = 1.0;
+                if (held[e] && sample_time > 0.0 && w > 0.0) {
+                    const double x = 0.5 * w * sample_time;
+                    hold = std::polar(std::sin(x) / x, -x);
+                }
+                for (std::size_t c = 0; c < nc; ++c) {
+                    const vibid_channel_info &ci = info[c];
+                    const cd q = ci.kind == VIBID_CHANNEL_DISPLACEMENT ? cd(1.0)
+                                 : ci.kind == VIBID_CHANNEL_VELOCITY   ? jw
+                                                                       : cd(-w * w);
+                    cd h = 0.0;
+                    if (ci.kind == VIBID_CHANNEL_INPUT)
+                        h = ci.index == e ? 1.0 : 0.0;
+                    else if (ci.index == VIBID_BASE)
+                        h = e == r && dm.has_base ? q : cd(0.0);
+                    else
+                        h = q * X(static_cast<Eigen::Index>(ci.index), static_cast<Eigen::Index>(e)) * hold;
+                    const std::size_t at = k + n_freq * (c + nc * e);
+                    re[at] = h.real();
+                    im[at] = h.imag();
+                }
+            }
+        }
+        return VIBID_OK;);
+}
+
 }  // extern "C"

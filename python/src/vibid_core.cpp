@@ -470,6 +470,21 @@ Array2 stand_simulate(const Stand &st, const std::vector<double> &th, nb::ndarra
     return to_numpy(std::move(out), N, nc);
 }
 
+// The model's FRFs at theta (vibid_model_frf, vibid/modal.h): (re, im), each n_exc x
+// n_channels x n_freq flattened (C order), the sampled zero-order hold's factor applied to
+// held excitations when sample_time > 0.
+std::tuple<Array1, Array1> stand_frf(const Stand &st, const std::vector<double> &th, const std::vector<double> &freq_hz,
+                                     double sample_time) {
+    check_theta(st, th, "frf");
+    const vibid_model_dims &dm = st.dims();
+    const size_t ne = dm.n_inputs + (dm.has_base ? 1 : 0), n = freq_hz.size() * dm.n_channels * ne;
+    std::vector<double> re(n), im(n);
+    const vibid_status s =
+        vibid_model_frf(st.model(), th.data(), sample_time, freq_hz.size(), freq_hz.data(), re.data(), im.data());
+    if (s != VIBID_OK) raise_status("vibid_model_frf", s);
+    return {to_numpy(std::move(re)), to_numpy(std::move(im))};
+}
+
 // ---- Yardstick of python/bench/bench_python.py (issue 13) ----
 // identify(stand, data, method) done by a C program: vibid_ident_create with the same
 // config, every sample through vibid_ident_push in one loop from an interleaved buffer
@@ -1253,7 +1268,8 @@ NB_MODULE(_core, m) {
         .def_prop_ro("params", &Stand::params)
         .def_prop_ro("length_unit", [](const Stand &s) { return std::string(vibid_stand_length_unit(s.raw())); })
         .def_prop_ro("length_si", [](const Stand &s) { return vibid_stand_length_si(s.raw()); })
-        .def_prop_ro("n_dof", [](const Stand &s) { return s.dims().n_dof; });
+        .def_prop_ro("n_dof", [](const Stand &s) { return s.dims().n_dof; })
+        .def_prop_ro("nonlinear", [](const Stand &s) { return s.dims().nonlinear != 0; });
 
     nb::class_<Ident>(m, "Ident")
         // keep_alive: the identification reads the stand's model (plausibility, modes).
@@ -1296,6 +1312,7 @@ NB_MODULE(_core, m) {
     m.def("outliers", &outliers, "data"_a);  // vibid/outlier.h over a capture (identify)
     m.def("stand_regression", &stand_regression, "stand"_a, "data"_a, "prefilter_hz"_a, "order"_a);
     m.def("stand_simulate", &stand_simulate, "stand"_a, "theta"_a, "data"_a, "substeps"_a = 8);
+    m.def("stand_frf", &stand_frf, "stand"_a, "theta"_a, "freq_hz"_a, "sample_time"_a);
     m.def("bench_identify_c", &bench_identify_c, "stand"_a, "data"_a, "estimator"_a, "forgetting"_a,
           "prefilter_hz"_a, "iv_lag"_a);  // python/bench/bench_python.py
 

@@ -161,18 +161,27 @@ def test_every_axis_has_a_unit(rls_report):
 
 
 def test_identified_frf_matches_the_measured_h1(rls_report, capture):
-    # Example 1, noise-free multisine: the IV/OE estimate's model FRF against the measured
-    # H1 where the coherence exceeds 0.9 (the excited lines). Tolerance 0.5 dB: the estimate
-    # is 1e-5 off and the RK4 simulation 3e-6 (test_cli); measured well below 0.1 dB.
+    # Example 1, noise-free multisine (40 lines, 2-160 Hz: conftest.example1_capture): the
+    # IV/OE estimate's FRF from its matrices (vibid_model_frf) against the measured H1 at the
+    # FFT bins nearest to the lines (between the lines Welch's H1 of a multisine is the
+    # leakage of its neighbours, 0.6-1.04 times the true FRF there). Tolerance 0.5 dB: the
+    # estimate is 1e-5 off; what is left is the Hann window's leakage of the neighbouring lines
+    # into a line's bin and the bin's offset from the line (at most a quarter of the 3 Hz
+    # half-power width at the resonances). Measured max 0.42 dB (x1) and 0.34 dB (x2), medians
+    # 0.049 and 0.028 dB.
     res = vibid.identify(EXAMPLE1, capture)
     block, _ = vibid._identify._columns(res.stand, capture)
     sim, start = _cli.model_response(res, block)
-    _, f, hm, hs, coh, pairs = _cli._frf_figure(res, block, sim, start)
+    _, f, hm, hs, coh, pairs, source = _cli._frf_figure(res, block, sim, start)
+    assert source == "matrices"
     assert pairs == [("s", "x1"), ("s", "x2")]
+    lines = np.linspace(2.0, 160.0, 40)
+    at = np.unique(np.round(lines / (f[1] - f[0])).astype(int))
     for o in range(hm.shape[1]):
-        good = coh[:, o] > 0.9
-        assert good.sum() >= 5
-        db = 20 * np.log10(np.abs(hs[good, o, 0]) / np.abs(hm[good, o, 0]))
+        db = 20 * np.log10(np.abs(hs[at, o, 0]) / np.abs(hm[at, o, 0]))
+        print(f"output {o}: model from its matrices - measured H1, at the {len(at)} lines' bins: "
+              f"max {np.max(np.abs(db)):.3f} dB, median {np.median(np.abs(db)):.4f} dB")
+        assert np.all(coh[at, o] > 0.9)
         assert np.max(np.abs(db)) < 0.5, np.max(np.abs(db))
 
 

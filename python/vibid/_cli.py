@@ -478,11 +478,43 @@ def frf_h1(x: np.ndarray, y: np.ndarray, fs: float, nperseg: int = 4096):
     return np.fft.rfftfreq(nperseg, 1.0 / fs), h, coh
 
 
+def model_frf(result: Result, f: np.ndarray, ins: list[int], outs: list[int]) -> Optional[np.ndarray]:
+    """The identified model's FRF from its matrices (``vibid_model_frf``: (C - w^2 M + j w D)^-1
+    [B, c_base + j w d_base], held inputs with the sampled zero-order hold's factor) at the
+    frequencies f, from the excitation channels ins to the response channels outs (channel
+    indices): nf x len(outs) x len(ins). None for a stand with cubic springs (the matrices are
+    its linearisation at rest, not the response at the capture's amplitude) or an excitation
+    channel that is neither a force input nor the base displacement (a base velocity or
+    acceleration channel)."""
+    st = result.stand
+    if st._core.nonlinear:
+        return None
+    roles = channel_roles(st)
+    n_inputs = sum(1 for _, kind, _, _ in roles if kind == "input")
+    exc = []
+    for i in ins:
+        _, kind, idx, name = roles[i]
+        if kind == "input":
+            exc.append(idx)
+        elif idx == -2 and kind == "displacement":
+            exc.append(n_inputs)
+        else:
+            return None
+    th = result.parameters["value"].to_numpy(float)
+    re, im = _core.stand_frf(st._core, list(th), list(np.asarray(f, float)), 1.0 / st.sample_rate)
+    n_exc = len(re) // (len(f) * len(st.channels))
+    h = (np.asarray(re) + 1j * np.asarray(im)).reshape(n_exc, len(st.channels), len(f))
+    return np.transpose(h[np.ix_(exc, outs)], (2, 1, 0))
+
+
 def _frf_figure(result: Result, block: np.ndarray, sim: np.ndarray, start: int):
     """Measured H1 (input channels -> each response channel) with its coherence, against
-    the identified model's FRF, estimated the same way from the model's simulation driven by
-    the same measured inputs (noise-free, so its H1 is the model's FRF wherever the inputs
-    excite)."""
+    the identified model's FRF: from its matrices (model_frf) for a linear stand; for a stand
+    with cubic springs estimated the same way as the measured one from the model's simulation
+    driven by the same measured inputs (noise-free, so its H1 is the model's response at the
+    capture's amplitude wherever the inputs excite). Returns the figure, the frequencies, the
+    measured and model FRFs, the coherence, the (input, output) channel pairs, and which
+    model FRF it is ("matrices" or "simulation")."""
     from ._plot import _figure
 
     st = result.stand
@@ -490,7 +522,11 @@ def _frf_figure(result: Result, block: np.ndarray, sim: np.ndarray, start: int):
     ins = [st.channels.index(ch) for ch in _excitation_channels(st)]
     outs = [i for i, (ch, kind, idx, _) in enumerate(channel_roles(st)) if kind != "input" and idx != -2]
     f, hm, coh = frf_h1(block[start:, ins], block[start:, outs], fs)
-    _, hs, _ = frf_h1(block[start:, ins], sim[start:, outs], fs)
+    hs = model_frf(result, f, ins, outs)
+    source = "matrices"
+    if hs is None:
+        _, hs, _ = frf_h1(block[start:, ins], sim[start:, outs], fs)
+        source = "simulation"
     pairs = [(o, i) for o in range(len(outs)) for i in range(len(ins))]
     fig = _figure(figsize=(8.0, 3.6 * len(pairs) + 0.5), layout="constrained")
     axes = fig.subplots(3 * len(pairs), 1, squeeze=False, sharex=True,
@@ -520,7 +556,7 @@ def _frf_figure(result: Result, block: np.ndarray, sim: np.ndarray, start: int):
                     ax.axvline(fm, color="0.5", linestyle=":", linewidth=0.8)
     axes[-1].set_xlabel("frequency [Hz]")
     axes[-1].set_xlim(0, fs / 2)
-    return fig, f, hm, hs, coh, [(st.channels[ins[i]], st.channels[outs[o]]) for o, i in pairs]
+    return fig, f, hm, hs, coh, [(st.channels[ins[i]], st.channels[outs[o]]) for o, i in pairs], source
 
 
 def _node_names(stand: Stand) -> list[str]:
@@ -735,14 +771,19 @@ def write_report(result: Result, block: np.ndarray, capture: str, path: str) -> 
         if not chans:
             raise ValueError("the stand has no measured input channel")
         sim, start = response()
-        fig, f, hm, hs, coh, pairs = _frf_figure(result, block, sim, start)
+        fig, f, hm, hs, coh, pairs, source = _frf_figure(result, block, sim, start)
+        model_text = (
+            "FRF from its matrices, (C - &omega;<sup>2</sup> M + j&omega; D)<sup>-1</sup> times the inputs' "
+            "coefficients (held inputs with the sampled zero-order hold's factor)" if source == "matrices" else
+            "response at the capture's amplitude (the stand has cubic springs: its matrices are only the "
+            "linearisation at rest), estimated the same way from the model's noise-free simulation driven by the "
+            "same measured inputs")
         section("frf", "Frequency response and coherence",
                 f"<p>Measured H<sub>1</sub> = G<sub>yx</sub> G<sub>xx</sub><sup>-1</sup> (Welch, Hann, "
                 f"{frf_segment(block.shape[0] - start)}-sample segments, 50 % overlap, samples {start} on) from the "
                 f"input channels {esc(', '.join(_excitation_channels(st)))} to each response channel, with its "
                 f"coherence (multiple coherence where there are several inputs), against the identified model's "
-                f"FRF, estimated the same way from the model's noise-free simulation driven by the same measured "
-                f"inputs (so both are in the measured quantities' units: output channel unit per input channel "
+                f"{model_text} (both in the measured quantities' units: output channel unit per input channel "
                 f"unit; a force input's unit is N where its gain is 1). The identified natural frequencies "
                 f"dotted. Where the coherence is low the measured H<sub>1</sub> is noise, not a fault of the "
                 f"model.</p>" + figure(fig, "frequency response functions"))

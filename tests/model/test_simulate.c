@@ -1,6 +1,8 @@
-/* test_simulate.c: vibid_model_simulate (vibid/simulate.h), the model at given parameters
- * driven by a capture's measured inputs, against the examples' reference simulator
- * (examples/support/stand_sim.h: RK4 from rest with 20 steps per sample), and its refusals.
+/* test_simulate.c: the model's response to its inputs. vibid_model_simulate
+ * (vibid/simulate.h), the model at given parameters driven by a capture's measured inputs,
+ * against the examples' reference simulator (examples/support/stand_sim.h: RK4 from rest
+ * with 20 steps per sample), and its refusals; vibid_model_frf (vibid/modal.h) against the
+ * closed form of a single-DOF oscillator.
  * The smooth-input path (cubic Hermite between samples) is checked on a multisine capture
  * by the Python package's tests (python/tests/test_cli.py: NRMSE below 1e-5 at the truth). */
 #include <setjmp.h>
@@ -9,6 +11,7 @@
 #include <stdint.h>
 #include <cmocka.h>
 
+#include <complex.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -109,11 +112,61 @@ static void test_unmeasured_base_refused(void **state) {
     vibid_model_destroy(m);
 }
 
+/* m y'' + d y' + k y = b u, u held: H_y(w) = b / (k - w^2 m + j w d), velocity j w H,
+ * acceleration -w^2 H, the input channel 1; with the sample time the held input's columns
+ * times e^(-j w h / 2) sin(w h / 2) / (w h / 2). Complex arithmetic of C99, to 1e-12. */
+static void test_frf_single_dof(void **state) {
+    (void)state;
+    const double m = 2.0, k = 8.0e3, dmp = 4.0, b = 1.5, h = 1e-3;
+    vibid_model *md = vibid_model_create();
+    size_t a, u;
+    assert_int_equal(vibid_model_add_node(md, "m", m, 0, &a), VIBID_OK);
+    assert_int_equal(vibid_model_add_element(md, "k", VIBID_ELEMENT_SPRING, a, VIBID_GROUND, k, 1), VIBID_OK);
+    assert_int_equal(vibid_model_add_element(md, "d", VIBID_ELEMENT_DAMPER, a, VIBID_GROUND, dmp, 1), VIBID_OK);
+    assert_int_equal(vibid_model_add_input(md, "u", a, b, 0, &u), VIBID_OK);
+    assert_int_equal(vibid_model_set_hold(md, u, VIBID_HOLD_ZOH), VIBID_OK);
+    assert_int_equal(vibid_model_set_measured(md, a,
+                                              VIBID_MEASURE_DISPLACEMENT | VIBID_MEASURE_VELOCITY |
+                                                  VIBID_MEASURE_ACCELERATION),
+                     VIBID_OK);
+    assert_int_equal(vibid_model_finalize(md), VIBID_OK);
+    vibid_model_dims dm;
+    assert_int_equal(vibid_model_get_dims(md, &dm), VIBID_OK);
+    assert_int_equal(dm.n_channels, 4);
+    const double th[2] = {k, dmp}, f[3] = {0.0, 10.07, 250.0};
+    double re[3 * 4], im[3 * 4];
+    for (int with_hold = 0; with_hold < 2; with_hold++) {
+        assert_int_equal(vibid_model_frf(md, th, with_hold ? h : 0.0, 3, f, re, im), VIBID_OK);
+        for (size_t q = 0; q < 3; q++) {
+            const double w = 2.0 * M_PI * f[q], x = 0.5 * w * h;
+            double complex Hy = b / (k - w * w * m + I * w * dmp);
+            if (with_hold && w > 0.0)
+                Hy *= cexp(-I * x) * sin(x) / x;
+            for (size_t c = 0; c < 4; c++) {
+                vibid_channel_info ci;
+                assert_int_equal(vibid_model_channel_info(md, c, &ci), VIBID_OK);
+                const double complex want = ci.kind == VIBID_CHANNEL_INPUT          ? 1.0
+                                            : ci.kind == VIBID_CHANNEL_DISPLACEMENT ? Hy
+                                            : ci.kind == VIBID_CHANNEL_VELOCITY     ? I * w * Hy
+                                                                                    : -w * w * Hy;
+                const double complex got = re[q + 3 * c] + I * im[q + 3 * c];
+                assert_true(cabs(got - want) <= 1e-12 * cabs(want) + 1e-300);
+            }
+        }
+    }
+    const double bad = -1.0;
+    assert_int_equal(vibid_model_frf(md, th, 0.0, 1, &bad, re, im), VIBID_E_OUT_OF_RANGE);
+    assert_non_null(strstr(vibid_last_error(), "freq_hz[0]"));
+    assert_int_equal(vibid_model_frf(md, th, -h, 1, f, re, im), VIBID_E_OUT_OF_RANGE);
+    vibid_model_destroy(md);
+}
+
 int main(void) {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_held_force_follows_the_reference),
         cmocka_unit_test(test_refusals),
         cmocka_unit_test(test_unmeasured_base_refused),
+        cmocka_unit_test(test_frf_single_dof),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -49,6 +49,27 @@ VIBID_API vibid_status vibid_model_modal(const vibid_model *model, const double 
                                          double *freq_hz, double *freq_se, double *zeta, double *zeta_se,
                                          double *shape_re, double *shape_im);
 
+/* The model's frequency response functions at parameter values theta (p, NULL = nominal),
+ * cubic terms ignored (linearisation at rest): from each excitation e (the force inputs
+ * u_0 .. u_(r-1), then the base displacement s when the base moves: n_exc = r + has_base)
+ * to each of the model's channels c (vibid_model_channel_info), at n_freq frequencies
+ * freq_hz (>= 0, Hz):
+ *     X(w) = (C - w^2 M + j w D)^-1 [B, c_base + j w d_base],  w = 2 pi f;
+ * a node's displacement channel is the row of X, its velocity j w X, its acceleration
+ * -w^2 X; an input channel or the base displacement channel is 1 for its own excitation
+ * (j w, -w^2 for base velocity and acceleration channels), 0 otherwise. Units: the
+ * channel's per the excitation's (m/N, m/m, ...).
+ * sample_time h > 0: what sampled data show where an excitation is held between samples
+ * (vibid_model_set_hold, VIBID_HOLD_ZOH): the held excitation's columns of the response
+ * channels times the zero-order hold's e^(-j w h / 2) sin(w h / 2) / (w h / 2) (the
+ * staircase the system sees, to first order in the aliases: exact below Nyquist where the
+ * response above it is small). h = 0: the continuous FRF for every excitation.
+ * re, im: n_freq x n_channels x n_exc, index f + n_freq (c + n_channels e). A frequency at
+ * which C - w^2 M + j w D is singular (an undamped mode hit exactly) gives inf/NaN there.
+ * Allocates (not for real-time use). */
+VIBID_API vibid_status vibid_model_frf(const vibid_model *model, const double *theta, double sample_time,
+                                       size_t n_freq, const double *freq_hz, double *re, double *im);
+
 #ifdef __cplusplus
 }
 #endif
