@@ -1333,6 +1333,15 @@ VIBID_API vibid_status vibid_ident_offsets(const vibid_ident *ident, size_t cap,
     return VIBID_OK;
 }
 
+VIBID_API vibid_status vibid_ident_innovations(const vibid_ident *ident, size_t cap, size_t *n_out, size_t *channels,
+                                               double *nu, double *sd, double *inflation) {
+    if (!ident || !n_out) return VIBID_FAIL(VIBID_E_NULL_ARGUMENT, "ident and n_out are required");
+    if (!ident->ekf)
+        return VIBID_FAIL(VIBID_E_UNSUPPORTED, "innovations: only the state-space estimators (ekf, kf_rls) have them");
+    *n_out = ident->ekf->innovations(cap, channels, nu, sd, inflation);
+    return VIBID_OK;
+}
+
 VIBID_API vibid_status vibid_ident_constant_forces(const vibid_ident *ident, size_t cap, size_t *n_out,
                                                    size_t *nodes, double *values, double *se, double *p_value) {
     if (!ident || !n_out) return VIBID_FAIL(VIBID_E_NULL_ARGUMENT, "ident and n_out are required");

@@ -546,6 +546,7 @@ StandEkf::StandEkf(const vibid_model &m, const StandEkfSettings &s) : model_(&m)
     Rz_.setZero(nz_, nz_);
     zhat_.setZero(nz_);
     nu_.setZero(nz_);
+    nu_sd_.setZero(nz_);
     Rv_.setZero(nz_);
     Rw_.setZero(nw_);
     window_.assign(set_.window * static_cast<std::size_t>(nch_), 0.0);
@@ -947,6 +948,7 @@ vibid_status StandEkf::advance(const double *cur) {
 
 vibid_status StandEkf::push(const double *ch) {
     const std::size_t nch = static_cast<std::size_t>(nch_);
+    innovations_fresh_ = false;
     for (std::size_t c = 0; c < nch; ++c)
         if (!std::isfinite(ch[c])) {
             // A gap: the elapsed time and the inputs in it are unknown, so the state
@@ -957,7 +959,10 @@ vibid_status StandEkf::push(const double *ch) {
         }
     if (!stats_.started) {
         std::copy(ch, ch + nch, window_.begin() + static_cast<std::ptrdiff_t>(n_window_ * nch));
-        if (++n_window_ == set_.window) start_from_window();
+        if (++n_window_ == set_.window) {
+            start_from_window();
+            innovations_fresh_ = false;  // the window's updates are not this sample's alone
+        }
         return VIBID_OK;
     }
     const vibid_status st = advance(ch);
@@ -968,6 +973,7 @@ vibid_status StandEkf::push(const double *ch) {
     }
     if (st != VIBID_OK) return st;
     ++stats_.n_steps;
+    innovations_fresh_ = true;
     // Stands with a node that carries no sensor: the parameters are held at their start
     // values while the states of the unmeasured nodes settle (two periods of the slowest
     // mode); released at once, the coupled errors of both made the filter diverge on a
@@ -985,6 +991,20 @@ vibid_status StandEkf::push(const double *ch) {
     }
     drift_snapshot();
     return VIBID_OK;
+}
+
+std::size_t StandEkf::innovations(std::size_t cap, std::size_t *channel, double *nu, double *sd,
+                                  double *inflation) const {
+    if (!innovations_fresh_) return 0;
+    const std::size_t nz = static_cast<std::size_t>(nz_);
+    for (std::size_t k = 0; k < std::min(cap, nz); ++k) {
+        const Index i = static_cast<Index>(k);
+        if (channel) channel[k] = static_cast<std::size_t>(meas_[k].channel);
+        if (nu) nu[k] = nu_(i);
+        if (sd) sd[k] = nu_sd_(i);
+    }
+    if (inflation) *inflation = nu_inflation_;
+    return nz;
 }
 
 // Drift check snapshots: the first once the tempering is through (ten of its time
@@ -1209,6 +1229,8 @@ vibid_status StandEkf::update(const double *cur) {
     PHt_.topRows(nf).noalias() = P_.topLeftCorner(nf, nf).lazyProduct(Hm_.leftCols(nf).transpose());
     Sz_.noalias() = Hm_.leftCols(nf).lazyProduct(PHt_.topRows(nf));
     Sz_ += Rz_;
+    for (Index k = 0; k < nz_; ++k) nu_sd_(k) = std::sqrt(std::max(Sz_(k, k), 0.0));
+    nu_inflation_ = temper();
     if (!cholesky(Sz_)) return VIBID_FAIL(VIBID_E_DIVERGED, "innovation covariance not positive definite");
     // K = P H' S^-1, row by row through the factor.
     for (Index i = 0; i < nf; ++i) {

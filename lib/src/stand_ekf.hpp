@@ -124,6 +124,15 @@ public:
     // provisional run (estimate()).
     const StandEkfStats &stats() const { return stats_.started ? stats_ : prov_stats_; }
 
+    // The last push's measurement update, when it made one (not while the start window is
+    // collected nor at the sample that completes it, not at a gap or a divergence):
+    // per measured channel, in the filter's order, its index in the sample, the innovation
+    // nu = measured - predicted [the channel's unit] and its predicted standard deviation
+    // sqrt(S_kk) (S = H P H' + R, with R inflated by *inflation after a start).
+    // Writes min(cap, measured channels) entries (any pointer may be nullptr); returns the
+    // number of measured channels, 0 when the last push made no update. Allocation-free.
+    std::size_t innovations(std::size_t cap, std::size_t *channel, double *nu, double *sd, double *inflation) const;
+
 private:
     struct Meas {
         long channel;   // index in the sample
@@ -211,6 +220,9 @@ private:
     Mat F_, FP_, Hm_, PHt_, Sz_, K_, IKH_, Rz_;
     double last_nis_ = 0.0;  // nu' S^-1 nu of the last update
     Vec zhat_, nu_, Rv_;
+    Vec nu_sd_;                 // sqrt(S_kk) of the last update
+    double nu_inflation_ = 1.0;  // the measurement noise's inflation in the last update
+    bool innovations_fresh_ = false;  // the last push ran a measurement update
     Vec Rw_;
 
     // KF+RLS: the regression on the physical parameters in scaled coordinates

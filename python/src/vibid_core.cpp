@@ -262,6 +262,67 @@ public:
         return e;
     }
 
+    // Rows [start, stop) pushed one at a time with each update's innovations
+    // (vibid_ident_innovations; EKF and KF_RLS): (channels (the filter's measured channels,
+    // index in the sample), nu and sd (rows x channels, NaN where the push made no update:
+    // the start window, a gap, a divergence), inflation (rows; NaN likewise)). Divergences
+    // are skipped as in push; any other failure is raised naming the row.
+    std::tuple<std::vector<size_t>, Array2, Array2, Array1> innovations(
+        nb::ndarray<const double, nb::ndim<2>, nb::device::cpu> data, size_t start, size_t stop) {
+        const size_t n = data.shape(0), nc = data.shape(1);
+        if (nc != dims_.n_channels)
+            throw std::invalid_argument("innovations: " + std::to_string(nc) + " columns for " +
+                                        std::to_string(dims_.n_channels) + " channels");
+        if (start > stop || stop > n) throw std::invalid_argument("innovations: bad row range");
+        size_t nz = 0;
+        vibid_status s = vibid_ident_innovations(ident_.get(), 0, &nz, nullptr, nullptr, nullptr, nullptr);
+        if (s != VIBID_OK) raise_status("vibid_ident_innovations", s);
+        nz = dims_.n_channels;  // at most every channel is measured; the true count comes with the first update
+        const size_t rows = stop - start;
+        std::vector<size_t> channels;
+        std::vector<double> nu(rows * nz, NAN), sd(rows * nz, NAN), infl(rows, NAN), sample(nc);  // column-major
+        std::vector<size_t> ch(nz);
+        std::vector<double> nu_k(nz), sd_k(nz);
+        const double *base = data.data();
+        const int64_t rs = data.stride(0), cs = data.stride(1);
+        size_t bad_row = 0, used = 0;
+        {
+            nb::gil_scoped_release release;
+            for (size_t k = start; k < stop; ++k) {
+                for (size_t c = 0; c < nc; ++c) sample[c] = base[k * rs + c * cs];
+                vibid_status sk = vibid_ident_push(ident_.get(), sample.data());
+                if (sk == VIBID_E_DIVERGED || sk == VIBID_E_NONFINITE) continue;
+                if (sk != VIBID_OK) {
+                    s = sk;
+                    bad_row = k;
+                    break;
+                }
+                size_t m = 0;
+                double f = NAN;
+                s = vibid_ident_innovations(ident_.get(), nz, &m, ch.data(), nu_k.data(), sd_k.data(), &f);
+                if (s != VIBID_OK) {
+                    bad_row = k;
+                    break;
+                }
+                if (m == 0) continue;
+                if (channels.empty()) channels.assign(ch.begin(), ch.begin() + static_cast<std::ptrdiff_t>(m));
+                used = m;
+                const size_t r = k - start;
+                for (size_t j = 0; j < m; ++j) {
+                    nu[j * rows + r] = nu_k[j];
+                    sd[j * rows + r] = sd_k[j];
+                }
+                infl[r] = f;
+            }
+        }
+        if (s != VIBID_OK) raise_status(("vibid_ident_push (row " + std::to_string(bad_row) + ")").c_str(), s);
+        // Column-major: the measured channels' columns are the first `used`.
+        nu.resize(rows * used);
+        sd.resize(rows * used);
+        return {channels, to_numpy(std::move(nu), rows, used), to_numpy(std::move(sd), rows, used),
+                to_numpy(std::move(infl))};
+    }
+
     // The last estimate's constant offsets (vibid_ident_offsets: OE only, else none):
     // (channel indices in the sample, values, standard errors).
     std::tuple<std::vector<size_t>, std::vector<double>, std::vector<double>> offsets() const {
@@ -1276,6 +1337,7 @@ NB_MODULE(_core, m) {
         .def(nb::init<const Stand &, int, double, double, size_t>(), "stand"_a, "estimator"_a, "forgetting"_a,
              "prefilter_hz"_a, "iv_lag"_a, nb::keep_alive<1, 2>())
         .def("push", &Ident::push, "data"_a, "start"_a, "stop"_a)
+        .def("innovations", &Ident::innovations, "data"_a, "start"_a, "stop"_a)
         // A dict of plain values and arrays that own their storage (moved, not copied).
         .def("estimate",
              [](Ident &id) {

@@ -387,6 +387,24 @@ VIBID_API vibid_status vibid_ident_estimate(vibid_ident *ident, double *theta, d
 VIBID_API vibid_status vibid_ident_offsets(const vibid_ident *ident, size_t cap, size_t *n_out, size_t *channels,
                                            double *values, double *se);
 
+/* The innovations of the state-space estimators' last measurement update (EKF and
+ * KF_RLS; every other estimator: VIBID_E_UNSUPPORTED): the one-step prediction errors
+ * whose whiteness says whether the filter's model explains the data. Per measured
+ * channel, in the filter's order: channels (its index in the sample), nu (measured -
+ * predicted, in the channel's unit) and sd (the filter's predicted standard deviation
+ * sqrt(S_kk) of that innovation, S = H P H' + R, measurement noise included). A
+ * consistent filter gives nu / sd about N(0, 1) and white; *inflation (may be NULL)
+ * receives the factor the measurement noise R was inflated by in that update (1e4
+ * decaying to 1 over the tempering after a start, above): while it exceeds 1 the sd are
+ * wider than the noise, by design. *n_out receives the number of measured channels, or 0
+ * when the last vibid_ident_push made no update (the start window being collected,
+ * including the sample that completes it, whose push runs the filter over the whole
+ * window; a gap; a divergence); up to cap of them are written (each array may be NULL).
+ * Call after each vibid_ident_push to collect them; vibid_ident_push_block keeps only the
+ * last. Allocation-free. */
+VIBID_API vibid_status vibid_ident_innovations(const vibid_ident *ident, size_t cap, size_t *n_out, size_t *channels,
+                                               double *nu, double *sd, double *inflation);
+
 /* Constant forces of the last estimate of the equation-error estimators (LS, IV, AUTO;
  * vibid_ident_config.constant_terms above): f0_i, the constant force on node i in
  * M y'' + D y' + C y + cubic = B u + c_b s + d_b s' + f0, in the force unit of the model's
