@@ -57,22 +57,22 @@ void vd_output_print_nested(const vd_config *cfg, const char *group, FILE *out)
 /* What the registry holds for an output the core does not link until main() hands the
  * real one over (vd_daemon_use_output): configured, it is ignored with a warning. */
 
+static void *absent(const char *output, const char *client)
+{
+    vd_warning("outputs.%s ignored: this program has no %s; vibidd has", output, client);
+    return NULL;
+}
+
 static void *mqtt_absent(const vd_output_ctx *ctx, char *err, size_t cap)
 {
-    (void)ctx;
-    (void)err;
-    (void)cap;
-    vd_warning("outputs.mqtt ignored: this program has no MQTT client (libmosquitto); vibidd has");
-    return NULL;
+    (void)ctx, (void)err, (void)cap;
+    return absent("mqtt", "MQTT client (libmosquitto)");
 }
 
 static void *influx_http_absent(const vd_output_ctx *ctx, char *err, size_t cap)
 {
-    (void)ctx;
-    (void)err;
-    (void)cap;
-    vd_warning("outputs.influx.http ignored: this program has no HTTP client (libcurl); vibidd has");
-    return NULL;
+    (void)ctx, (void)err, (void)cap;
+    return absent("influx.http", "HTTP client (libcurl)");
 }
 
 static const vd_output_ops mqtt_standin = {.name = "mqtt",

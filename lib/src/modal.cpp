@@ -353,8 +353,7 @@ VIBID_API vibid_status vibid_model_modal(const vibid_model *model, const double 
                                          double *shape_re, double *shape_im) {
     VIBID_GUARD(
         vibid::require_finalized(model);
-        if (!freq_hz || !zeta) throw_error(VIBID_E_NULL_ARGUMENT, "freq_hz and zeta are required");
-        vibid::ModalWork w(model);
+        vibid::ModalWork w(model);  // model_modal checks the outputs
         return w.model_modal(theta, cov, freq_hz, freq_se, zeta, zeta_se, shape_re, shape_im, "vibid_model_modal"););
 }
 
