@@ -46,6 +46,7 @@ extern "C" {
 #include <vibid/lsq.h>
 #include <vibid/modal.h>
 #include <vibid/model.h>
+#include <vibid/oma.h>
 #include <vibid/outlier.h>
 #include <vibid/plausibility.h>
 #include <vibid/report.h>
@@ -209,6 +210,39 @@ void test_outlier_no_alloc(void **state) {
     vibid_outlier_destroy(det);
 }
 
+// Output-only modal identification's per-sample path (vibid/oma.h): samples through
+// several block commits, gaps, the stats; the identification itself allocates by design.
+void test_oma_push_no_alloc(void **state) {
+    (void)state;
+    const std::size_t n = 4;
+    vibid_oma_config cfg;
+    vibid_oma_config_init(&cfg, 100.0, n);
+    cfg.block_rows = 6;
+    cfg.block_samples = 100;
+    cfg.max_blocks = 4;
+    vibid_oma *oma = vibid_oma_create(&cfg);
+    assert_non_null(oma);
+    double x[n];
+    std::size_t bad_status = 0;
+    vibid_oma_stats st;
+    arm();
+    for (std::size_t k = 0; k < 1000; ++k) {  // 10 blocks: the window's ring wraps
+        for (std::size_t i = 0; i < n; ++i) x[i] = value(k, i);
+        if (k % 113 == 7) x[2] = NAN;  // a gap
+        const vibid_status s = vibid_oma_push(oma, x);
+        if (s != (k % 113 == 7 ? VIBID_E_NONFINITE : VIBID_OK)) ++bad_status;
+    }
+    if (vibid_oma_get_stats(oma, &st) != VIBID_OK) ++bad_status;
+    if (vibid_oma_push(oma, nullptr) != VIBID_E_NULL_ARGUMENT) ++bad_status;
+    const std::size_t allocs = disarm();
+    assert_int_equal(bad_status, 0);
+    assert_int_equal(allocs, 0);
+    assert_int_equal(st.n_gaps, 9);
+    assert_int_equal(st.blocks_complete, 4);
+    assert_int_equal(vibid_oma_identify(oma), VIBID_OK);  // the sums are usable
+    vibid_oma_destroy(oma);
+}
+
 // Counts allocations without Eigen's abort: for the calls a row makes that allocate by
 // design (a regression estimator's estimate).
 void count_only() {
@@ -343,6 +377,7 @@ int main(void) {
         cmocka_unit_test(test_counters_fire),
         cmocka_unit_test(test_rls_no_alloc),
         cmocka_unit_test(test_outlier_no_alloc),
+        cmocka_unit_test(test_oma_push_no_alloc),
         cmocka_unit_test(test_lsq_riv_no_alloc),
         cmocka_unit_test(test_report_row_no_alloc),
     };

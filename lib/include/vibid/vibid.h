@@ -17,4 +17,5 @@
 #include <vibid/plausibility.h>
 #include <vibid/report.h>
 #include <vibid/simulate.h>
+#include <vibid/oma.h>
 #endif
