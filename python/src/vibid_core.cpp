@@ -11,6 +11,7 @@
 
 extern "C" {
 #include <vibid/identify.h>
+#include <vibid/oma.h>
 #include <vibid/iv.h>
 #include <vibid/lsq.h>
 #include <vibid/rls.h>
@@ -371,6 +372,176 @@ private:
     };
     std::unique_ptr<vibid_ident, Deleter> ident_;
     std::unique_ptr<vibid_report, ReportDeleter> report_;
+};
+
+// ---- Output-only modal identification (vibid/oma.h; issue 34) ----
+// Thin: the package's vibid.oma (vibid/_oma.py) sizes the blocks and builds the tables.
+class Oma {
+public:
+    Oma(double sample_rate, size_t n_channels, const std::vector<size_t> &refs, size_t block_rows, size_t max_order,
+        size_t block_samples, size_t max_blocks, nb::dict thresholds)
+        : nch_(n_channels) {
+        vibid_oma_config cfg;
+        vibid_oma_config_init(&cfg, sample_rate, n_channels);
+        cfg.n_refs = refs.size();
+        cfg.refs = refs.empty() ? nullptr : refs.data();
+        cfg.block_rows = block_rows;
+        cfg.max_order = max_order;
+        cfg.block_samples = block_samples;
+        cfg.max_blocks = max_blocks;
+        for (auto [key, value] : thresholds) {
+            const std::string k = nb::cast<std::string>(key);
+            const double v = nb::cast<double>(value);
+            double *field = k == "stab_freq"           ? &cfg.stab_freq
+                            : k == "stab_damping"      ? &cfg.stab_damping
+                            : k == "stab_mac"          ? &cfg.stab_mac
+                            : k == "max_damping"       ? &cfg.max_damping
+                            : k == "cluster_freq"      ? &cfg.cluster_freq
+                            : k == "cluster_mac"       ? &cfg.cluster_mac
+                            : k == "min_cluster_share" ? &cfg.min_cluster_share
+                                                       : nullptr;
+            if (!field) throw std::invalid_argument("Oma: unknown threshold '" + k + "'");
+            *field = v;
+        }
+        vibid_oma *o = vibid_oma_create(&cfg);
+        if (!o) throw VibidError(vibid_last_error());
+        oma_.reset(o);
+    }
+
+    // n x n_channels samples of any strides; returns the number of gaps (non-finite samples).
+    size_t push(nb::ndarray<const double, nb::ndim<2>, nb::device::cpu> data) {
+        const size_t n = data.shape(0);
+        if (data.shape(1) != nch_)
+            throw std::invalid_argument("Oma.push: " + std::to_string(data.shape(1)) + " columns for " +
+                                        std::to_string(nch_) + " channels");
+        const double *base = data.data();
+        const int64_t rs = data.stride(0), cs = data.stride(1);
+        size_t gaps = 0;
+        vibid_status s = VIBID_OK;
+        {
+            nb::gil_scoped_release release;
+            if (rs == 1 && cs >= static_cast<int64_t>(n)) {
+                s = vibid_oma_push_block(oma_.get(), n, base, static_cast<size_t>(cs), &gaps);
+            } else {
+                // Column-major chunks of up to 65536 samples.
+                const size_t chunk = 65536;
+                std::vector<double> buf(std::min(n, chunk) * nch_);
+                for (size_t t0 = 0; t0 < n && s == VIBID_OK; t0 += chunk) {
+                    const size_t m = std::min(chunk, n - t0);
+                    for (size_t c = 0; c < nch_; ++c)
+                        for (size_t t = 0; t < m; ++t) buf[t + c * m] = base[(t0 + t) * rs + c * cs];
+                    size_t g = 0;
+                    s = vibid_oma_push_block(oma_.get(), m, buf.data(), m, &g);
+                    gaps += g;
+                }
+            }
+        }
+        if (s != VIBID_OK) raise_status("vibid_oma_push_block", s);
+        return gaps;
+    }
+
+    void identify() {
+        vibid_status s;
+        {
+            nb::gil_scoped_release release;
+            s = vibid_oma_identify(oma_.get());
+        }
+        if (s != VIBID_OK) raise_status("vibid_oma_identify", s);
+    }
+
+    nb::dict modes() const {
+        size_t n = 0;
+        vibid_status s = vibid_oma_get_modes(oma_.get(), 0, &n, nullptr, nullptr, nullptr);
+        if (s != VIBID_OK) raise_status("vibid_oma_get_modes", s);
+        std::vector<vibid_oma_mode> m(n);
+        std::vector<double> re(n * nch_), im(n * nch_);
+        s = vibid_oma_get_modes(oma_.get(), n, &n, m.data(), re.data(), im.data());
+        if (s != VIBID_OK) raise_status("vibid_oma_get_modes", s);
+        std::vector<double> f(n), fse(n), z(n), zse(n), mpc(n), order(n), size(n);
+        for (size_t j = 0; j < n; ++j) {
+            f[j] = m[j].freq_hz;
+            fse[j] = m[j].freq_se;
+            z[j] = m[j].zeta;
+            zse[j] = m[j].zeta_se;
+            mpc[j] = m[j].mpc;
+            order[j] = static_cast<double>(m[j].order);
+            size[j] = static_cast<double>(m[j].n_poles);
+        }
+        nb::dict d;
+        d["freq_hz"] = to_numpy(std::move(f)).cast();
+        d["freq_hz_se"] = to_numpy(std::move(fse)).cast();
+        d["zeta"] = to_numpy(std::move(z)).cast();
+        d["zeta_se"] = to_numpy(std::move(zse)).cast();
+        d["mpc"] = to_numpy(std::move(mpc)).cast();
+        d["order"] = to_numpy(std::move(order)).cast();
+        d["n_poles"] = to_numpy(std::move(size)).cast();
+        d["shape_re"] = to_numpy(std::move(re), n, nch_).cast();
+        d["shape_im"] = to_numpy(std::move(im), n, nch_).cast();
+        return d;
+    }
+
+    nb::dict poles() const {
+        size_t n = 0;
+        vibid_status s = vibid_oma_get_poles(oma_.get(), 0, &n, nullptr);
+        if (s != VIBID_OK) raise_status("vibid_oma_get_poles", s);
+        std::vector<vibid_oma_pole> p(n);
+        s = vibid_oma_get_poles(oma_.get(), n, &n, p.data());
+        if (s != VIBID_OK) raise_status("vibid_oma_get_poles", s);
+        std::vector<double> order(n), f(n), fse(n), z(n), zse(n), mpc(n), stable(n), physical(n), mode(n);
+        for (size_t j = 0; j < n; ++j) {
+            order[j] = static_cast<double>(p[j].order);
+            f[j] = p[j].freq_hz;
+            fse[j] = p[j].freq_se;
+            z[j] = p[j].zeta;
+            zse[j] = p[j].zeta_se;
+            mpc[j] = p[j].mpc;
+            stable[j] = p[j].stable;
+            physical[j] = p[j].physical;
+            mode[j] = static_cast<double>(p[j].mode);
+        }
+        nb::dict d;
+        d["order"] = to_numpy(std::move(order)).cast();
+        d["freq_hz"] = to_numpy(std::move(f)).cast();
+        d["freq_hz_se"] = to_numpy(std::move(fse)).cast();
+        d["zeta"] = to_numpy(std::move(z)).cast();
+        d["zeta_se"] = to_numpy(std::move(zse)).cast();
+        d["mpc"] = to_numpy(std::move(mpc)).cast();
+        d["stable"] = to_numpy(std::move(stable)).cast();
+        d["physical"] = to_numpy(std::move(physical)).cast();
+        d["mode"] = to_numpy(std::move(mode)).cast();
+        return d;
+    }
+
+    Array1 singular_values() const {
+        size_t n = 0;
+        vibid_status s = vibid_oma_get_singular_values(oma_.get(), 0, &n, nullptr);
+        if (s != VIBID_OK) raise_status("vibid_oma_get_singular_values", s);
+        std::vector<double> sv(n);
+        s = vibid_oma_get_singular_values(oma_.get(), n, &n, sv.data());
+        if (s != VIBID_OK) raise_status("vibid_oma_get_singular_values", s);
+        return to_numpy(std::move(sv));
+    }
+
+    // (block_rows, max_order, block_samples, max_blocks, n_refs) in force
+    std::tuple<size_t, size_t, size_t, size_t, size_t> config() const {
+        vibid_oma_config c;
+        vibid_oma_get_config(oma_.get(), &c);
+        return {c.block_rows, c.max_order, c.block_samples, c.max_blocks, c.n_refs};
+    }
+
+    // (samples, gaps, complete blocks in the window)
+    std::tuple<uint64_t, uint64_t, size_t> stats() const {
+        vibid_oma_stats st;
+        vibid_oma_get_stats(oma_.get(), &st);
+        return {st.n_samples, st.n_gaps, st.blocks_complete};
+    }
+
+private:
+    struct Deleter {
+        void operator()(vibid_oma *p) const { vibid_oma_destroy(p); }
+    };
+    size_t nch_;
+    std::unique_ptr<vibid_oma, Deleter> oma_;
 };
 
 // ---- Checks, residuals and simulation for `vibid check` and the report (issue 13) ----
@@ -1320,6 +1491,33 @@ NB_MODULE(_core, m) {
 #else
     m.attr("HAVE_DAEMON") = false;
 #endif
+
+    m.def("oma_defaults", [] {
+        vibid_oma_config c;
+        vibid_oma_config_init(&c, 1.0, 1);
+        nb::dict d;
+        d["block_rows"] = c.block_rows;
+        d["max_blocks"] = c.max_blocks;
+        d["stab_freq"] = c.stab_freq;
+        d["stab_damping"] = c.stab_damping;
+        d["stab_mac"] = c.stab_mac;
+        d["max_damping"] = c.max_damping;
+        d["cluster_freq"] = c.cluster_freq;
+        d["cluster_mac"] = c.cluster_mac;
+        d["min_cluster_share"] = c.min_cluster_share;
+        return d;
+    });
+    nb::class_<Oma>(m, "Oma")
+        .def(nb::init<double, size_t, const std::vector<size_t> &, size_t, size_t, size_t, size_t, nb::dict>(),
+             "sample_rate"_a, "n_channels"_a, "refs"_a, "block_rows"_a, "max_order"_a, "block_samples"_a,
+             "max_blocks"_a, "thresholds"_a)
+        .def("push", &Oma::push, "data"_a)
+        .def("identify", &Oma::identify)
+        .def("modes", &Oma::modes)
+        .def("poles", &Oma::poles)
+        .def("singular_values", &Oma::singular_values)
+        .def("config", &Oma::config)
+        .def("stats", &Oma::stats);
 
     nb::class_<Stand>(m, "Stand")
         .def(nb::init<const std::string &>(), "path"_a)

@@ -28,5 +28,8 @@ __all__ += ["LeastSquares", "RLS", "IV", "RecursiveIV", "KFRLS", "EKF", "Estimat
 # vibidd's pipeline in-process (issue 13; docs/python.md "vibid.replay").
 from ._drivers import replay  # noqa: E402
 from ._monitor import Monitoring, monitor  # noqa: E402
+# Output-only modal analysis (issue 34; docs/python.md "Output-only modal analysis").
+from ._oma import OmaResult, oma  # noqa: E402
 
 __all__ += ["replay", "monitor", "Monitoring"]
+__all__ += ["oma", "OmaResult"]
