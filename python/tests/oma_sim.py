@@ -55,3 +55,58 @@ def ambient(M, D, K, fs, n, noise=0.01, seed=0):
             out[t - 2000] = x[:dof]
     out += noise * out.std(axis=0) * rng.standard_normal(out.shape)
     return out
+
+
+def chain_stand(name, m, k, d, fs, coloured=(), duration=600.0, seed=1, snr_db=40.0):
+    """A stand file (with its simulation group) of the chain: accelerometers a1..an on every
+    mass, a disturbance w1..wn on every mass (white, 1 N), those in `coloured` (1-based
+    node numbers) driven instead by band-limited noise (2 N, 1..0.4 fs Hz), sensor noise
+    snr_db on every channel. The simulation is vibid-sim's exact discretisation."""
+    n = len(m)
+    lines = [f'stand = {{ name = "{name}"; sample_rate = {fs!r};',
+             "  nodes = ( " + ",\n            ".join(
+                 f'{{ name = "m{j + 1}"; mass = {m[j]!r}; measure = {{ acceleration = "a{j + 1}"; }}; }}'
+                 for j in range(n)) + " );"]
+    els = []
+    for j in range(n):
+        a = "ground" if j == 0 else f"m{j}"
+        els.append(f'{{ name = "k{j + 1}"; kind = "spring"; between = ["{a}", "m{j + 1}"]; value = {k[j]!r}; }}')
+        els.append(f'{{ name = "d{j + 1}"; kind = "damper"; between = ["{a}", "m{j + 1}"]; value = {d[j]!r}; }}')
+    lines.append("  elements = ( " + ",\n               ".join(els) + " );")
+    lines.append("  disturbances = ( " + ",\n                   ".join(
+        f'{{ name = "w{j + 1}"; node = "m{j + 1}"; std = 1.0; }}' for j in range(n)) + " ); };")
+    exc = ",\n    ".join(f'{{ target = "w{j}"; kind = "noise"; amplitude = 2.0; f_low = 1.0; f_high = {0.4 * fs!r}; }}'
+                         for j in coloured)
+    noise = ",\n    ".join(f'{{ channel = "a{j + 1}"; snr_db = {snr_db!r}; }}' for j in range(n))
+    lines.append(f"simulation = {{ seed = {seed}; duration = {duration!r};")
+    if coloured:
+        lines.append(f"  excitation = (\n    {exc}\n  );")
+    lines.append(f"  noise = (\n    {noise}\n  );\n}};")
+    return "\n".join(lines) + "\n"
+
+
+# The shipped ambient examples (examples/oma/*.cfg, written by `python oma_sim.py`): chains
+# of 5 and 10 masses, coloured disturbances on every other mass.
+EXAMPLES = {
+    "chain5": dict(m=[1.0, 1.2, 0.8, 1.0, 0.6], k=[2.0e4, 1.6e4, 1.4e4, 1.2e4, 8.0e3],
+                   d=[6.0, 5.0, 4.0, 3.0, 2.0], fs=200.0, coloured=(1, 3, 5)),
+    "chain10": dict(m=[1.0] * 10, k=[4.0e4] * 10, d=[4.0] * 10, fs=400.0, coloured=(2, 4, 6, 8, 10)),
+}
+
+
+if __name__ == "__main__":  # writes examples/oma/
+    import pathlib
+
+    out = pathlib.Path(__file__).resolve().parents[2] / "examples" / "oma"
+    out.mkdir(exist_ok=True)
+    for name, p in EXAMPLES.items():
+        M, D, K = chain_matrices(p["m"], p["k"], p["d"])
+        f, z = modes(M, D, K)
+        head = (f"# {name}: an ambient capture for output-only modal analysis (vibid.oma, docs/python.md):\n"
+                f"# {len(p['m'])} masses in a chain, an accelerometer on each, unmeasured forces on every mass (white,\n"
+                f"# 1 N; band-limited noise 1..{0.4 * p['fs']:g} Hz, 2 N, on masses {', '.join(map(str, p['coloured']))}).\n"
+                f"#   vibid-sim -c examples/oma/{name}.cfg --csv {name}.csv\n"
+                f"# Written by python/tests/oma_sim.py. The modes (continuous model):\n"
+                + "".join(f"#   {j + 1}: {fj:.6f} Hz, zeta {zj:.6f}\n" for j, (fj, zj) in enumerate(zip(f, z))))
+        (out / f"{name}.cfg").write_text(head + chain_stand(name, p["m"], p["k"], p["d"], p["fs"], p["coloured"]))
+        print(out / f"{name}.cfg")
