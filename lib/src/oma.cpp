@@ -69,6 +69,11 @@ struct vibid_oma {
     // The last n_lags reference samples (ring; row j holds the refs of one sample).
     std::vector<double> ring;
     std::size_t ring_pos = 0, ring_fill = 0;
+    // vibid_oma_push_block's scratch: the references of up to n_lags earlier samples and of
+    // a run of up to kRunChunk samples, column-major with n_lags + kRunChunk rows; and the
+    // longest product one GEMM call may take (run_depth; see accumulate_run).
+    std::vector<double> run_refs;
+    std::size_t run_depth = 0;
     BlockSums current;
     std::size_t current_samples = 0;
     std::vector<BlockSums> window;  // max_blocks slots
@@ -124,6 +129,59 @@ void accumulate(vibid_oma &o, const double *y, std::size_t stride) {
     o.ring_fill = std::min(o.ring_fill + 1, L);
 }
 
+// vibid_oma_push_block's runs: samples per pass (the scratch's size; 32 kB of references per
+// channel). Runs shorter than kMinRun go through accumulate: a few samples cost less than
+// the n_lags product calls.
+constexpr std::size_t kRunChunk = 4096, kMinRun = 4;
+
+// The products of the finite samples t0 .. t0 + len - 1 of data (column-major, column
+// stride ld; all in the current block) with the earlier references, the same sums as len
+// calls of accumulate (to rounding), as one matrix product per lag:
+// S_k += Y[t0 + s0 .. t0 + len)^T Ref[t0 + s0 - k .. t0 + len - k), where s0 = max(0, k - have)
+// skips the later samples whose partner lies before the ring's oldest sample (a gap or the
+// start). The earlier references come from the ring (samples before this run) and from the
+// run itself, gathered into run_refs; the ring is left as len pushes would leave it.
+// Allocation-free: Eigen's GEMM packs its operands into blocks of at most
+// depth x max(n_channels, n_refs) values, taken from the stack (alloca) up to
+// EIGEN_STACK_ALLOCATION_LIMIT bytes and from the heap above; run_depth keeps every call
+// below that limit.
+void accumulate_run(vibid_oma &o, const double *data, std::size_t ld, std::size_t t0, std::size_t len) {
+    const std::size_t nch = o.nch, nref = o.nref, L = o.n_lags, lr = L + kRunChunk;
+    const std::size_t have = std::min(o.ring_fill, L);
+    double *R = o.run_refs.data();
+    // Rows L - have .. L - 1: the ring's samples, oldest first (row L - k is k samples back).
+    for (std::size_t k = 1; k <= have; ++k) {
+        const double *past = &o.ring[((o.ring_pos + L - k) % L) * nref];
+        for (std::size_t r = 0; r < nref; ++r) R[(L - k) + r * lr] = past[r];
+    }
+    for (std::size_t r = 0; r < nref; ++r)
+        std::memcpy(R + L + r * lr, data + t0 + o.refs[r] * ld, len * sizeof(double));
+    using CMap = Eigen::Map<const MatrixXd, 0, Eigen::OuterStride<>>;
+    for (std::size_t k = 1; k <= L; ++k) {
+        const std::size_t s0 = k > have ? k - have : 0;
+        if (s0 >= len) break;  // and for every longer lag
+        Eigen::Map<MatrixXd> S(&o.current.sum[(k - 1) * o.lag_size], static_cast<Index>(nch),
+                               static_cast<Index>(nref));
+        for (std::size_t s = s0; s < len; s += o.run_depth) {
+            const Index m = static_cast<Index>(std::min(o.run_depth, len - s));
+            const CMap Y(data + t0 + s, m, static_cast<Index>(nch), Eigen::OuterStride<>(static_cast<Index>(ld)));
+            const CMap P(R + L + s - k, m, static_cast<Index>(nref), Eigen::OuterStride<>(static_cast<Index>(lr)));
+            S.noalias() += Y.transpose() * P;
+        }
+        o.current.count[k - 1] += static_cast<double>(len - s0);
+    }
+    // The ring as len pushes leave it: the last min(len, L) references, ending before
+    // ring_pos + len (mod L).
+    const std::size_t w = std::min(len, L);
+    o.ring_pos = (o.ring_pos + (len - w)) % L;
+    for (std::size_t s = len - w; s < len; ++s) {
+        double *slot = &o.ring[o.ring_pos * nref];
+        for (std::size_t r = 0; r < nref; ++r) slot[r] = R[L + s + r * lr];
+        o.ring_pos = (o.ring_pos + 1) % L;
+    }
+    o.ring_fill = std::min(o.ring_fill + len, L);
+}
+
 // The block Hankel matrix of covariances R_k = sum_k / count_k.
 void hankel(const vibid_oma &o, const std::vector<double> &sum, const std::vector<double> &count, MatrixXd &H) {
     const Index nch = static_cast<Index>(o.nch), nref = static_cast<Index>(o.nref), i = static_cast<Index>(o.i);
@@ -142,15 +200,21 @@ std::size_t max_order_bound(std::size_t i, std::size_t nch, std::size_t nref) {
 }
 
 // Each selected mode's values from one of its poles (oma.h, 6.): the one at the lowest
-// order at or above n*, the lowest order at which the most modes have a pole (stable or
-// not). Why: the first-order standard errors hold at orders where the truncation falls
-// between well-separated singular values, and overstate the spread many times where it
-// cuts into the noise floor (3-DOF chain, 60 captures of 120 s, se / RMS error: order 6
-// 0.99-1.1, order 10 up to 5, order 24 up to 45): the cluster's medoid, at a middle order,
-// gave 2-se coverage of 99-100 % with se 2-4 times the RMS error, and the member with the
-// smallest se 86 % on one mode (chosen for being small); and below n* the model lacks
-// modes the data have, which biases the others. Coverage with this choice:
-// tests/lib/test_oma.c.
+// order at or above n* (the lowest order at which the most modes have a pole, stable or
+// not) whose frequency and damping standard errors are within kSeSlack of the smallest
+// the mode's poles at or above n* have. Why: the first-order standard errors hold at
+// orders where the truncation falls between well-separated singular values, and
+// overstate the spread many times where it cuts into the noise floor (3-DOF chain, 60
+// captures of 120 s, se / RMS error: order 6 0.99-1.1, order 10 up to 5, order 24 up to
+// 45): the cluster's medoid, at a middle order, gave 2-se coverage of 99-100 % with se 2-4
+// times the RMS error; the pole with the smallest se, 86 % on one mode of one set of
+// captures (chosen for being small). Below n* the model lacks modes the data have, which
+// biases the others; and at n* itself a mode may still be poorly determined where the
+// excitation's own dynamics need more states (examples/oma/chain10.cfg, band-limited
+// forces: the first mode at n* = 20 had zeta +76 % with standard errors 1.5 times those
+// from order 26 on, where it is right). Coverage with this choice: tests/lib/test_oma.c.
+constexpr double kSeSlack = 1.2;
+
 void choose_representatives(vibid_oma &o, Eigen::Index nmax) {
     const std::size_t nm = o.modes.size();
     if (nm == 0) return;
@@ -184,10 +248,19 @@ void choose_representatives(vibid_oma &o, Eigen::Index nmax) {
     }
     for (std::size_t m = 0; m < nm; ++m) {
         const double fm = o.poles[o.modes[m]].f;
+        // the smallest standard errors of the mode's poles at or above n*
+        double f_se_min = INFINITY, z_se_min = INFINITY;
+        for (const Pole &p : o.poles)
+            if (p.order >= best_order && of_mode(p, m)) {
+                f_se_min = std::min(f_se_min, p.f_se);
+                z_se_min = std::min(z_se_min, p.zeta_se);
+            }
         std::size_t rep = SIZE_MAX;
         for (std::size_t j = 0; j < o.poles.size(); ++j) {
             const Pole &p = o.poles[j];
             if (p.order < best_order || !of_mode(p, m)) continue;
+            // as well determined as at any order (NaN se with one block: every pole passes)
+            if (p.f_se > kSeSlack * f_se_min || p.zeta_se > kSeSlack * z_se_min) continue;
             if (rep == SIZE_MAX || p.order < o.poles[rep].order ||
                 (p.order == o.poles[rep].order && std::abs(p.f - fm) < std::abs(o.poles[rep].f - fm)))
                 rep = j;
@@ -444,6 +517,9 @@ VIBID_API vibid_oma *vibid_oma_create(const vibid_oma_config *cfg) {
         o->current.sum.assign(o->n_lags * o->lag_size, 0.0);
         o->current.count.assign(o->n_lags, 0.0);
         o->window.assign(cfg->max_blocks, o->current);
+        o->run_refs.assign((o->n_lags + kRunChunk) * nref, 0.0);
+        o->run_depth = std::max<std::size_t>(
+            1, EIGEN_STACK_ALLOCATION_LIMIT / (sizeof(double) * std::max(o->nch, o->nref)));
         return o.release();
     });
 }
@@ -473,17 +549,41 @@ VIBID_API vibid_status vibid_oma_push_block(vibid_oma *oma, size_t n, const doub
                                             size_t *n_gaps) {
     if (!oma || (n > 0 && !data)) return VIBID_FAIL(VIBID_E_NULL_ARGUMENT, "oma and data are required");
     if (ld < n) return VIBID_FAIL(VIBID_E_DIMENSION, "ld = %zu < n = %zu", ld, n);
-    std::size_t gaps = 0;
-    for (std::size_t t = 0; t < n; ++t) {
-        bool finite = true;
-        for (std::size_t c = 0; c < oma->nch && finite; ++c) finite = std::isfinite(data[t + c * ld]);
-        if (finite) {
-            accumulate(*oma, data + t, ld);
-        } else {
-            gap(*oma);
-            ++gaps;
+    vibid_oma &o = *oma;
+    std::size_t gaps = 0, t = 0;
+    while (t < n) {
+        // The next run of finite samples from t, cut at the end of the current block (a
+        // product belongs to the block of its later sample) and at the scratch's size.
+        std::size_t end = std::min({n, t + kRunChunk, t + (o.cfg.block_samples - o.current_samples)});
+        for (std::size_t c = 0; c < o.nch; ++c) {
+            const double *col = data + c * ld;
+            for (std::size_t s = t; s < end; ++s)
+                if (!std::isfinite(col[s])) {
+                    end = s;
+                    break;
+                }
         }
-        end_sample(*oma);
+        if (end == t) {  // sample t is a gap
+            gap(o);
+            ++gaps;
+            end_sample(o);
+            ++t;
+            continue;
+        }
+        const std::size_t len = end - t;
+        if (len < kMinRun) {
+            for (; t < end; ++t) {
+                accumulate(o, data + t, ld);
+                end_sample(o);
+            }
+            continue;
+        }
+        accumulate_run(o, data, ld, t, len);
+        // end_sample len times: the run ends at or before the block's end
+        o.n_samples += len;
+        o.current_samples += len;
+        if (o.current_samples == o.cfg.block_samples) commit_block(o);
+        t = end;
     }
     if (n_gaps) *n_gaps = gaps;
     return VIBID_OK;

@@ -126,3 +126,35 @@ def test_shipped_ambient_examples(name, tmp_path):
         m = r.modes.iloc[j]
         assert abs(m.freq_hz / fj - 1) < 2e-3 and abs(m.freq_hz - fj) <= 4 * m.freq_hz_se, (j, m.freq_hz, fj)
         assert abs(m.zeta / zj - 1) < 0.10 and abs(m.zeta - zj) <= 4 * m.zeta_se, (j, m.zeta, zj)
+
+
+def test_command(capture, tmp_path):
+    """`vibid oma`: the mode table with standard errors, the modes CSV, the report (modes,
+    shapes, stabilisation diagram, settings); errors in one line with exit 2."""
+    from test_cli import run
+
+    t = np.arange(len(capture)) / FS
+    path = tmp_path / "ambient.csv"
+    pd.DataFrame({"t": t, "x1": capture[:, 0], "x2": capture[:, 1], "x3": capture[:, 2]}).to_csv(
+        path, index=False, float_format="%.17g")
+    out, rep = tmp_path / "modes.csv", tmp_path / "oma.html"
+    proc = run("oma", path, "--modes", out, "--report", rep)
+    assert proc.returncode == 0, proc.stderr
+    lines = proc.stdout.splitlines()
+    assert "120000 samples of 3 channels (x1, x2, x3) at 200 Hz, 0 gaps" in lines[0]
+    rows = [line.split() for line in lines if line.strip()[:1].isdigit()]
+    assert [r[0] for r in rows] == ["1", "2", "3"]
+    api = vibid.oma(path)
+    m = pd.read_csv(out, index_col="mode")
+    np.testing.assert_allclose(m.freq_hz, api.modes.freq_hz, rtol=1e-12)
+    # the table's frequency to the digits of its se: the API's value rounded
+    assert abs(float(rows[0][1]) - api.modes.freq_hz.iloc[0]) <= api.modes.freq_hz_se.iloc[0] / 10
+    doc = rep.read_text()
+    for sec in ("modes", "shapes", "stabilisation", "settings"):
+        assert f'<section id="{sec}">' in doc
+    assert doc.count('src="data:image/png;base64,') == 1
+    proc = run("oma", path, "--refs", "x9")
+    assert proc.returncode == 2 and proc.stderr.strip().count("\n") == 0, proc.stderr
+    assert "refs: 'x9' is not one of the channels" in proc.stderr
+    proc = run("oma", tmp_path / "missing.csv")
+    assert proc.returncode == 2 and "no such file" in proc.stderr

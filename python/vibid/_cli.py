@@ -832,13 +832,21 @@ def write_report(result: Result, block: np.ndarray, capture: str, path: str) -> 
             f"<b>{esc(result.flags or '-')}</b>; vibid {esc(_core.version())}, "
             f"{datetime.datetime.now(datetime.timezone.utc).strftime('%Y-%m-%d %H:%M:%S UTC')}</p>"
             + f'<p id="verdict" class="{"ok" if trusted else "bad"}"><b>Verdict: {esc(why)}</b></p>')
-    style = ("body{font-family:sans-serif;max-width:60em;margin:1em auto;padding:0 1em}"
-             "table.t{border-collapse:collapse}table.t td,table.t th{padding:2px 8px;border-bottom:1px solid #ccc;"
-             "text-align:right}img{max-width:100%}p.ok{background:#e6f4e6;padding:.4em}"
-             "#flag-counts td:last-child{text-align:left}p.bad{background:#fbe4e4;padding:.4em}"
-             "pre{background:#f4f4f4;padding:.5em;white-space:pre-wrap}")
-    doc = (f"<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>vibid: {esc(st.name)}</title>"
-           f"<style>{style}</style></head><body>\n{head}\n" + "\n".join(sec) + "\n</body></html>\n")
+    write_html(path, f"vibid: {st.name}", head, sec)
+
+
+# The reports' one style sheet (identify's and oma's).
+REPORT_STYLE = ("body{font-family:sans-serif;max-width:60em;margin:1em auto;padding:0 1em}"
+                "table.t{border-collapse:collapse}table.t td,table.t th{padding:2px 8px;border-bottom:1px solid #ccc;"
+                "text-align:right}img{max-width:100%}p.ok{background:#e6f4e6;padding:.4em}"
+                "#flag-counts td:last-child{text-align:left}p.bad{background:#fbe4e4;padding:.4em}"
+                "pre{background:#f4f4f4;padding:.5em;white-space:pre-wrap}")
+
+
+def write_html(path: str, title: str, head: str, sections: Sequence[str]) -> None:
+    """A self-contained report page: the title (escaped here), the head and the sections (HTML)."""
+    doc = (f"<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>{html.escape(title)}</title>"
+           f"<style>{REPORT_STYLE}</style></head><body>\n{head}\n" + "\n".join(sections) + "\n</body></html>\n")
     with open(path, "w", encoding="utf-8") as f:
         f.write(doc)
 
@@ -851,8 +859,8 @@ def _load_stand(path: str) -> Stand:
     return Stand.load(path)
 
 
-def cmd_identify(a: argparse.Namespace) -> int:
-    stand = _load_stand(a.stand)
+def _check_capture_and_report(a: argparse.Namespace) -> None:
+    """Before any work: the capture exists, and matplotlib is there when a report is asked for."""
     if not os.path.exists(a.capture):
         raise CliError(f"capture {a.capture!r}: no such file")
     if a.report:
@@ -860,6 +868,11 @@ def cmd_identify(a: argparse.Namespace) -> int:
             import matplotlib  # noqa: F401
         except ImportError:
             raise CliError("--report needs matplotlib: pip install 'vibid[plot]'") from None
+
+
+def cmd_identify(a: argparse.Namespace) -> int:
+    stand = _load_stand(a.stand)
+    _check_capture_and_report(a)
     block, t = _columns(stand, a.capture)
     data = {ch: block[:, i] for i, ch in enumerate(stand.channels)}
     if t is not None:
@@ -1054,6 +1067,43 @@ def _vibid_sim() -> str:
     return p
 
 
+def mode_table_oma(r) -> str:
+    """The selected modes of an OmaResult as text, values to their se's digits."""
+    lines = [f"{'mode':>4}  {'f [Hz]':>22}  {'zeta [-]':>24}  {'mpc':>5}  {'order':>5}  {'poles':>5}"]
+    for k, m in r.modes.iterrows():
+        f, fse = fmt_with_se(float(m.freq_hz), float(m.freq_hz_se))
+        z, zse = fmt_with_se(float(m.zeta), float(m.zeta_se))
+        lines.append(f"{k:>4}  {f + ' +- ' + fse:>22}  {z + ' +- ' + zse:>24}  {m.mpc:5.3f}  {int(m.order):>5}  "
+                     f"{int(m.n_poles):>5}")
+    return "\n".join(lines)
+
+
+def cmd_oma(a: argparse.Namespace) -> int:
+    from ._oma import oma
+
+    _check_capture_and_report(a)
+    split = (lambda v: [x.strip() for x in v.split(",") if x.strip()] if v else None)  # noqa: E731
+    r = oma(a.capture, a.sample_rate, channels=split(a.channels), refs=split(a.refs), max_order=a.max_order,
+            block_rows=a.block_rows, blocks=a.blocks, format=a.format, group=a.group)
+    c = r.config
+    print(f"capture {a.capture}: {r.n_samples} samples of {len(r.channels)} channels ({', '.join(r.channels)}) at "
+          f"{r.sample_rate:g} Hz, {r.n_gaps} gaps; SSI-cov: references {', '.join(r.refs)}, block rows "
+          f"{c['block_rows']}, orders 2..{c['max_order']}, {c['blocks']} blocks of {c['block_samples']} samples\n",
+          flush=True)
+    print(mode_table_oma(r) if len(r.modes) else "no mode selected: no cluster of stable poles holds "
+          f"{100 * c['min_cluster_share']:g} % of the orders (see the stabilisation diagram: --report)", flush=True)
+    try:
+        if a.modes:
+            r.modes.to_csv(a.modes)
+            print(f"modes: written to {a.modes}")
+        if a.report:
+            r.report(a.report, capture=a.capture)
+            print(f"report: {a.report}")
+    except OSError as e:
+        raise RunFailure(f"cannot write the output: {e}") from None
+    return 0
+
+
 def cmd_simulate(a: argparse.Namespace) -> int:
     if not os.path.exists(a.stand):
         raise CliError(f"stand file {a.stand!r}: no such file")
@@ -1075,7 +1125,7 @@ def _parser() -> argparse.ArgumentParser:
                                  "cannot be written; check: the stand cannot be identified), 2 a bad command "
                                  "line, input or configuration.")
     ap.add_argument("--version", action="version", version=f"{PROG} {_core.version()}")
-    sub = ap.add_subparsers(dest="command", required=True, metavar="{identify,convert,check,simulate}")
+    sub = ap.add_subparsers(dest="command", required=True, metavar="{identify,oma,convert,check,simulate}")
     p = sub.add_parser("identify", help="identify a stand's unknowns from a capture",
                        description="Prints the parameters and modes with standard errors and flags; "
                        "optionally writes the tracks and an HTML report.")
@@ -1094,6 +1144,24 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--tracks", metavar="OUT.csv", help="write the tracks here (overwritten)")
     p.add_argument("--report", metavar="OUT.html", help="write a self-contained HTML report here (needs matplotlib)")
     p.set_defaults(func=cmd_identify)
+    p = sub.add_parser("oma", help="output-only modal analysis of response channels (no stand, no input)",
+                       description="Covariance-driven SSI (vibid.oma, docs/python.md): prints the selected modes "
+                       "with standard errors; optionally writes them as CSV and an HTML report with the "
+                       "stabilisation diagram.")
+    p.add_argument("capture", metavar="CAPTURE", help="CSV (header of channel names; a time_s or t column gives the "
+                   "rate), MDF4 or TDMS capture")
+    p.add_argument("--sample-rate", type=float, metavar="HZ", help="sample rate (default: from the capture's time)")
+    p.add_argument("--channels", metavar="A,B,...", help="response channels (default: every numeric column but "
+                   "the time)")
+    p.add_argument("--refs", metavar="A,B,...", help="reference channels (default: all)")
+    p.add_argument("--max-order", type=int, metavar="N", help="largest model order (even)")
+    p.add_argument("--block-rows", type=int, metavar="I", help="block rows of the Hankel matrix (lags 1..2I-1)")
+    p.add_argument("--blocks", type=int, default=32, metavar="B", help="blocks for the standard errors (default 32)")
+    p.add_argument("--format", help="the capture's format when its name does not tell (csv, mdf, tdms)")
+    p.add_argument("--group", help="TDMS group or MDF4 data group")
+    p.add_argument("--modes", metavar="OUT.csv", help="write the modes here (overwritten)")
+    p.add_argument("--report", metavar="OUT.html", help="write a self-contained HTML report here (needs matplotlib)")
+    p.set_defaults(func=cmd_oma)
     p = sub.add_parser("convert", help="write any capture the package reads as CSV that vibidd replays, or as "
                        "a candump log", description="Reads CAPTURE (CSV, candump with --dbc, MDF4, TDMS: the drivers' "
                        "format registry) as identify does (the stand's channels, in its units) and writes OUT: as CSV "

@@ -39,14 +39,17 @@
  *    cluster the poles whose MAC with the cluster's medoid (the pole of median frequency)
  *    is below cluster_mac are dropped. A cluster is a mode when it holds at least
  *    min_cluster_share of the evaluated orders (and at least 3 poles). Its values, shape
- *    and standard errors are those of its pole at the lowest order at or above n*, the
- *    lowest order at which the most modes have a pole (stable or not: physical, in the
+ *    and standard errors are those of one of its poles (stable or not: physical, in the
  *    cluster's frequency span widened by cluster_freq, MAC >= cluster_mac with the
- *    medoid; the nearest to the medoid's frequency if two). The first-order standard
- *    errors hold where the truncation falls between well-separated singular values and
- *    overstate the spread many times where it cuts into the noise floor; a model order
- *    below n* lacks modes, which biases the others (oma.cpp, choose_representatives, has
- *    the figures). Modes are reported in order of frequency.
+ *    medoid): the one at the lowest order at or above n*, the lowest order at which the
+ *    most modes have a pole, whose frequency and damping standard errors are within 1.2
+ *    times the smallest of the mode's poles at or above n* (the nearest to the medoid's
+ *    frequency if two). The first-order standard errors hold where the truncation falls
+ *    between well-separated singular values and overstate the spread many times where it
+ *    cuts into the noise floor; a model order below n* lacks modes, which biases the
+ *    others; and a mode may need more order than n* where the excitation has dynamics of
+ *    its own (oma.cpp, choose_representatives, has the figures). Modes are reported in
+ *    order of frequency.
  *
  * Units: fs in Hz; f in Hz; zeta dimensionless (fraction of critical); mode shapes in the
  * channels' own units, relative. Channels of different kinds (acceleration beside
