@@ -19,6 +19,8 @@ libraries analysts' tools use (pandas for CSV, asammdf for MDF4, npTDMS for TDMS
     day1.csv, day2.csv, monitor.cfg      60 s each of sim/examples/service_temperature_sim.cfg
                                          (vibid-sim, seeds 1 and 2) and vibidd with T a covariate
     daemon/examples/replay_csv.cfg       the repository's, beside the capture.csv it names
+    ambient.csv                          120 s of a 3-DOF chain's response to unmeasured forces
+                                         (oma_sim.py): time_s, a1, a2, a3 at 200 Hz
 
 Blocks that need what an optional part of the build provides (the drivers for candump logs,
 vibidd's core for vibid.replay, vibid-sim to write the log) are skipped, counted and named
@@ -117,6 +119,13 @@ def write_files(d: Path) -> None:
     data, t = example1_capture(n=8000, noise=NOISE, seed=10)
     pd.DataFrame({"t": t, **data}).to_csv(d / "daemon" / "examples" / "capture.csv", index=False,
                                           float_format="%.17g")
+    # output-only modal analysis: 120 s of the 3-DOF chain's displacements under unmeasured
+    # white forces (oma_sim.py), 200 Hz
+    from oma_sim import ambient, chain_matrices
+
+    y = ambient(*chain_matrices([1.0, 1.5, 1.0], [1e4, 8e3, 6e3], [4.0, 3.0, 2.0]), 200.0, 24000, seed=5)
+    pd.DataFrame({"time_s": np.arange(len(y)) / 200.0, "a1": y[:, 0], "a2": y[:, 1], "a3": y[:, 2]}).to_csv(
+        d / "ambient.csv", index=False, float_format="%.17g")
     # candump: vibid-sim's frames as sim/paper_example1.dbc describes them (test_candump.py).
     shutil.copy(SIM_DBC, d / "stand.dbc")
     if sim_path().exists():
