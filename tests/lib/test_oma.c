@@ -41,6 +41,17 @@
 
 #define NDOF 3
 
+/* The sanitizer suite (scripts/test.sh: ASan + UBSan, -O1, Eigen's assertions on) runs the
+ * same code paths 13 times slower: there the Monte Carlo studies run 2 and 10 captures
+ * (memory and undefined-behaviour errors do not depend on the count) and their statistical
+ * bounds (means over captures, coverage shares) are checked in the optimised suite only;
+ * every per-estimate check stays. */
+#if defined(__SANITIZE_ADDRESS__)
+#define SANITIZED 1
+#else
+#define SANITIZED 0
+#endif
+
 static test_rng rng_state;
 static double normal(void) { return test_rng_normal(&rng_state); }
 
@@ -149,7 +160,7 @@ static void test_accuracy(void **state)
     (void)state;
     chain c;
     chain_init(&c, 200.0);
-    const size_t n = 360000, runs = 12;
+    const size_t n = 360000, runs = SANITIZED ? 2 : 12;
     double abs_f[NDOF] = {0}, abs_z[NDOF] = {0}, worst_z[NDOF] = {0};
     for (size_t r = 0; r < runs; r++) {
         double *y = chain_capture(&c, n);
@@ -190,6 +201,7 @@ static void test_accuracy(void **state)
     for (int j = 0; j < NDOF; j++) {
         printf("  mode %d: truth f %.5f Hz zeta %.5f; mean |error| f %.4f %%, zeta %.2f %% (largest %.2f se)\n", j + 1,
                c.f[j], c.zeta[j], 100 * abs_f[j], 100 * abs_z[j], worst_z[j]);
+        if (SANITIZED) continue;
         assert_true(abs_f[j] <= 0.001);
         assert_true(abs_z[j] <= 0.10);
     }
@@ -200,7 +212,7 @@ static void test_coverage(void **state)
     (void)state;
     chain c;
     chain_init(&c, 200.0);
-    const size_t n = 24000, runs = 100;
+    const size_t n = 24000, runs = SANITIZED ? 10 : 100;
     size_t hit_f[NDOF] = {0}, hit_z[NDOF] = {0}, found[NDOF] = {0};
     double se_f[NDOF] = {0}, sq_f[NDOF] = {0}, se_z[NDOF] = {0}, sq_z[NDOF] = {0};
     size_t all_hits = 0, all_found = 0;
@@ -235,6 +247,7 @@ static void test_coverage(void **state)
                j + 1, c.f[j], found[j], runs, 100.0 * (double)hit_f[j] / k, 100.0 * (double)hit_z[j] / k,
                100 * se_f[j] / k / c.f[j], 100 * sqrt(sq_f[j] / k) / c.f[j], se_z[j] / k / c.zeta[j],
                sqrt(sq_z[j] / k) / c.zeta[j]);
+        if (SANITIZED) continue;
         assert_true(found[j] >= 95);
         assert_true(hit_f[j] >= 0.85 * k && hit_z[j] >= 0.85 * k);
         all_hits += hit_f[j] + hit_z[j];
@@ -243,6 +256,7 @@ static void test_coverage(void **state)
         assert_true(rf > 1.0 / 1.5 && rf < 1.5);
         assert_true(rz > 1.0 / 1.5 && rz < 1.5);
     }
+    if (SANITIZED) return;
     const double pooled = (double)all_hits / (double)all_found;
     printf("  pooled 2-se coverage over the 3 modes' frequencies and damping ratios: %.1f %%\n", 100 * pooled);
     assert_true(pooled >= 0.91 && pooled <= 0.98);
