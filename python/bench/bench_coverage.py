@@ -38,22 +38,10 @@ from vibid._stand import to_libconfig
 
 from bench_oe import sim_path  # vibid-sim of the suite's build, or VIBID_SIM (this folder)
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from oma_sim import chain_matrices  # noqa: E402  (M, D, C of a chain ground - m1 - m2 - ...)
+
 SAMPLES_PER_PERIOD = 9.0
-
-
-def chain(masses, springs, dampers, ground_first=True):
-    """M, D, C of a chain ground - m1 - m2 - ... (springs[i], dampers[i] below mass i)."""
-    n = len(masses)
-    C = np.zeros((n, n))
-    D = np.zeros((n, n))
-    for i in range(n):
-        for K, v in ((C, springs[i]), (D, dampers[i])):
-            K[i, i] += v
-            if i > 0:
-                K[i - 1, i - 1] += v
-                K[i - 1, i] -= v
-                K[i, i - 1] -= v
-    return np.diag(masses), D, C
 
 
 def f_max(M, C) -> float:
@@ -65,7 +53,7 @@ def chain_stand(name, masses, springs, dampers, measure, inputs, nominal_off=0.0
     """A chain stand dict: node i measured as measure[i] (dict or None); inputs: a list of
     input dicts; unknown springs and dampers with true values, nominal values off by
     nominal_off (needed by the EKF); cubic: (eps, node index) a cubic spring to the ground."""
-    M, _, C = chain(masses, springs, dampers)
+    M, _, C = chain_matrices(masses, springs, dampers)
     fa = round(SAMPLES_PER_PERIOD * f_max(M, C))
     nodes = []
     for i, m in enumerate(masses):
