@@ -103,14 +103,204 @@ int vd_cfg_path(vd_cfg_ctx *c, const config_setting_t *g, const char *section, c
 
 /* ---- sections ---- */
 
+static const char *const oma_known[] = {"name",       "sample_rate", "channels",    "refs",       "modes",
+                                        "window",     "every",       "block",       "block_rows", "max_order",
+                                        "max_damping", "match_freq", "match_mac",   "outlier_threshold", NULL};
+
+const char *vd_param_name(const vd_config *cfg, size_t k)
+{
+    if (cfg->oma.on)
+        return k < cfg->n_params ? cfg->oma.param_name[k] : "?";
+    vibid_param_info pi;
+    if (vibid_model_param_info(vibid_stand_model(cfg->stand), k, &pi) != VIBID_OK)
+        return "?";
+    return pi.name; /* points into the model, which the configuration owns */
+}
+
+const char *vd_stand_name(const vd_config *cfg)
+{
+    return cfg->oma.on ? cfg->oma.name : vibid_stand_name(cfg->stand);
+}
+
+/* The output-only configuration (config.h vd_oma_config; docs/vibidd.md "Output-only
+ * tracking"): everything but its channels, which load_chanmap resolves against the map. */
+static int load_oma(vd_cfg_ctx *c, config_setting_t *g)
+{
+    vd_config *cfg = c->cfg;
+    vd_oma_config *o = &cfg->oma;
+    if (!config_setting_is_group(g))
+        return vibid_cfg_fail(&c->r, g, "oma", "must be a group { sample_rate = ...; modes = ...; }");
+    if (vd_cfg_known(c, g, "oma", oma_known))
+        return -1;
+    o->on = true;
+    if (!config_setting_get_member(g, "sample_rate"))
+        return vibid_cfg_fail(&c->r, g, "oma.sample_rate", "missing: the channels' sample rate in Hz");
+    if (vd_cfg_name(c, g, "oma", "name", "machine", false, o->name, sizeof o->name) ||
+        vd_cfg_double(c, g, "oma", "sample_rate", 0.0, 1e-3, 1e7, &cfg->sample_rate))
+        return -1;
+    const double fa = cfg->sample_rate;
+    /* modes: how many (the lowest of the first identification that finds that many) or their
+     * expected frequencies */
+    const config_setting_t *m = config_setting_get_member(g, "modes");
+    if (!m)
+        return vibid_cfg_fail(&c->r, g, "oma.modes",
+                              "missing: the number of modes to track (modes = 3;) or their expected frequencies "
+                              "in Hz (modes = [12.5, 40.0];)");
+    if (config_setting_is_array(m) || config_setting_is_list(m)) {
+        const int n = config_setting_length(m);
+        if (n < 1 || n > VD_OMA_MAX_MODES)
+            return vibid_cfg_fail(&c->r, m, "oma.modes", "%d frequencies: give 1 to %d", n, VD_OMA_MAX_MODES);
+        for (int j = 0; j < n; j++) {
+            const config_setting_t *e = config_setting_get_elem(m, (unsigned)j);
+            const int t = config_setting_type(e);
+            const double f = t == CONFIG_TYPE_FLOAT ? config_setting_get_float(e)
+                             : t == CONFIG_TYPE_INT  ? (double)config_setting_get_int(e)
+                                                     : NAN;
+            if (!(f > 0.0 && f < 0.45 * fa))
+                return vibid_cfg_fail(&c->r, e, "oma.modes", "[%d]: expected a frequency in (0, %g) Hz (0.45 f_a)",
+                                      j, 0.45 * fa);
+            if (j && f <= o->nominal_hz[j - 1])
+                return vibid_cfg_fail(&c->r, e, "oma.modes", "[%d]: frequencies must increase", j);
+            o->nominal_hz[j] = f;
+        }
+        o->n_modes = (size_t)n;
+    } else {
+        long long v;
+        if (vd_cfg_int(c, g, "oma", "modes", 1, 1, VD_OMA_MAX_MODES, &v))
+            return -1;
+        o->n_modes = (size_t)v;
+    }
+    cfg->n_params = 2 * o->n_modes;
+    cfg->n_modes = 0; /* the modes are the parameters */
+    for (size_t j = 0; j < o->n_modes; j++) {
+        const unsigned mode = (unsigned)(j + 1) % 100u; /* <= VD_OMA_MAX_MODES: two digits */
+        snprintf(o->param_name[2 * j], sizeof o->param_name[0], "f%u_hz", mode);
+        snprintf(o->param_name[2 * j + 1], sizeof o->param_name[0], "zeta%u", mode);
+    }
+    long long br, mo;
+    if (vd_cfg_double(c, g, "oma", "every", 60.0, 1.0 / fa, 86400.0, &o->every_s) ||
+        vd_cfg_double(c, g, "oma", "window", fmax(o->every_s, 300.0), o->every_s, 7.0 * 86400.0, &o->window_s) ||
+        vd_cfg_int(c, g, "oma", "block_rows", 20, 2, 1024, &br) ||
+        vd_cfg_int(c, g, "oma", "max_order", 0, 0, 400, &mo) ||
+        vd_cfg_double(c, g, "oma", "max_damping", 0.2, 1e-4, 0.9, &o->max_damping) ||
+        vd_cfg_double(c, g, "oma", "match_freq", 0.1, 1e-4, 1.0, &o->match_freq) ||
+        vd_cfg_double(c, g, "oma", "match_mac", 0.8, 0.0, 1.0, &o->match_mac) ||
+        vd_cfg_double(c, g, "oma", "outlier_threshold", VIBID_OUTLIER_THRESHOLD_DEFAULT, 0.0, 1e6,
+                      &cfg->outlier_threshold))
+        return -1;
+    o->block_rows = (unsigned)br;
+    o->max_order = (unsigned)mo;
+    if (mo % 2)
+        return vibid_cfg_fail(&c->r, config_setting_get_member(g, "max_order"), "oma.max_order",
+                              "%lld: model orders are even (0: automatic)", mo);
+    if (cfg->outlier_threshold > 0.0 && cfg->outlier_threshold < 2.0)
+        return vibid_cfg_fail(&c->r, config_setting_get_member(g, "outlier_threshold"), "oma.outlier_threshold",
+                              "%g: use 0 (off) or a value >= 2", cfg->outlier_threshold);
+    /* a block long against the correlation time of the response (vibid/oma.h point 4): the
+     * window in 32 blocks by default, each at least 4 block_rows samples */
+    if (vd_cfg_double(c, g, "oma", "block", o->window_s / 32.0, 4.0 * br / fa, o->window_s / 2.0, &o->block_s))
+        return -1;
+    if (o->window_s * fa > 2e8)
+        return vibid_cfg_fail(&c->r, config_setting_get_member(g, "window"), "oma.window",
+                              "%g s are more than 2e8 samples at %g Hz", o->window_s, fa);
+    /* what the daemon's settings mean without an estimator: every sample is kept for the
+     * identification, no refinement */
+    cfg->method = VIBID_ESTIMATOR_AUTO;
+    cfg->forgetting = 1.0;
+    cfg->decimation = 1;
+    cfg->prefilter_hz = -1.0;
+    snprintf(cfg->refine_why, sizeof cfg->refine_why, "output-only configuration (oma): no model to refine");
+    return 0;
+}
+
+/* oma.channels / oma.refs against the channel map (load_oma's rest): the response channels
+ * by name (default: every channel that is not a covariate), as the model channels. */
+static int resolve_oma_channels(vd_cfg_ctx *c, const config_setting_t *src)
+{
+    vd_config *cfg = c->cfg;
+    vd_oma_config *o = &cfg->oma;
+    const config_setting_t *g = config_lookup(src->config, "oma");
+    const config_setting_t *ch = config_setting_get_member(g, "channels");
+    cfg->n_channels = 0;
+    if (!ch) {
+        for (size_t k = 0; k < cfg->chanmap.n; k++)
+            if (cfg->chanmap.ch[k].quantity != VIBID_Q_COVARIATE)
+                cfg->model_to_chan[cfg->n_channels++] = k;
+        if (!cfg->n_channels)
+            return vibid_cfg_fail(&c->r, src, "source.channels", "no response channel: every channel is a covariate");
+    } else {
+        if (!config_setting_is_array(ch) && !config_setting_is_list(ch))
+            return vibid_cfg_fail(&c->r, ch, "oma.channels", "must be a list of channel names [\"a1\", \"a2\"]");
+        const int n = config_setting_length(ch);
+        if (n < 1)
+            return vibid_cfg_fail(&c->r, ch, "oma.channels", "empty: name at least one response channel");
+        for (int i = 0; i < n; i++) {
+            const char *name = config_setting_get_string_elem(ch, i);
+            size_t k = cfg->chanmap.n;
+            for (size_t q = 0; name && q < cfg->chanmap.n; q++)
+                if (!strcmp(cfg->chanmap.ch[q].name, name))
+                    k = q;
+            if (k == cfg->chanmap.n)
+                return vibid_cfg_fail(&c->r, ch, "oma.channels", "[%d]: %s%s%s is not a channel of the channel map",
+                                      i, name ? "'" : "", name ? name : "not a string", name ? "'" : "");
+            if (cfg->chanmap.ch[k].quantity == VIBID_Q_COVARIATE)
+                return vibid_cfg_fail(&c->r, ch, "oma.channels",
+                                      "[%d]: '%s' is a covariate (an operating condition), not a response", i, name);
+            for (size_t j = 0; j < cfg->n_channels; j++)
+                if (cfg->model_to_chan[j] == k)
+                    return vibid_cfg_fail(&c->r, ch, "oma.channels", "[%d]: '%s' named twice", i, name);
+            cfg->model_to_chan[cfg->n_channels++] = k;
+        }
+    }
+    for (size_t i = 0; i < cfg->n_channels; i++) {
+        const vibid_quantity q = cfg->chanmap.ch[cfg->model_to_chan[i]].quantity;
+        if (q == VIBID_Q_FORCE || q == VIBID_Q_INPUT)
+            return vibid_cfg_fail(&c->r, ch ? ch : src, ch ? "oma.channels" : "source.channels",
+                                  "'%s' is a force (an input): output-only identification uses responses; leave it "
+                                  "out of oma.channels",
+                                  cfg->chanmap.ch[cfg->model_to_chan[i]].name);
+        cfg->model_scale[i] = 1.0; /* the channels' own units: the modes do not depend on them */
+    }
+    const config_setting_t *rf = config_setting_get_member(g, "refs");
+    o->n_refs = 0;
+    if (rf) {
+        if (!config_setting_is_array(rf) && !config_setting_is_list(rf))
+            return vibid_cfg_fail(&c->r, rf, "oma.refs", "must be a list of channel names (of oma.channels)");
+        const int n = config_setting_length(rf);
+        for (int i = 0; i < n; i++) {
+            const char *name = config_setting_get_string_elem(rf, i);
+            size_t j = cfg->n_channels;
+            for (size_t q = 0; name && q < cfg->n_channels; q++)
+                if (!strcmp(cfg->chanmap.ch[cfg->model_to_chan[q]].name, name))
+                    j = q;
+            if (j == cfg->n_channels)
+                return vibid_cfg_fail(&c->r, rf, "oma.refs", "[%d]: %s is not one of the response channels", i,
+                                      name ? name : "not a string");
+            for (size_t q = 0; q < o->n_refs; q++)
+                if (o->refs[q] == j)
+                    return vibid_cfg_fail(&c->r, rf, "oma.refs", "[%d]: '%s' named twice", i, name);
+            o->refs[o->n_refs++] = j;
+        }
+    }
+    return 0;
+}
+
 static int load_stand(vd_cfg_ctx *c, config_t *cf)
 {
     vd_config *cfg = c->cfg;
     config_setting_t *s = config_lookup(cf, "stand");
+    config_setting_t *oma = config_lookup(cf, "oma");
+    if (s && oma)
+        return vibid_cfg_fail(&c->r, oma, "oma",
+                              "give either a stand (identification with measured inputs) or oma (output-only "
+                              "tracking of modes), not both");
+    if (oma)
+        return load_oma(c, oma);
     if (!s)
         return vibid_cfg_fail(
             &c->r, config_root_setting(cf), "stand",
-            "missing: give the stand file (stand = \"stand.cfg\";) or the stand group inline");
+            "missing: give the stand file (stand = \"stand.cfg\";) or the stand group inline (or, for output-only "
+            "tracking of modes, an oma group)");
     if (config_setting_type(s) == CONFIG_TYPE_STRING) {
         if (vibid_cfg_path_of(&c->r, s, "stand", config_setting_get_string(s), cfg->stand_file,
                               sizeof cfg->stand_file))
@@ -255,11 +445,8 @@ static int load_chanmap(vd_cfg_ctx *c, const config_setting_t *src)
         const char *name = cfg->chanmap.ch[k].name;
         bool clash = !strcmp(name, "time_s") || !strcmp(name, "index") || !strcmp(name, "gap_samples") ||
                      !strcmp(name, "flags");
-        for (size_t p = 0; p < cfg->n_params && !clash; p++) {
-            vibid_param_info pi;
-            vibid_model_param_info(vibid_stand_model(cfg->stand), p, &pi);
-            clash = !strcmp(name, pi.name);
-        }
+        for (size_t p = 0; p < cfg->n_params && !clash; p++)
+            clash = !strcmp(name, vd_param_name(cfg, p));
         if (clash)
             return vibid_cfg_fail_at(&c->r, cfg->chanmap_file[0] ? cfg->chanmap_file : c->r.file,
                                      (int)cfg->chanmap.ch[k].line, "source.channels",
@@ -268,6 +455,8 @@ static int load_chanmap(vd_cfg_ctx *c, const config_setting_t *src)
                                      name);
         cfg->cov_chan[cfg->n_covariates++] = k;
     }
+    if (cfg->oma.on)
+        return resolve_oma_channels(c, src);
     /* Every model channel must come from the source: map by name. */
     const vibid_model *m = vibid_stand_model(cfg->stand);
     for (size_t i = 0; i < cfg->n_channels; i++) {
@@ -357,7 +546,8 @@ static int check_channels(vd_cfg_ctx *c)
 {
     vd_config *cfg = c->cfg;
     const char *map_file = cfg->chanmap_file[0] ? cfg->chanmap_file : c->r.file;
-    for (size_t k = 0; k < cfg->chanmap.n; k++)
+    /* output-only: the channels' own units (resolve_oma_channels); a stand converts to its own */
+    for (size_t k = 0; k < cfg->chanmap.n && !cfg->oma.on; k++)
         if (channel_scale(c, map_file, k))
             return -1;
     for (size_t j = 0; j < cfg->n_covariates; j++) {
@@ -367,6 +557,8 @@ static int check_channels(vd_cfg_ctx *c)
             sig = vibid_dbc_lookup_signal(cfg->dbc, ch->ref, ch->message, NULL, NULL);
         snprintf(cfg->cov_unit[j], sizeof cfg->cov_unit[j], "%s", ch->unit[0] ? ch->unit : sig ? sig->unit : "");
     }
+    if (cfg->oma.on)
+        return 0;
     const vibid_model *m = vibid_stand_model(cfg->stand);
     for (size_t i = 0; i < cfg->n_channels; i++) {
         const vibid_channel *ch = &cfg->chanmap.ch[cfg->model_to_chan[i]];
@@ -558,8 +750,8 @@ static const char *const alarm_known[] = {"enabled",       "test",           "fa
                                           "learn_start",   "learn_duration", "parameters",
                                           "reference_file", NULL};
 static const char *const log_known[] = {"level", "status_interval", NULL};
-static const char *const top_known[] = {"stand", "source", "acquisition", "estimator", "outputs", "alarms", "log",
-                                        NULL};
+static const char *const top_known[] = {"stand",  "oma",    "source", "acquisition", "estimator",
+                                        "outputs", "alarms", "log",    NULL};
 
 static int load_acquisition(vd_cfg_ctx *c, config_t *cf)
 {
@@ -592,12 +784,9 @@ static int load_acquisition(vd_cfg_ctx *c, config_t *cf)
 /* Index of the stand's unknown named name, or n_params if there is none. */
 static size_t param_index(const vd_config *cfg, const char *name)
 {
-    const vibid_model *m = vibid_stand_model(cfg->stand);
-    for (size_t k = 0; k < cfg->n_params; k++) {
-        vibid_param_info pi;
-        if (vibid_model_param_info(m, k, &pi) == VIBID_OK && strcmp(pi.name, name) == 0)
+    for (size_t k = 0; k < cfg->n_params; k++)
+        if (strcmp(vd_param_name(cfg, k), name) == 0)
             return k;
-    }
     return cfg->n_params;
 }
 
@@ -705,6 +894,10 @@ static int load_estimator(vd_cfg_ctx *c, config_t *cf)
 {
     vd_config *cfg = c->cfg;
     config_setting_t *g = config_lookup(cf, "estimator");
+    if (cfg->oma.on) /* load_oma set what the daemon needs */
+        return g ? vibid_cfg_fail(&c->r, g, "estimator",
+                                  "an output-only configuration (oma) has no estimator: its settings are in oma")
+                 : 0;
     if (vd_cfg_known(c, g, "estimator", est_known))
         return -1;
     /* The library's names (identify.h), indexed by vibid_estimator, up to the output-error
@@ -865,7 +1058,7 @@ static int load_alarms(vd_cfg_ctx *c, config_t *cf)
     if (!cfg->alarm_reference_file[0] && state && state[0] == '/' && test == VD_ALARM_CUSUM) {
         size_t n = strcspn(state, ":");
         char stand[64];
-        snprintf(stand, sizeof stand, "%s", vibid_stand_name(cfg->stand));
+        snprintf(stand, sizeof stand, "%s", vd_stand_name(cfg));
         for (char *p = stand; *p; p++) /* a file name whatever the stand is called */
             if (!(isalnum((unsigned char)*p) || *p == '_' || *p == '-' || *p == '.'))
                 *p = '_';
@@ -873,12 +1066,9 @@ static int load_alarms(vd_cfg_ctx *c, config_t *cf)
             snprintf(cfg->alarm_reference_file, sizeof cfg->alarm_reference_file, "%.*s/%s.alarm-reference",
                      (int)n, state, stand);
     }
-    const vibid_model *m = vibid_stand_model(cfg->stand);
     const config_setting_t *plist = g ? config_setting_get_member(g, "parameters") : NULL;
     for (size_t k = 0; k < cfg->n_params; k++) {
-        vibid_param_info pi;
-        vibid_model_param_info(m, k, &pi);
-        snprintf(cfg->alarm_param[k].name, sizeof cfg->alarm_param[k].name, "%s", pi.name);
+        snprintf(cfg->alarm_param[k].name, sizeof cfg->alarm_param[k].name, "%s", vd_param_name(cfg, k));
         cfg->alarm_param[k].enabled = plist == NULL; /* no list: every parameter */
     }
     if (!plist)
@@ -903,7 +1093,8 @@ static int load_alarms(vd_cfg_ctx *c, config_t *cf)
         if (k == cfg->n_params) {
             char f[96];
             snprintf(f, sizeof f, "%s.name", sec);
-            return vibid_cfg_fail(&c->r, e, f, "'%s' is not an unknown parameter of the stand", name);
+            return vibid_cfg_fail(&c->r, e, f, "'%s' is not %s", name,
+                                  cfg->oma.on ? "a tracked mode's f<j>_hz or zeta<j>" : "an unknown parameter of the stand");
         }
         cfg->alarm_param[k].enabled = true;
         if (config_setting_get_member(e, "baseline")) {
@@ -1103,23 +1294,98 @@ const char *vd_cfg_esc(const char *v)
     return b;
 }
 
+/* The estimator group of a stand's configuration (vd_config_print). */
+static void print_estimator(const vd_config *cfg, FILE *o)
+{
+    fprintf(o, "estimator = {\n  method = \"%s\";\n  forgetting = %s;\n", vd_estimator_name(cfg->method),
+            vd_cfg_num(cfg->forgetting));
+    if (cfg->prefilter_hz >= 0.0)
+        fprintf(o, "  prefilter_hz = %s;\n", vd_cfg_num(cfg->prefilter_hz));
+    else
+        fprintf(o, "  # prefilter_hz: automatic\n");
+    if (cfg->rls_alpha > 0.0)
+        fprintf(o, "  rls_alpha = %s;\n", vd_cfg_num(cfg->rls_alpha));
+    else
+        fprintf(o, "  # rls_alpha: automatic\n");
+    if (cfg->iv_lag)
+        fprintf(o, "  iv_lag = %u;\n", cfg->iv_lag);
+    else
+        fprintf(o, "  # iv_lag: automatic\n");
+    if (cfg->difference_order)
+        fprintf(o, "  difference_order = %u;\n", cfg->difference_order);
+    else
+        fprintf(o, "  # difference_order: automatic\n");
+    fprintf(o, "  decimation = %u;\n  warmup_samples = %u;\n", cfg->decimation, cfg->warmup_samples);
+    fprintf(o, "  outlier_threshold = %s;  # 0 = off\n", vd_cfg_num(cfg->outlier_threshold));
+    fprintf(o, "  refine_every = %s;  # s, 0 = off (refinement %s: %s)\n  refine_window = %s;  # s\n",
+            vd_cfg_num(cfg->refine_every_s), cfg->refine_every_s > 0 ? "on" : "off", cfg->refine_why,
+            vd_cfg_num(cfg->refine_window_s));
+    if (cfg->has_start) {
+        fprintf(o, "  start_values = (");
+        for (size_t k = 0; k < cfg->n_params; k++) {
+            fprintf(o, "%s\n    { name = \"%s\"; value = %s; }", k ? "," : "", vd_param_name(cfg, k),
+                    vd_cfg_num(cfg->start_theta[k]));
+        }
+        fprintf(o, "\n  );\n");
+    }
+    fprintf(o, "};\n");
+}
+
+/* The oma group of an output-only configuration (vd_config_print), with its channels. */
+static void print_oma(const vd_config *cfg, FILE *o)
+{
+    const vd_oma_config *a = &cfg->oma;
+    fprintf(o, "oma = {\n  name = \"%s\";\n  sample_rate = %s;  # Hz\n", vd_cfg_esc(a->name),
+            vd_cfg_num(cfg->sample_rate));
+    if (a->nominal_hz[0] > 0.0) {
+        fprintf(o, "  modes = [");
+        for (size_t j = 0; j < a->n_modes; j++)
+            fprintf(o, "%s%s", j ? ", " : "", vd_cfg_num(a->nominal_hz[j]));
+        fprintf(o, "];  # Hz, expected\n");
+    } else {
+        fprintf(o, "  modes = %zu;  # the lowest of the first identification that finds as many\n", a->n_modes);
+    }
+    fprintf(o, "  channels = [");
+    for (size_t i = 0; i < cfg->n_channels; i++)
+        fprintf(o, "%s\"%s\"", i ? ", " : "", cfg->chanmap.ch[cfg->model_to_chan[i]].name);
+    fprintf(o, "];\n");
+    if (a->n_refs) {
+        fprintf(o, "  refs = [");
+        for (size_t i = 0; i < a->n_refs; i++)
+            fprintf(o, "%s\"%s\"", i ? ", " : "", cfg->chanmap.ch[cfg->model_to_chan[a->refs[i]]].name);
+        fprintf(o, "];\n");
+    } else {
+        fprintf(o, "  # refs: every channel\n");
+    }
+    fprintf(o,
+            "  window = %s;  # s\n  every = %s;  # s\n  block = %s;  # s\n  block_rows = %u;\n"
+            "  max_order = %u;  # 0 = automatic\n  max_damping = %s;\n  match_freq = %s;\n  match_mac = %s;\n"
+            "  outlier_threshold = %s;  # 0 = off\n};\n",
+            vd_cfg_num(a->window_s), vd_cfg_num(a->every_s), vd_cfg_num(a->block_s), a->block_rows, a->max_order,
+            vd_cfg_num(a->max_damping), vd_cfg_num(a->match_freq), vd_cfg_num(a->match_mac),
+            vd_cfg_num(cfg->outlier_threshold));
+}
+
 void vd_config_print(const vd_config *cfg, FILE *o)
 {
-    const vibid_model *m = vibid_stand_model(cfg->stand);
+    const vibid_model *m = cfg->oma.on ? NULL : vibid_stand_model(cfg->stand);
     fprintf(o, "# vibidd effective configuration of %s (every default filled in)\n", cfg->path);
-    if (cfg->stand_file[0])
+    if (cfg->oma.on)
+        print_oma(cfg, o);
+    else if (cfg->stand_file[0])
         fprintf(o, "stand = \"%s\";\n", cfg->stand_file);
     else
         fprintf(o, "# stand: inline group in %s\n", cfg->path);
-    fprintf(o, "# stand \"%s\": sample_rate %s Hz, %zu unknowns, %zu channels\n", vibid_stand_name(cfg->stand),
-            vd_cfg_num(cfg->sample_rate), cfg->n_params, cfg->n_channels);
-    for (size_t k = 0; k < cfg->n_params; k++) {
+    if (!cfg->oma.on)
+        fprintf(o, "# stand \"%s\": sample_rate %s Hz, %zu unknowns, %zu channels\n", vibid_stand_name(cfg->stand),
+                vd_cfg_num(cfg->sample_rate), cfg->n_params, cfg->n_channels);
+    for (size_t k = 0; k < cfg->n_params && m; k++) {
         vibid_param_info pi;
         vibid_model_param_info(m, k, &pi);
         static const char *const kinds[] = {"mass", "damping", "stiffness", "cubic", "gain"};
         fprintf(o, "#   unknown %zu: %s (%s)\n", k, pi.name, (unsigned)pi.kind < 5 ? kinds[pi.kind] : "?");
     }
-    for (size_t i = 0; i < cfg->n_channels; i++) {
+    for (size_t i = 0; i < cfg->n_channels && m; i++) {
         vibid_channel_info ci;
         vibid_model_channel_info(m, i, &ci);
         fprintf(o, "#   channel %zu: %s <- source channel '%s'", i, ci.name, cfg->chanmap.ch[cfg->model_to_chan[i]].name);
@@ -1205,39 +1471,8 @@ void vd_config_print(const vd_config *cfg, FILE *o)
             cfg->handoff_spin_us);
     /* Settings left to the automatic choice stay commented out, so that the printout
      * read back chooses again; the choices themselves follow as comments (main.c). */
-    fprintf(o, "estimator = {\n  method = \"%s\";\n  forgetting = %s;\n", vd_estimator_name(cfg->method),
-            vd_cfg_num(cfg->forgetting));
-    if (cfg->prefilter_hz >= 0.0)
-        fprintf(o, "  prefilter_hz = %s;\n", vd_cfg_num(cfg->prefilter_hz));
-    else
-        fprintf(o, "  # prefilter_hz: automatic\n");
-    if (cfg->rls_alpha > 0.0)
-        fprintf(o, "  rls_alpha = %s;\n", vd_cfg_num(cfg->rls_alpha));
-    else
-        fprintf(o, "  # rls_alpha: automatic\n");
-    if (cfg->iv_lag)
-        fprintf(o, "  iv_lag = %u;\n", cfg->iv_lag);
-    else
-        fprintf(o, "  # iv_lag: automatic\n");
-    if (cfg->difference_order)
-        fprintf(o, "  difference_order = %u;\n", cfg->difference_order);
-    else
-        fprintf(o, "  # difference_order: automatic\n");
-    fprintf(o, "  decimation = %u;\n  warmup_samples = %u;\n", cfg->decimation, cfg->warmup_samples);
-    fprintf(o, "  outlier_threshold = %s;  # 0 = off\n", vd_cfg_num(cfg->outlier_threshold));
-    fprintf(o, "  refine_every = %s;  # s, 0 = off (refinement %s: %s)\n  refine_window = %s;  # s\n",
-            vd_cfg_num(cfg->refine_every_s), cfg->refine_every_s > 0 ? "on" : "off", cfg->refine_why,
-            vd_cfg_num(cfg->refine_window_s));
-    if (cfg->has_start) {
-        fprintf(o, "  start_values = (");
-        for (size_t k = 0; k < cfg->n_params; k++) {
-            vibid_param_info pi;
-            vibid_model_param_info(m, k, &pi);
-            fprintf(o, "%s\n    { name = \"%s\"; value = %s; }", k ? "," : "", pi.name, vd_cfg_num(cfg->start_theta[k]));
-        }
-        fprintf(o, "\n  );\n");
-    }
-    fprintf(o, "};\n");
+    if (!cfg->oma.on)
+        print_estimator(cfg, o);
     fprintf(o, "outputs = {\n");
     for (size_t i = 0; i < vd_n_outputs; i++) /* each output prints its groups (output.h) */
         if (vd_outputs[i]->print && !strchr(vd_outputs[i]->groups[0], '.'))

@@ -47,6 +47,28 @@ typedef struct vd_alarm_param {
     double baseline;
 } vd_alarm_param;
 
+/* The output-only configuration (an `oma` group instead of `stand`; docs/vibidd.md
+ * "Output-only tracking", oma_track.h): the modes of the response channels tracked by
+ * SSI-cov (vibid/oma.h) over a sliding window. Its "parameters" (n_params = 2 x modes, the
+ * names in param_name) are f<j>_hz and zeta<j> of the tracked modes j = 1 .. modes: the
+ * tracks, outputs and alarms treat them as a stand's parameters. */
+#define VD_OMA_MAX_MODES (VD_MAX_PARAMS / 2)
+typedef struct vd_oma_config {
+    bool on;
+    char name[64];               /* the machine's name (tags, topics, the reference file) */
+    size_t n_modes;              /* modes tracked, 1 .. VD_OMA_MAX_MODES */
+    double nominal_hz[VD_OMA_MAX_MODES]; /* their expected frequencies, Hz; 0 = the lowest modes
+                                            of the first identification */
+    size_t n_refs;               /* reference channels (0 = all) ... */
+    size_t refs[VIBID_DRV_MAX_CHANNELS]; /* ... as indices of the response channels */
+    double window_s, every_s, block_s; /* the window, the period of identification, a block */
+    unsigned block_rows, max_order;    /* vibid_oma_config's (max_order 0: automatic) */
+    double max_damping;          /* poles above are not physical (vibid_oma_config) */
+    double match_freq, match_mac;/* a mode of a window continues a tracked mode when its frequency
+                                    is within match_freq (relative) and its shape's MAC >= match_mac */
+    char param_name[VD_MAX_PARAMS][16];
+} vd_oma_config;
+
 /* The settings of the network outputs (output.h), one struct each: the output reads its own
  * struct and nothing else of them; config.c fills them from the output's group. */
 
@@ -111,10 +133,11 @@ typedef struct vd_config {
     char path[VD_PATH_MAX];      /* the configuration file */
     char dir[VD_PATH_MAX];       /* its directory: relative paths are relative to it */
 
-    /* stand */
+    /* stand (NULL in an output-only configuration: oma.on) */
     char stand_file[VD_PATH_MAX];/* "" when inline */
     vibid_stand *stand;          /* owned */
-    double sample_rate;          /* from the stand, Hz */
+    vd_oma_config oma;           /* the output-only configuration (oma.on), instead of a stand */
+    double sample_rate;          /* from the stand (or oma.sample_rate), Hz */
     size_t n_params, n_channels, n_modes;
 
     /* source */
@@ -124,7 +147,8 @@ typedef struct vd_config {
     vibid_dbc *dbc;              /* owned */
     char chanmap_file[VD_PATH_MAX]; /* "" when inline */
     vibid_chanmap chanmap;
-    size_t model_to_chan[VIBID_DRV_MAX_CHANNELS]; /* model channel i -> chanmap index */
+    size_t model_to_chan[VIBID_DRV_MAX_CHANNELS]; /* model channel i -> chanmap index (output-only:
+                                                     response channel i) */
     double chan_scale[VIBID_DRV_MAX_CHANNELS];    /* chanmap channel k: its unit -> the stand's units (> 0) */
     double model_scale[VIBID_DRV_MAX_CHANNELS];   /* model channel i: chan_scale of its chanmap channel */
     /* covariates: the channel map's `covariate` channels in map order (operating conditions
@@ -206,6 +230,12 @@ typedef struct vd_config {
     int log_level;
     double log_status_interval_s;
 } vd_config;
+
+/* The name of parameter k (< n_params): the stand's unknown, or the output-only
+ * configuration's f<j>_hz / zeta<j>. */
+const char *vd_param_name(const vd_config *cfg, size_t k);
+/* The stand's name, or the output-only configuration's oma.name. */
+const char *vd_stand_name(const vd_config *cfg);
 
 /* Reads and checks the file. Returns 0, or -1 with *err filled. On success the
  * config owns the stand, DBC and register map: release with vd_config_free. */

@@ -383,7 +383,14 @@ static void run_cusum(vd_daemon *d, vd_row *row)
 {
     if (row->flags & VD_FLAG_REFINED)
         return;
-    const vibid_model *m = vibid_stand_model(d->cfg->stand);
+    /* output-only: the rows whose windows do not overlap (oma_track.h) */
+    if (d->omat.on) {
+        const uint64_t apart = vd_omat_test_stride(d->cfg) * d->omat.every_n; /* >= the window */
+        if (d->omat_tested_any && row->index < d->omat_tested_index + apart)
+            return;
+        d->omat_tested_any = true;
+        d->omat_tested_index = row->index;
+    }
     /* a block is used when its row has a possible estimate (no E, P), is excited (no I) and
        no sample between the rows is missing or taken out (no G, O) */
     const bool use = vd_row_usable(row->flags) &&
@@ -413,14 +420,13 @@ static void run_cusum(vd_daemon *d, vd_row *row)
             size_t k = d->cusum.param[i];
             double stat, mdc, mdc_rel;
             bool active;
-            vibid_param_info pi;
-            vibid_model_param_info(m, k, &pi);
+            const char *name = vd_param_name(d->cfg, k);
             vibid_change_reference ref;
             if (vd_cusum_state(&d->cusum, k, &stat, &mdc, &mdc_rel, &active) &&
                 vd_cusum_reference(&d->cusum, k, &ref))
                 vd_info("alarm reference of %s: %.9g (%s), block estimates' standard deviation %.3g from %.0f blocks; "
                         "detectable change %.3g (%.3g %%) within %g s with probability %g at %g false alarms a year",
-                        pi.name, ref.mean, d->cusum.have_given[i] ? "given" : "learned", ref.block_sd, ref.n_sd, mdc,
+                        name, ref.mean, d->cusum.have_given[i] ? "given" : "learned", ref.block_sd, ref.n_sd, mdc,
                         100.0 * mdc_rel, d->cfg->alarm_horizon_s, d->cfg->alarm_detection_probability,
                         d->cfg->alarm_false_per_year);
             for (size_t j = 0; j < d->cfg->n_covariates; j++) {
@@ -428,14 +434,14 @@ static void run_cusum(vd_daemon *d, vd_row *row)
                 const double g = ref.gram_inv[j * T + j];
                 vd_info("alarm reference of %s against covariate %s: slope %.4g +- %.2g per %s, learned over [%.6g, "
                         "%.6g]%s",
-                        pi.name, d->cfg->chanmap.ch[d->cfg->cov_chan[j]].name, ref.slope[j],
+                        name, d->cfg->chanmap.ch[d->cfg->cov_chan[j]].name, ref.slope[j],
                         ref.block_sd * sqrt(g), d->cfg->cov_unit[j][0] ? d->cfg->cov_unit[j] : "unit", ref.low[j],
                         ref.high[j], g > 0.0 ? "" : " (did not vary: not modelled)");
             }
             if (d->cfg->n_covariates && ref.n_terms > d->cfg->n_covariates)
                 vd_info("alarm reference of %s: second-order model (squares and products of the covariates: "
                         "the linear one did not explain the reference's blocks)",
-                        pi.name);
+                        name);
         }
     } else if (d->cusum.learning_extended && !d->cusum_extended_reported) {
         vd_warning("alarm reference not complete after [%g, %g) s of sample time: %s; learning goes on",
@@ -444,10 +450,9 @@ static void run_cusum(vd_daemon *d, vd_row *row)
     }
     for (size_t j = 0; j < ne; j++) {
         const size_t k = ev[j].param;
-        vibid_param_info pi;
-        vibid_model_param_info(m, k, &pi);
+        const char *name = vd_param_name(d->cfg, k);
         const double z = ev[j].change_se > 0.0 ? ev[j].change / ev[j].change_se : NAN;
-        const vd_output_alarm a = {pi.name,         ev[j].raised,    row,         "cusum",
+        const vd_output_alarm a = {name,         ev[j].raised,    row,         "cusum",
                                    row->theta[k],   ev[j].reference, z,           ev[j].statistic,
                                    ev[j].threshold, ev[j].change,    ev[j].raised ? ev[j].change_se : NAN,
                                    ev[j].raised ? ev[j].onset_index : row->index};
@@ -455,11 +460,11 @@ static void run_cusum(vd_daemon *d, vd_row *row)
             d->alarms_raised++;
             vd_warning("ALARM %s: changed by %.4g +- %.2g from its reference %.6g (CUSUM %.1f >= %.1f), since sample "
                        "%llu (estimated onset); at sample %llu, t = %.3f s",
-                       pi.name, ev[j].change, ev[j].change_se, ev[j].reference, ev[j].statistic, ev[j].threshold,
+                       name, ev[j].change, ev[j].change_se, ev[j].reference, ev[j].statistic, ev[j].threshold,
                        (unsigned long long)ev[j].onset_index, (unsigned long long)row->index, row->run_s);
         } else {
             vd_notice("alarm %s cleared: the data favour its reference %.6g over the change %.4g again at sample %llu",
-                      pi.name, ev[j].reference, ev[j].change, (unsigned long long)row->index);
+                      name, ev[j].reference, ev[j].change, (unsigned long long)row->index);
         }
         outputs_alarm(d, &a);
     }
@@ -484,7 +489,6 @@ static void run_alarms(vd_daemon *d, vd_row *row)
         run_cusum(d, row);
         return;
     }
-    const vibid_model *m = vibid_stand_model(d->cfg->stand);
     /* rows without an estimate (E) or with an impossible one (P) change no alarm */
     const bool usable = vd_row_usable(row->flags);
     bool any = false;
@@ -493,8 +497,7 @@ static void run_alarms(vd_daemon *d, vd_row *row)
             continue;
         vd_alarm *a = &d->alarm[k];
         vd_alarm_event ev = vd_alarm_update_row(a, row->run_s, row->theta[k], row->se[k], usable);
-        vibid_param_info pi;
-        vibid_model_param_info(m, k, &pi);
+        const vibid_param_info pi = {.name = vd_param_name(d->cfg, k)};
         if (ev == VD_ALARM_RAISED) {
             d->alarms_raised++;
             vd_warning("ALARM %s: %.6g differs from its baseline %.6g by %.1f standard errors (threshold %g, held "
@@ -561,9 +564,9 @@ static void take_snapshot(vd_daemon *d, const char *state, double now)
     vd_snapshot *s = &d->snap;
     memset(s, 0, sizeof *s);
     s->state = state;
-    s->stand = vibid_stand_name(cfg->stand);
+    s->stand = vd_stand_name(cfg);
     s->source = vibid_source_kind(d->src);
-    s->estimator = vd_estimator_name(cfg->method);
+    s->estimator = cfg->oma.on ? "oma" : vd_estimator_name(cfg->method);
     s->uptime_s = now - d->t_start;
     s->stand_rate_hz = cfg->sample_rate;
     s->samples = d->est.samples;
@@ -595,6 +598,12 @@ static void take_snapshot(vd_daemon *d, const char *state, double now)
     s->refine_overruns = d->refine.overruns;
     s->refine_skipped = d->refine.skipped_busy + d->refine.skipped_gap;
     s->refine_last_s = d->refine.done + d->refine.failed ? d->refine.last_duration_s : NAN;
+    s->oma_on = d->omat.on;
+    s->oma_done = d->omat.done;
+    s->oma_skipped = d->omat.skipped_busy;
+    s->oma_lost = d->omat.lost_samples;
+    s->oma_without = d->omat.windows_without;
+    s->oma_last_s = d->omat.done ? d->omat.last_duration_s : NAN;
     s->lat_p50_us = vd_daemon_latency_us(d, 0.5);
     s->lat_p99_us = vd_daemon_latency_us(d, 0.99);
     s->lat_n = d->lat_n;
@@ -684,6 +693,11 @@ static void format_status(vd_daemon *d, const vd_snapshot *sn)
     S("rows=%llu\nestimate_failures=%llu\nimplausible_rows=%llu\nnonfinite_samples=%llu\noutlier_samples=%llu\n",
       (unsigned long long)sn->rows, (unsigned long long)sn->est_errors, (unsigned long long)sn->implausible_rows,
       (unsigned long long)sn->nonfinite_samples, (unsigned long long)sn->outlier_samples);
+    if (sn->oma_on)
+        S("oma_identifications=%llu\noma_skipped=%llu\noma_lost_samples=%llu\noma_windows_without_modes=%llu\n"
+          "oma_last_duration_s=%.3f\n",
+          (unsigned long long)sn->oma_done, (unsigned long long)sn->oma_skipped, (unsigned long long)sn->oma_lost,
+          (unsigned long long)sn->oma_without, sn->oma_last_s);
     if (sn->refine_on)
         S("refinements=%llu\nrefine_failed=%llu\nrefine_overrun=%llu\nrefine_skipped=%llu\n"
           "refine_last_duration_s=%.3f\n",
@@ -731,11 +745,8 @@ static void log_status_line(vd_daemon *d)
     char est[512] = "";
     size_t off = 0;
     if (d->est.have_last) {
-        const vibid_model *m = vibid_stand_model(d->cfg->stand);
         for (size_t k = 0; k < d->cfg->n_params && off < sizeof est; k++) {
-            vibid_param_info pi;
-            vibid_model_param_info(m, k, &pi);
-            int n = snprintf(est + off, sizeof est - off, " %s=%.6g", pi.name, d->est.last.theta[k]);
+            int n = snprintf(est + off, sizeof est - off, " %s=%.6g", vd_param_name(d->cfg, k), d->est.last.theta[k]);
             if (n > 0)
                 off += (size_t)n;
         }
@@ -814,6 +825,7 @@ static void housekeeping(vd_daemon *d, bool final)
  * every output. Called when the estimation thread has no record waiting, before a record
  * that may start the next row (process), and at the end. */
 static void emit_row(vd_daemon *d, vd_row *row);
+static void take_oma(vd_daemon *d);
 
 static void finish_row(vd_daemon *d)
 {
@@ -889,6 +901,61 @@ static void refine_sample(vd_daemon *d, const vibid_record *rec)
     take_refinement(d);
 }
 
+/* A result of the mode tracker (oma_track.h): a track row of the tracked modes, or nothing
+ * while its window fills; lost samples and rows without a tracked mode logged (the latter
+ * once per episode). */
+static void take_oma(vd_daemon *d)
+{
+    vd_omat *o = &d->omat;
+    const vd_omat_result *res = vd_omat_take(o);
+    if (!res)
+        return;
+    if (res->lost_samples)
+        vd_warning("mode tracking fell behind: %llu samples lost to the identification before sample %llu (a gap "
+                   "there; %llu so far)",
+                   (unsigned long long)res->lost_samples, (unsigned long long)res->end_index,
+                   (unsigned long long)o->lost_samples);
+    const bool filling = !res->identified && !strncmp(res->reason, "the window is filling", 21);
+    if (!filling) {
+        const uint64_t missing = d->est.missing - d->omat_missing_seen;
+        d->omat_missing_seen = d->est.missing;
+        vd_est_oma_row(&d->est, &d->oma_row, res, missing);
+        if (d->oma_row.flags & VD_FLAG_NOEST) {
+            if (!d->omat_fail_episode)
+                vd_warning("modes at sample %llu: %s (rows flagged E until a tracked mode is found)",
+                           (unsigned long long)res->end_index, res->reason);
+            d->omat_fail_episode = true;
+        } else if (d->omat_fail_episode) {
+            vd_notice("modes at sample %llu: %zu of %zu tracked modes found again", (unsigned long long)res->end_index,
+                      res->found, d->cfg->oma.n_modes);
+            d->omat_fail_episode = false;
+        }
+        emit_row(d, &d->oma_row);
+    }
+    vd_omat_release(o);
+}
+
+/* Output-only: after the estimator took a sample, into the mode tracker's ring, and the
+ * identification when one is due (an unpaced replay waits for it, as for a refinement). */
+static void oma_sample(vd_daemon *d, const vibid_record *rec)
+{
+    vd_omat *o = &d->omat;
+    if (d->est.gaps != d->omat_gaps_seen) {
+        d->omat_gaps_seen = d->est.gaps;
+        vd_omat_gap(o);
+    }
+    vd_omat_push(o, d->est.chan, rec->values);
+    const uint64_t index = rec->index - d->est.first_index;
+    if (!vd_omat_due(o, index))
+        return;
+    if (!d->refine_waits) { /* live: the oma thread; a busy one skips this period (counted) */
+        vd_omat_request(o, index, vd_ns_to_us(rec->t_ns));
+        return;
+    }
+    if (vd_omat_run_here(o, index, vd_ns_to_us(rec->t_ns)))
+        take_oma(d);
+}
+
 /* A row out: plausibility log, alarms, every output. */
 static void emit_row(vd_daemon *d, vd_row *row)
 {
@@ -927,6 +994,8 @@ static void process_released(vd_daemon *d, const vibid_record *rec, int64_t t_rx
     }
     if (d->refine.on && d->est.samples != samples_before) /* a sample the estimator took */
         refine_sample(d, rec);
+    if (d->omat.on && d->est.samples != samples_before)
+        oma_sample(d, rec);
 }
 
 static void drain_released(vd_daemon *d)
@@ -1011,6 +1080,10 @@ static void *est_main(void *arg)
             take_refinement(d);
             continue;
         }
+        if (vd_omat_take(&d->omat)) { /* or the mode tracker's */
+            take_oma(d);
+            continue;
+        }
         /* empty: finished, or sleep until the producer wakes us (bounded by 50 ms) */
         if (atomic_load(&d->acq_done) && !vd_ring_peek(d->ring))
             break;
@@ -1019,7 +1092,8 @@ static void *est_main(void *arg)
          * the idle-class refine thread shares its CPU it gets the CPU back only at the
          * scheduler's tick (1-4 ms; docs/vibidd.md "Refinement"); asleep, the acquisition
          * thread's wake-up preempts the refine thread at once */
-        if (d->cfg->handoff_spin_us && !vd_refine_busy(&d->refine) && spin_for_record(d))
+        if (d->cfg->handoff_spin_us && !vd_refine_busy(&d->refine) && !vd_omat_busy(&d->omat) &&
+            spin_for_record(d))
             continue;
         atomic_store(&d->consumer_sleeping, 1);
         atomic_thread_fence(memory_order_seq_cst);
@@ -1039,9 +1113,12 @@ static void *est_main(void *arg)
     }
     if (d->row_pending)
         finish_row(d);
-    /* a refinement still running is waited for (at most one fit): its row is not lost */
+    /* a refinement or identification still running is waited for (at most one each): its
+     * row is not lost */
     vd_refine_wait(&d->refine);
     take_refinement(d);
+    vd_omat_wait(&d->omat);
+    take_oma(d);
     housekeeping(d, true);
     atomic_store(&d->est_done, 1);
     /* End of a replay: wake the main thread now instead of at its next 100 ms tick
@@ -1060,7 +1137,7 @@ static int open_outputs(vd_daemon *d, char *err, size_t cap)
     d->out_ctx.cfg = cfg;
     d->out_ctx.rec_chanmap = &d->rec_chanmap;
     d->out_ctx.tracks_preamble = d->est.choices;
-    d->out_ctx.stand = cfg->files.influx_stand[0] ? cfg->files.influx_stand : vibid_stand_name(cfg->stand);
+    d->out_ctx.stand = cfg->files.influx_stand[0] ? cfg->files.influx_stand : vd_stand_name(cfg);
     d->out_ctx.select = d->opt.outputs;
     for (size_t i = 0; i < vd_n_outputs; i++) {
         const vd_output_ops *ops = vd_outputs[i];
@@ -1129,9 +1206,14 @@ int vd_daemon_init(vd_daemon *d, vd_config *cfg, const vd_options *opt, char *er
             given[k] = cfg->alarm_param[k].has_baseline;
             baseline[k] = cfg->alarm_param[k].baseline;
         }
+        /* output-only: the rows of disjoint windows are independent estimates (forgetting 0,
+           vibid/change.h), one every ceil(window / every) periods */
+        const double row_interval = cfg->oma.on ? (double)vd_omat_test_stride(cfg) * round(cfg->oma.every_s *
+                                                                                           cfg->sample_rate)
+                                                : (double)cfg->decimation;
         const vd_cusum_config cc = {cfg->sample_rate,
-                                    cfg->forgetting,
-                                    (double)cfg->decimation,
+                                    cfg->oma.on ? 0.0 : cfg->forgetting,
+                                    row_interval,
                                     cfg->alarm_false_per_year,
                                     cfg->alarm_horizon_s,
                                     cfg->alarm_detection_probability,
@@ -1189,7 +1271,8 @@ int vd_daemon_init(vd_daemon *d, vd_config *cfg, const vd_options *opt, char *er
     }
     if (vd_refine_resolve(cfg, d->est.resolved.estimator, err, cap))
         return -1;
-    d->refine_waits = d->file_source && !d->measure_latency; /* an unpaced replay */
+    /* an unpaced replay: waits for each refinement, runs each identification inline */
+    d->refine_waits = d->file_source && !d->measure_latency;
     if (vd_refine_init(&d->refine, cfg, d->est.nch, d->est.p, err, cap))
         return -1;
     if (d->refine.on)
@@ -1198,6 +1281,8 @@ int vd_daemon_init(vd_daemon *d, vd_config *cfg, const vd_options *opt, char *er
                 cfg->refine_why, cfg->refine_window_s, cfg->refine_every_s);
     else
         vd_info("refinement off: %s", cfg->refine_why[0] ? cfg->refine_why : "estimator.refine_every = 0");
+    if (vd_omat_init(&d->omat, cfg, err, cap))
+        return -1;
     vd_est_log_choices(&d->est);
     /* every output is opened here, before READY=1: an output that cannot be opened (a
      * directory, an address that cannot be bound, a secret file) is a configuration error
@@ -1237,7 +1322,7 @@ int vd_daemon_run(vd_daemon *d)
     {
         /* before the estimation thread, which hands it work */
         char err[256];
-        if (vd_refine_start(&d->refine, err, sizeof err)) {
+        if (vd_refine_start(&d->refine, err, sizeof err) || vd_omat_start(&d->omat, err, sizeof err)) {
             vd_error("%s", err);
             return 1;
         }
@@ -1262,8 +1347,10 @@ int vd_daemon_run(vd_daemon *d)
         }
     }
     vd_notify_send(&d->notify, "READY=1\nSTATUS=acquiring");
-    vd_notice("running: stand '%s', %s source, %s estimator, %.6g Hz, ring %zu records", vibid_stand_name(d->cfg->stand),
-              vibid_source_kind(d->src), vd_estimator_name(d->cfg->method), d->cfg->sample_rate, vd_ring_capacity(d->ring));
+    vd_notice("running: %s '%s', %s source, %s, %.6g Hz, ring %zu records", d->cfg->oma.on ? "machine" : "stand",
+              vd_stand_name(d->cfg), vibid_source_kind(d->src),
+              d->cfg->oma.on ? "output-only mode tracking" : vd_estimator_name(d->cfg->method), d->cfg->sample_rate,
+              vd_ring_capacity(d->ring));
 
     uint64_t wd_usec = vd_notify_watchdog_usec(&d->notify);
     double wd_period = wd_usec ? (double)wd_usec * 1e-6 / 2.0 : 0.0, t_wd = 0;
@@ -1356,6 +1443,7 @@ void vd_daemon_fini(vd_daemon *d)
     vd_rate_check_destroy(d->rate);
     d->rate = NULL;
     vd_refine_fini(&d->refine);
+    vd_omat_fini(&d->omat);
     vd_est_free(&d->est);
     vd_cusum_free(&d->cusum);
     vd_ring_destroy(d->ring);

@@ -42,6 +42,7 @@
 #include "metrics.h"
 #include "mqtt.h"
 #include "notify.h"
+#include "oma_track.h"
 #include "output.h"
 #include "rate_check.h"
 #include "refine.h"
@@ -93,6 +94,13 @@ typedef struct vd_daemon {
     vd_row refined_row;
     bool refine_waits;         /* an unpaced replay waits for each refinement (reproducible rows) */
     uint64_t refine_gaps_seen; /* est.gaps at the last look: a new gap ends the clean window */
+    vd_omat omat;              /* output-only: the mode tracker (oma_track.h) */
+    vd_row oma_row;
+    uint64_t omat_gaps_seen;   /* est.gaps at the last look: a new gap is a gap in its ring */
+    uint64_t omat_missing_seen;/* est.missing at the last mode row: its gap_samples */
+    bool omat_fail_episode;    /* rows without a tracked mode are logged once per episode */
+    bool omat_tested_any;      /* the change test took a mode row ... */
+    uint64_t omat_tested_index;/* ... at this sample index (the next must not share its window) */
     bool row_pending;
     vd_alarm alarm[VD_MAX_PARAMS];       /* alarms.test = "threshold" */
     vd_cusum cusum;                      /* alarms.test = "cusum" */

@@ -17,10 +17,62 @@ int64_t vd_ns_to_us(int64_t t_ns)
     return r >= 500 ? q + 1 : q;
 }
 
+/* The outlier test over the model channels (estimator.outlier_threshold or
+ * oma.outlier_threshold). 0, or -1 with err. */
+static int init_outlier_test(vd_est *e, const char *setting, char *err, size_t cap)
+{
+    if (!(e->cfg->outlier_threshold > 0.0))
+        return 0;
+    vibid_outlier_config oc;
+    vibid_outlier_config_init(&oc, e->nch);
+    oc.threshold = e->cfg->outlier_threshold;
+    e->outl = vibid_outlier_create(&oc);
+    if (!e->outl) {
+        snprintf(err, cap, "%s: %s", setting, vibid_last_error());
+        return -1;
+    }
+    /* the most the test holds at once (vibid/outlier.h) */
+    e->held_cap = (oc.warmup > VIBID_OUTLIER_LOOKAHEAD + 1 ? oc.warmup : VIBID_OUTLIER_LOOKAHEAD + 1) + 1;
+    e->held = calloc(e->held_cap, sizeof *e->held);
+    e->held_tag = calloc(e->held_cap, sizeof *e->held_tag);
+    if (!e->held || !e->held_tag) {
+        snprintf(err, cap, "estimator: out of memory");
+        return -1;
+    }
+    return 0;
+}
+
+/* Output-only (oma.on): no estimator; the samples (outliers taken out) go to the mode
+ * tracker (oma_track.h), which makes the rows. */
+static int init_output_only(vd_est *e, char *err, size_t cap)
+{
+    const vd_config *cfg = e->cfg;
+    e->nch = cfg->n_channels;
+    e->p = cfg->n_params;
+    const vd_oma_config *a = &cfg->oma;
+    int n = snprintf(e->choices, sizeof e->choices,
+                     "output-only: SSI-cov (vibid/oma.h) of %zu response channels over the last %g s every %g s of "
+                     "sample time, in blocks of %g s, %u block rows\n"
+                     "tracked modes: %zu (%s); a mode continues when within %g %% in frequency and MAC >= %g\n",
+                     cfg->n_channels, a->window_s, a->every_s, a->block_s, a->block_rows, a->n_modes,
+                     a->nominal_hz[0] > 0.0 ? "nearest to the expected frequencies"
+                                            : "the lowest of the first identification that finds as many",
+                     100.0 * a->match_freq, a->match_mac);
+    e->choices_len = n > 0 ? (size_t)n : 0;
+    if (init_outlier_test(e, "oma.outlier_threshold", err, cap)) {
+        vd_est_free(e);
+        return -1;
+    }
+    snprintf(e->twin_why, sizeof e->twin_why, "output-only: rows come from the mode tracker");
+    return 0;
+}
+
 int vd_est_init(vd_est *e, const vd_config *cfg, char *err, size_t cap)
 {
     memset(e, 0, sizeof *e);
     e->cfg = cfg;
+    if (cfg->oma.on)
+        return init_output_only(e, err, cap);
     e->model = vibid_stand_model(cfg->stand);
     vibid_ident_config ic;
     vibid_ident_config_init(&ic, 1.0 / cfg->sample_rate);
@@ -56,23 +108,7 @@ int vd_est_init(vd_est *e, const vd_config *cfg, char *err, size_t cap)
         return -1;
     }
     e->pref = *vibid_report_reference(e->report);
-    if (cfg->outlier_threshold > 0.0) {
-        vibid_outlier_config oc;
-        vibid_outlier_config_init(&oc, e->nch);
-        oc.threshold = cfg->outlier_threshold;
-        e->outl = vibid_outlier_create(&oc);
-        if (!e->outl) {
-            snprintf(err, cap, "estimator.outlier_threshold: %s", vibid_last_error());
-            vd_est_free(e);
-            return -1;
-        }
-        /* the most the test holds at once (vibid/outlier.h) */
-        e->held_cap = (oc.warmup > VIBID_OUTLIER_LOOKAHEAD + 1 ? oc.warmup : VIBID_OUTLIER_LOOKAHEAD + 1) + 1;
-        e->held = calloc(e->held_cap, sizeof *e->held);
-        e->held_tag = calloc(e->held_cap, sizeof *e->held_tag);
-    }
-    if (e->outl && (!e->held || !e->held_tag)) {
-        snprintf(err, cap, "estimator: out of memory");
+    if (init_outlier_test(e, "estimator.outlier_threshold", err, cap)) {
         vd_est_free(e);
         return -1;
     }
@@ -115,7 +151,7 @@ void vd_est_log_choices(const vd_est *e)
         vd_info("%.*s", len, line);
         line = rest;
     }
-    if (!e->twin)
+    if (!e->twin && e->ident)
         vd_info("track rows: estimated at their sample, later samples wait for them (%s)", e->twin_why);
 }
 
@@ -218,6 +254,8 @@ const vibid_record *vd_est_next(vd_est *e, int64_t *tag)
 
 static void restart_window(vd_est *e)
 {
+    if (!e->ident) /* output-only: the mode tracker hears of the gap from the daemon */
+        return;
     double nanv[VIBID_DRV_MAX_CHANNELS];
     for (size_t i = 0; i < e->nch; i++)
         nanv[i] = NAN;
@@ -261,6 +299,8 @@ static void note_outlier(vd_est *e, const vibid_record *rec)
 static void note_new_choices(vd_est *e)
 {
     size_t len = 0;
+    if (!e->ident)
+        return;
     if (vibid_ident_describe(e->ident, NULL, 0, &len) != VIBID_OK || len == e->choices_len)
         return;
     vibid_ident_get_config(e->ident, &e->resolved);
@@ -276,23 +316,31 @@ static void note_new_choices(vd_est *e)
 
 /* The part of a row that belongs to its sample: time, index, gaps, and the estimator's
  * state (into the twin). Allocation-free with a twin. */
-static void start_row(vd_est *e, const vibid_record *rec, uint64_t rel, vd_row *row)
+/* A row at sample index (from the run's start) and time t_us, its values NaN: the gap
+ * (gap_samples missing since the previous row, flag G) and the outliers since then (O). */
+static void begin_row(vd_est *e, vd_row *row, uint64_t index, int64_t t_us, uint64_t gap_samples)
 {
-    const vd_config *cfg = e->cfg;
     memset(row, 0, sizeof *row);
-    row->t_us = vd_ns_to_us(rec->t_ns);
-    row->index = rel;
-    row->run_s = (double)rel / cfg->sample_rate;
-    row->gap_samples = e->gap_since_row;
-    if (e->gap_since_row)
+    row->t_us = t_us;
+    row->index = index;
+    row->run_s = (double)index / e->cfg->sample_rate;
+    row->gap_samples = gap_samples;
+    if (gap_samples)
         row->flags |= VD_FLAG_GAP;
-    e->gap_since_row = 0;
     if (e->outlier_since_row)
         row->flags |= VD_FLAG_OUTLIER;
     e->outlier_since_row = 0;
     for (size_t k = 0; k < VD_MAX_PARAMS; k++)
         row->theta[k] = row->se[k] = row->freq[k] = row->freq_se[k] = row->zeta[k] = row->zeta_se[k] =
             row->change_stat[k] = row->change_mdc[k] = NAN;
+    for (size_t j = 0; j < VD_MAX_COVARIATES; j++)
+        row->cov[j] = NAN;
+}
+
+static void start_row(vd_est *e, const vibid_record *rec, uint64_t rel, vd_row *row)
+{
+    begin_row(e, row, rel, vd_ns_to_us(rec->t_ns), e->gap_since_row);
+    e->gap_since_row = 0;
     for (size_t j = 0; j < VD_MAX_COVARIATES; j++) {
         row->cov[j] = e->cov_n[j] ? e->cov_sum[j] / (double)e->cov_n[j] : NAN;
         e->cov_sum[j] = 0.0;
@@ -367,6 +415,27 @@ void vd_est_refined_row(vd_est *e, vd_row *row, uint64_t index, int64_t t_us, co
     e->have_last = true;
 }
 
+void vd_est_oma_row(vd_est *e, vd_row *row, const vd_omat_result *res, uint64_t missing)
+{
+    begin_row(e, row, res->end_index, res->end_t_us, missing);
+    for (size_t j = 0; j < e->cfg->n_covariates; j++)
+        row->cov[j] = res->cov[j];
+    for (size_t k = 0; k < e->p; k++) {
+        row->theta[k] = res->theta[k];
+        row->se[k] = res->se[k];
+        if (isfinite(row->theta[k]) && !(isfinite(row->se[k]) && row->se[k] > 0.0))
+            row->flags |= VD_FLAG_SE_INVALID;
+    }
+    if (!res->found) {
+        row->flags |= VD_FLAG_NOEST;
+        row->est_status = (int)VIBID_E_INSUFFICIENT_DATA;
+        e->est_errors++;
+    }
+    e->rows++;
+    e->last = *row;
+    e->have_last = true;
+}
+
 int vd_est_record(vd_est *e, const vibid_record *rec, vd_row *row)
 {
     if (rec->kind == VIBID_REC_FAULT)
@@ -387,7 +456,7 @@ int vd_est_record(vd_est *e, const vibid_record *rec, vd_row *row)
         return 0;
     }
     e->next_index = rec->index + 1;
-    for (size_t j = 0; j < e->cfg->n_covariates; j++) { /* the row's covariates: their block mean */
+    for (size_t j = 0; j < e->cfg->n_covariates && e->ident; j++) { /* the row's covariates: their block mean */
         double v = rec->values[e->cfg->cov_chan[j]];
         if (isfinite(v)) {
             e->cov_sum[j] += v;
@@ -398,6 +467,10 @@ int vd_est_record(vd_est *e, const vibid_record *rec, vd_row *row)
         model_values(e, rec, e->chan); /* else vd_est_next put them there, glitches as NaN */
     else if (e->rel_outliers)
         note_outlier(e, rec);
+    if (!e->ident) { /* output-only: the caller hands e->chan to the mode tracker */
+        e->samples++;
+        return 0;
+    }
     vibid_status st = vibid_ident_push(e->ident, e->chan);
     e->last_push_status = (int)st;
     if (st != VIBID_OK && !e->rel_outliers)

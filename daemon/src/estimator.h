@@ -56,6 +56,7 @@
 #include <vibid_drivers/sample.h>
 
 #include "config.h"
+#include "oma_track.h"
 
 /* E, P, U and I are the library's row flags (vibid/report.h), the same bits. */
 enum {
@@ -209,6 +210,14 @@ void vd_est_finish_row(vd_est *e, vd_row *row);
  * Allocates (the modal analysis). */
 void vd_est_refined_row(vd_est *e, vd_row *row, uint64_t index, int64_t t_us, const double *theta, const double *se,
                         const double *cov, unsigned quality, uint64_t n_samples);
+
+/* Output-only: the row of a mode tracker's result (oma_track.h) at its window's end: the
+ * tracked modes' f<j>_hz and zeta<j> with their standard errors as the parameters (NaN where a
+ * mode was not found), the covariates' means over the window; flagged E when no tracked mode
+ * was found, U when a found mode has no standard error, G with missing samples (missing:
+ * those since the previous mode row), O when outliers were taken out since then. Counts it
+ * and keeps it as vd_est.last. Allocation-free. */
+void vd_est_oma_row(vd_est *e, vd_row *row, const vd_omat_result *res, uint64_t missing);
 
 /* 1 when rec may make a row due (or is not a sample): a pending row is finished before
  * such a record, so rows stay in order with everything else the record causes. */

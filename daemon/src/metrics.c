@@ -222,6 +222,20 @@ int vd_metrics_render(char *buf, size_t cap, const vd_snapshot *s)
             s->nonfinite_samples);
     counter(&o, "vibid_outlier_samples_total",
             "Samples with a single-sample glitch taken out before the estimator (flag O).", s->outlier_samples);
+    if (s->oma_on) {
+        counter(&o, "vibid_oma_identifications_total", "Output-only identifications of the window (rows of modes).",
+                s->oma_done);
+        counter(&o, "vibid_oma_identifications_skipped_total",
+                "Identifications not started: the previous one was still running (the next covers the samples).",
+                s->oma_skipped);
+        counter(&o, "vibid_oma_lost_samples_total",
+                "Samples lost to the identification: the low-priority thread fell behind by more than its ring.",
+                s->oma_lost);
+        counter(&o, "vibid_oma_windows_without_modes_total",
+                "Identifications in which no tracked mode was found (rows flagged E).", s->oma_without);
+        gauge(&o, "vibid_oma_last_duration_seconds", "Wall time of the last output-only identification.",
+              s->oma_last_s);
+    }
     if (s->refine_on) {
         counter(&o, "vibid_refinements_total", "Output-error refinements written as rows flagged W.", s->refine_done);
         counter(&o, "vibid_refinements_failed_total",

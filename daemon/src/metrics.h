@@ -116,6 +116,10 @@ typedef struct vd_snapshot {
     bool refine_on;
     uint64_t refine_done, refine_failed, refine_overruns, refine_skipped;
     double refine_last_s;            /* the last fit's wall time, s (NaN before one) */
+    /* output-only mode tracking (oma_track.h); oma_on false: not shown */
+    bool oma_on;
+    uint64_t oma_done, oma_skipped, oma_lost, oma_without;
+    double oma_last_s;               /* the last identification's wall time, s (NaN before one) */
     /* receipt -> estimate latency (live or paced sources; lat_n == 0 otherwise) */
     double lat_p50_us, lat_p99_us;   /* NaN when no sample was measured */
     uint64_t lat_n;

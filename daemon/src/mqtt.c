@@ -94,12 +94,9 @@ int vd_mqtt_format_track(char *buf, size_t cap, const vd_config *cfg, const char
     vd_text_put(&o, ",\"index\":%llu,\"time_s\":", (unsigned long long)row->index);
     put_time(&o, row->t_us);
     vd_text_put(&o, ",\"params\":{");
-    const vibid_model *m = vibid_stand_model(cfg->stand);
     for (size_t k = 0; k < cfg->n_params; k++) {
-        vibid_param_info pi;
-        vibid_model_param_info(m, k, &pi);
         if (k) vd_text_put(&o, ",");
-        put_str(&o, pi.name);
+        put_str(&o, vd_param_name(cfg, k));
         vd_text_put(&o, ":{\"value\":");
         put_num(&o, row->theta[k]);
         vd_text_put(&o, ",\"se\":");
@@ -384,12 +381,8 @@ static void op_alarm(void *p, const vd_output_alarm *a) {
     vd_mqtt *m = p;
     uint64_t seq = ++m->seq[VD_MQTT_ALARMS];
     uint16_t k = 0;
-    const vibid_model *mod = vibid_stand_model(m->cfg->stand);
-    for (size_t i = 0; i < m->cfg->n_params; i++) {
-        vibid_param_info pi;
-        vibid_model_param_info(mod, i, &pi);
-        if (!strcmp(pi.name, a->param)) k = (uint16_t)i;
-    }
+    for (size_t i = 0; i < m->cfg->n_params; i++)
+        if (!strcmp(vd_param_name(m->cfg, i), a->param)) k = (uint16_t)i;
     slot_hdr *s = claim(m, VD_MQTT_ALARMS);
     if (!s) return;
     int n = format_alarm(m, (char *)(s + 1), m->payload_max, seq, m->pending_drop[VD_MQTT_ALARMS], a);
@@ -837,7 +830,7 @@ static void *op_open(const vd_output_ctx *ctx, char *err, size_t cap) {
     m->efd = -1;
     pthread_mutex_init(&m->st_mu, NULL);
     snprintf(m->stand, sizeof m->stand, "%s",
-             cfg->mqtt.stand[0] ? cfg->mqtt.stand : vibid_stand_name(cfg->stand));
+             cfg->mqtt.stand[0] ? cfg->mqtt.stand : vd_stand_name(cfg));
     if (cfg->mqtt.client_id[0])
         snprintf(m->client_id, sizeof m->client_id, "%s", cfg->mqtt.client_id);
     else
@@ -854,14 +847,12 @@ static void *op_open(const vd_output_ctx *ctx, char *err, size_t cap) {
         snprintf(err, cap, "out of memory");
         goto fail;
     }
-    const vibid_model *mod = vibid_stand_model(cfg->stand);
     size_t longest_name = 0;
     for (size_t k = 0; k < cfg->n_params; k++) {
-        vibid_param_info pi;
-        vibid_model_param_info(mod, k, &pi);
+        const char *pname = vd_param_name(cfg, k);
         snprintf(m->topic_alarm[k], sizeof m->topic_alarm[k], "%s/%s/%s/alarms/%s", cfg->mqtt.prefix,
-                 cfg->mqtt.site, m->stand, pi.name);
-        if (strlen(pi.name) > longest_name) longest_name = strlen(pi.name);
+                 cfg->mqtt.site, m->stand, pname);
+        if (strlen(pname) > longest_name) longest_name = strlen(pname);
         if (mosquitto_pub_topic_check(m->topic_alarm[k]) != MOSQ_ERR_SUCCESS) {
             snprintf(err, cap, "outputs.mqtt: '%s' is not a valid MQTT topic (the parameter's name)",
                      m->topic_alarm[k]);

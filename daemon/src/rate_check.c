@@ -459,7 +459,9 @@ vd_rate_event vd_rate_check_finish(vd_rate_check *c)
 
 static void stand_label(const vd_config *cfg, char *buf, size_t cap)
 {
-    if (cfg->stand_file[0])
+    if (cfg->oma.on)
+        snprintf(buf, cap, "oma.sample_rate in %s", cfg->path);
+    else if (cfg->stand_file[0])
         snprintf(buf, cap, "%s", cfg->stand_file);
     else
         snprintf(buf, cap, "stand inline in %s", cfg->path);

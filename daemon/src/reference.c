@@ -32,28 +32,30 @@ static uint64_t fnv_num(uint64_t h, double v)
     return fnv_str(h, t);
 }
 
-static const char *param_name(const vd_config *cfg, size_t k)
-{
-    vibid_param_info pi;
-    vibid_model_param_info(vibid_stand_model(cfg->stand), k, &pi);
-    return pi.name;
-}
-
 uint64_t vd_reference_key(const vd_config *cfg, const vd_cusum *c)
 {
     uint64_t h = 0xcbf29ce484222325ull;
-    h = fnv_str(h, vibid_stand_name(cfg->stand));
+    h = fnv_str(h, vd_stand_name(cfg));
     h = fnv_num(h, cfg->sample_rate);
     for (size_t k = 0; k < cfg->n_params; k++)
-        h = fnv_str(h, param_name(cfg, k));
+        h = fnv_str(h, vd_param_name(cfg, k));
     h = fnv_str(h, vibid_estimator_name(cfg->method));
     h = fnv_num(h, cfg->forgetting);
     h = fnv_num(h, (double)cfg->decimation);
+    if (cfg->oma.on) { /* output-only: what the modes' block estimates depend on */
+        h = fnv_num(h, cfg->oma.window_s);
+        h = fnv_num(h, cfg->oma.every_s);
+        h = fnv_num(h, cfg->oma.block_s);
+        h = fnv_num(h, (double)cfg->oma.block_rows);
+        h = fnv_num(h, (double)cfg->oma.max_order);
+        for (size_t i = 0; i < cfg->n_channels; i++)
+            h = fnv_str(h, cfg->chanmap.ch[cfg->model_to_chan[i]].name);
+    }
     h = fnv_num(h, cfg->prefilter_hz);
     h = fnv_num(h, (double)cfg->iv_lag);
     h = fnv_num(h, (double)cfg->difference_order);
     for (size_t i = 0; i < c->n; i++)
-        h = fnv_str(h, param_name(cfg, c->param[i]));
+        h = fnv_str(h, vd_param_name(cfg, c->param[i]));
     /* the covariates the reference depends on (none: the key of a reference without them) */
     for (size_t j = 0; j < cfg->n_covariates; j++)
         h = fnv_str(h, cfg->chanmap.ch[cfg->cov_chan[j]].name);
@@ -78,10 +80,10 @@ int vd_reference_save(const char *path, const vd_config *cfg, const vd_cusum *c,
     fprintf(f,
             "# vibidd alarm reference: replaced only by vibidd --reference learn|forget (docs/vibidd.md)\n"
             "format=2\nstand=%s\nkey=%016llx\nlearned_index=%llu\nlearned_time_s=%.6f\n",
-            vibid_stand_name(cfg->stand), (unsigned long long)vd_reference_key(cfg, c),
+            vd_stand_name(cfg), (unsigned long long)vd_reference_key(cfg, c),
             (unsigned long long)learned_index, learned_time_s);
     for (size_t i = 0; i < c->n; i++) {
-        const char *p = param_name(cfg, c->param[i]);
+        const char *p = vd_param_name(cfg, c->param[i]);
         fprintf(f, "%s.mean=%.17g\n%s.block_sd=%.17g\n%s.n_mean=%.17g\n%s.n_sd=%.17g\n", p, ref[i].mean, p,
                 ref[i].block_sd, p, ref[i].n_mean, p, ref[i].n_sd);
         const size_t q = cfg->n_covariates, T = ref[i].n_terms ? ref[i].n_terms : q;
@@ -204,7 +206,7 @@ static int field_of(const vd_config *cfg, const vd_cusum *c, const char *key, si
     if (!dot)
         return -1;
     for (size_t j = 0; j < c->n; j++) {
-        const char *p = param_name(cfg, c->param[j]);
+        const char *p = vd_param_name(cfg, c->param[j]);
         if (strlen(p) == (size_t)(dot - key) && !strncmp(p, key, (size_t)(dot - key))) {
             *i = j;
             *field = dot + 1;
@@ -328,7 +330,7 @@ int vd_reference_load(const char *path, const vd_config *cfg, const vd_cusum *c,
             const double nt = n_terms[i];
             if (!have[i][20] || !(nt == (double)q || nt == (double)(q + q * (q + 1) / 2))) {
                 snprintf(err, cap, "%s: parameter %s: n_terms %g (need %zu or %zu for %zu covariates)", path,
-                         param_name(cfg, c->param[i]), nt, q, q + q * (q + 1) / 2, q);
+                         vd_param_name(cfg, c->param[i]), nt, q, q + q * (q + 1) / 2, q);
                 return -1;
             }
             T = (size_t)nt;
@@ -352,7 +354,7 @@ int vd_reference_load(const char *path, const vd_config *cfg, const vd_cusum *c,
                 complete = complete && have[i][49 + 14 * a + l];
         if (!complete) {
             snprintf(err, cap, "%s: parameter %s incomplete (needs mean, block_sd, n_mean, n_sd%s)", path,
-                     param_name(cfg, c->param[i]),
+                     vd_param_name(cfg, c->param[i]),
                      q ? (format == 1 ? " and per covariate slope, centre, low, high, gram_inv"
                                       : " and per covariate centre, low, high, origin, n_terms, per term slope, "
                                         "term_mean, gram_inv")

@@ -12,31 +12,19 @@
  * runs vibid_oe_fit and publishes the result; the estimation thread picks it up
  * (vd_refine_take) and writes a row flagged W.
  *
- * Hand-over without a lock the estimation thread could wait on: one atomic state word
- * (IDLE -> REQUESTED by the estimation thread, REQUESTED -> DONE by the refine thread,
- * DONE -> IDLE by the estimation thread), each change a release store read with acquire, so
- * the request's and the result's fields written before it are seen after it. The refine
- * thread sleeps on a semaphore the estimation thread posts (sem_post never blocks).
- *
- * The samples ring is a seqlock: the estimation thread stores `written` (samples complete)
- * with release after each sample, and a release fence orders that store before the next
- * sample's data; the refine thread copies, then an acquire fence, then reads `written`: if
- * the slot of the window's first sample may have been reused, the copy is discarded.
+ * The hand-over (one job at a time, no lock the estimation thread could wait on) and the
+ * samples ring (a seqlock) are worker.h's.
  */
 #ifndef VIBIDD_REFINE_H
 #define VIBIDD_REFINE_H
 
-#include <pthread.h>
-#include <semaphore.h>
-#include <stdatomic.h>
 #include <stdbool.h>
 #include <stdint.h>
 
 #include <vibid/output_error.h>
 
 #include "config.h"
-
-enum { VD_REFINE_IDLE = 0, VD_REFINE_REQUESTED = 1, VD_REFINE_DONE = 2 };
+#include "worker.h"
 
 typedef struct vd_refine_result {
     bool ok;                       /* a sound fit: theta, se, cov hold */
@@ -56,22 +44,15 @@ typedef struct vd_refine {
     bool on;
     size_t nch, p;
     uint64_t every_n, window_n;    /* samples */
-    /* the samples ring (estimation thread writes, refine thread reads) */
-    double *ring;                  /* cap x nch, row-major (one sample a row) */
-    uint64_t cap;
-    _Atomic uint64_t written;      /* samples complete */
+    vd_sample_ring ring;           /* estimation thread writes, refine thread reads */
     uint64_t clean_from;           /* first ring sequence number after the last gap */
-    /* the request (written by the estimation thread before state = REQUESTED) */
+    /* the request (written by the estimation thread before vd_worker_request) */
     uint64_t req_start, req_end;   /* ring sequence numbers [start, end) */
     double req_theta[VD_MAX_PARAMS];
     uint64_t req_end_index;
     int64_t req_end_t_us;
-    vd_refine_result res;          /* written by the refine thread before state = DONE */
-    _Atomic int state;
-    _Atomic int stop;
-    sem_t wake;
-    pthread_t thread;
-    bool started;
+    vd_refine_result res;          /* written by the refine thread before it is done */
+    vd_worker worker;              /* the refine thread (vibidd-refine) */
     /* the refine thread's own */
     vibid_oe *oe;
     double *buf;                   /* window_n x nch, column-major */
@@ -97,14 +78,7 @@ void vd_refine_fini(vd_refine *r);
 /* Estimation thread: one sample (nch values) into the ring. Allocation-free. */
 static inline void vd_refine_push(vd_refine *r, const double *x)
 {
-    uint64_t s = atomic_load_explicit(&r->written, memory_order_relaxed);
-    /* the store of `written` for the previous sample is ordered before these data stores
-     * (the reader's overwrite check relies on it) */
-    atomic_thread_fence(memory_order_release);
-    double *slot = r->ring + (s % r->cap) * r->nch;
-    for (size_t i = 0; i < r->nch; i++)
-        slot[i] = x[i];
-    atomic_store_explicit(&r->written, s + 1, memory_order_release);
+    vd_sample_ring_push(&r->ring, x);
 }
 /* Estimation thread: a gap in the samples: no window may span it. */
 void vd_refine_gap(vd_refine *r);

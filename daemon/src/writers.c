@@ -56,15 +56,11 @@ static int put_num(char *buf, size_t cap, size_t *off, double v)
 int vd_format_tracks_header(char *buf, size_t cap, const vd_config *cfg)
 {
     size_t off = 0;
-    const vibid_model *m = vibid_stand_model(cfg->stand);
     if (put(buf, cap, &off, "time_s,index"))
         return -1;
-    for (size_t k = 0; k < cfg->n_params; k++) {
-        vibid_param_info pi;
-        vibid_model_param_info(m, k, &pi);
-        if (put(buf, cap, &off, ",%s,%s_se", pi.name, pi.name))
+    for (size_t k = 0; k < cfg->n_params; k++)
+        if (put(buf, cap, &off, ",%s,%s_se", vd_param_name(cfg, k), vd_param_name(cfg, k)))
             return -1;
-    }
     for (size_t i = 1; i <= cfg->n_modes; i++)
         if (put(buf, cap, &off, ",f%zu_hz,f%zu_hz_se,zeta%zu,zeta%zu_se", i, i, i, i))
             return -1;
@@ -72,12 +68,9 @@ int vd_format_tracks_header(char *buf, size_t cap, const vd_config *cfg)
         if (put(buf, cap, &off, ",%s", cfg->chanmap.ch[cfg->cov_chan[j]].name))
             return -1;
     for (size_t k = 0; k < cfg->n_params; k++)
-        if (vd_change_columns(cfg, k)) {
-            vibid_param_info pi;
-            vibid_model_param_info(m, k, &pi);
-            if (put(buf, cap, &off, ",%s_change_statistic,%s_mdc", pi.name, pi.name))
-                return -1;
-        }
+        if (vd_change_columns(cfg, k) &&
+            put(buf, cap, &off, ",%s_change_statistic,%s_mdc", vd_param_name(cfg, k), vd_param_name(cfg, k)))
+            return -1;
     if (put(buf, cap, &off, ",gap_samples,flags\n"))
         return -1;
     return (int)off;
@@ -152,14 +145,11 @@ int vd_format_influx_row(char *buf, size_t cap, const vd_config *cfg, const char
     if (put(buf, cap, &off, "%s%s%s%s,stand=%s", cfg->files.influx_measurement,
             (row->flags & VD_FLAG_REFINED) ? ",estimate=refined" : "", site[0] ? ",site=" : "", site, tag))
         return -1;
-    const vibid_model *m = vibid_stand_model(cfg->stand);
     int first = 1;
     char fname[160];
     for (size_t k = 0; k < cfg->n_params; k++) {
-        vibid_param_info pi;
-        vibid_model_param_info(m, k, &pi);
         /* field keys escape commas, spaces and equals signs like tags */
-        vd_influx_escape_tag(fname, sizeof fname, pi.name);
+        vd_influx_escape_tag(fname, sizeof fname, vd_param_name(cfg, k));
         if (put_field(buf, cap, &off, &first, fname, "", row->theta[k]) ||
             put_field(buf, cap, &off, &first, fname, "_se", row->se[k]))
             return -1;
@@ -528,7 +518,7 @@ int vd_writers_open_parts(vd_writers *w, const vd_config *cfg, const vibid_chanm
     w->cfg = cfg;
     w->tracks_preamble = tracks_preamble;
     w->chanmap = chanmap;
-    w->stand_name = cfg->files.influx_stand[0] ? cfg->files.influx_stand : vibid_stand_name(cfg->stand);
+    w->stand_name = cfg->files.influx_stand[0] ? cfg->files.influx_stand : vd_stand_name(cfg);
     w->udp_fd = -1;
     const char *const paths[VD_OUT_FILES] = {part_path(cfg->files.tracks_path, parts, VD_PART_TRACKS),
                                              part_path(cfg->files.influx_path, parts, VD_PART_INFLUX),

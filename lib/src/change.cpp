@@ -609,8 +609,8 @@ VIBID_API vibid_change *vibid_change_create(const vibid_change_config *cfg) {
         auto in = [](double v, double lo, double hi) { return std::isfinite(v) && v >= lo && v <= hi; };
         if (!in(cfg->sample_rate_hz, 1e-9, 1e12) || cfg->sample_rate_hz <= 0.0)
             throw_error(VIBID_E_OUT_OF_RANGE, "sample_rate_hz = %g must be finite and > 0", cfg->sample_rate_hz);
-        if (!in(cfg->forgetting, 0.0, 1.0) || cfg->forgetting <= 0.0)
-            throw_error(VIBID_E_OUT_OF_RANGE, "forgetting = %g outside (0, 1]", cfg->forgetting);
+        if (!in(cfg->forgetting, 0.0, 1.0))
+            throw_error(VIBID_E_OUT_OF_RANGE, "forgetting = %g outside [0, 1]", cfg->forgetting);
         if (!in(cfg->row_interval, 1.0, 1e12))
             throw_error(VIBID_E_OUT_OF_RANGE, "row_interval = %g samples outside [1, 1e12]", cfg->row_interval);
         if (!in(cfg->false_alarms_per_year, 1e-9, 1e12) )

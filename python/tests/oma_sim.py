@@ -35,24 +35,36 @@ def modes(M, D, K):
 
 def ambient(M, D, K, fs, n, noise=0.01, seed=0):
     """n samples (n x dof) of the displacements, sensor noise `noise` of each channel's RMS."""
+    return ambient_segments(M, D, [(K, n)], fs, noise=noise, seed=seed)
+
+
+def ambient_segments(M, D, segments, fs, noise=0.01, seed=0):
+    """The displacements (sum of n x dof) of a chain whose stiffness matrix is K_i for the
+    n_i samples of segment i (segments = [(K_1, n_1), ...]; a step change at each boundary,
+    the state continuous across it), sensor noise `noise` of each channel's RMS."""
     rng = np.random.default_rng(seed)
     dof = M.shape[0]
     Mi = np.linalg.inv(M)
-    A = np.block([[np.zeros((dof, dof)), np.eye(dof)], [-Mi @ K, -Mi @ D]])
     B = np.vstack([np.zeros((dof, dof)), Mi])
     h = 1.0 / fs
-    # exact ZOH through the eigen-decomposition (A is diagonalisable: distinct damped modes)
-    w, V = np.linalg.eig(A)
-    Vi = np.linalg.inv(V)
-    G = (V @ np.diag(np.exp(w * h)) @ Vi).real
-    Gam = (V @ np.diag((np.exp(w * h) - 1) / w) @ Vi @ B).real
     x = np.zeros(2 * dof)
-    out = np.empty((n, dof))
-    f = rng.standard_normal((n + 2000, dof))
-    for t in range(n + 2000):
-        x = G @ x + Gam @ f[t]
-        if t >= 2000:
-            out[t - 2000] = x[:dof]
+    parts = []
+    for i, (K, n) in enumerate(segments):
+        A = np.block([[np.zeros((dof, dof)), np.eye(dof)], [-Mi @ K, -Mi @ D]])
+        # exact ZOH through the eigen-decomposition (A is diagonalisable: distinct damped modes)
+        w, V = np.linalg.eig(A)
+        Vi = np.linalg.inv(V)
+        G = (V @ np.diag(np.exp(w * h)) @ Vi).real
+        Gam = (V @ np.diag((np.exp(w * h) - 1) / w) @ Vi @ B).real
+        settle = 2000 if i == 0 else 0  # the first segment starts from rest: let it settle
+        out = np.empty((n, dof))
+        f = rng.standard_normal((n + settle, dof))
+        for t in range(n + settle):
+            x = G @ x + Gam @ f[t]
+            if t >= settle:
+                out[t - settle] = x[:dof]
+        parts.append(out)
+    out = np.vstack(parts)
     out += noise * out.std(axis=0) * rng.standard_normal(out.shape)
     return out
 

@@ -616,7 +616,7 @@ static void test_bad_arguments(void **state)
     (void)state;
     vibid_change_config cfg;
     vibid_change_config_init(&cfg, 2);
-    cfg.forgetting = 0.0;
+    cfg.forgetting = -0.5; /* 0 is allowed: rows of disjoint samples */
     assert_null(vibid_change_create(&cfg));
     assert_non_null(strstr(vibid_last_error(), "forgetting"));
     vibid_change_config_init(&cfg, 2);

@@ -151,7 +151,10 @@ typedef struct vibid_change vibid_change;
 typedef struct vibid_change_config {
     size_t n_params;              /* parameters per row, 1 .. 4096 */
     double sample_rate_hz;        /* f_a of the sample indices, > 0 */
-    double forgetting;            /* the estimator's gamma per sample, (0, 1] (1: no forgetting) */
+    double forgetting;            /* the estimator's gamma per sample, [0, 1] (1: no forgetting;
+                                     0: each row's estimate comes from its own samples, disjoint
+                                     from the previous row's, so b_k = theta_k: e.g. modes of
+                                     non-overlapping windows, vibidd's output-only tracking) */
     double row_interval;          /* samples between rows, >= 1 (rows per year for the rate) */
     double false_alarms_per_year; /* R for all parameters together, > 0 (default 1) */
     double horizon_s;             /* of the minimum detectable change, > 0 (default 60 s) */
