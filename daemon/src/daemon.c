@@ -1080,7 +1080,7 @@ static void *est_main(void *arg)
             take_refinement(d);
             continue;
         }
-        if (vd_omat_take(&d->omat)) { /* or the mode tracker's */
+        if (vd_omat_ready(&d->omat)) { /* or the mode tracker's */
             take_oma(d);
             continue;
         }

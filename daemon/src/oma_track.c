@@ -129,6 +129,11 @@ bool vd_omat_run_here(vd_omat *o, uint64_t end_index, int64_t end_t_us)
     return prepare(o, end_index, end_t_us) && vd_worker_run_here(&o->worker);
 }
 
+bool vd_omat_ready(const vd_omat *o)
+{
+    return o->on && vd_worker_done(&o->worker);
+}
+
 const vd_omat_result *vd_omat_take(vd_omat *o)
 {
     if (!o->on || !vd_worker_done(&o->worker))

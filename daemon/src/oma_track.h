@@ -110,7 +110,9 @@ bool vd_omat_request(vd_omat *o, uint64_t end_index, int64_t end_t_us);
 /* The same, run in the calling thread (an unpaced replay: worker.h vd_worker_run_here); the
  * result is ready on return (vd_omat_take). */
 bool vd_omat_run_here(vd_omat *o, uint64_t end_index, int64_t end_t_us);
-/* Estimation thread: the result when one is ready (then vd_omat_release), else NULL. */
+/* Estimation thread: a result is ready (nothing else done: vd_omat_take takes it). */
+bool vd_omat_ready(const vd_omat *o);
+/* Estimation thread: the result when one is ready, counted (then vd_omat_release), else NULL. */
 const vd_omat_result *vd_omat_take(vd_omat *o);
 void vd_omat_release(vd_omat *o);
 bool vd_omat_busy(const vd_omat *o);

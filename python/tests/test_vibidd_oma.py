@@ -213,3 +213,50 @@ def test_check_prints_a_configuration_that_reads_back(capture, tmp_path):
                        if not ln.startswith("# vibidd effective configuration") and "oma.sample_rate in" not in ln]
     assert sum("oma.sample_rate in" in ln for ln in out.splitlines()) == 1
     assert strip(second.stdout) == strip(out)
+
+
+def run_vibidd(args, timeout=120):
+    import subprocess
+
+    from conftest import vibidd_path
+    vibidd = vibidd_path()
+    if not vibidd.exists():
+        pytest.skip(f"no vibidd at {vibidd} (build the C suite first, or set VIBID_VIBIDD)")
+    return subprocess.run([str(vibidd)] + args, capture_output=True, text=True, timeout=timeout)
+
+
+def test_outputs_and_status_of_the_daemon(tmp_path):
+    """The vibidd program on an oma configuration, its outputs: tracks, InfluxDB line protocol
+    (the modes as fields, the machine's name as the stand tag) and the status file with the
+    mode tracker's counters; paced at 40 times the recorded rate, so the identifications run
+    in the low-priority oma thread as in a live run (an unpaced replay runs them inline)."""
+    n = int(240 * FS)
+    y = ambient_segments(M, D, [(K0, n)], FS, noise=0.01, seed=5)
+    t = np.arange(n) / FS
+    cap = tmp_path / "short.csv"
+    pd.DataFrame({"t": t, "x1": y[:, 0], "x2": y[:, 1], "x3": y[:, 2], "temp": 20.0 + 0 * t}).to_csv(
+        cap, index=False, float_format="%.9g")
+    cfg = tmp_path / "live.cfg"
+    text = CONFIG.format(fs=FS, modes=3, window=30.0, every=10.0, capture=cap, extra="", learn=LEARN)
+    cfg.write_text(text + f'outputs = {{ tracks = {{ path = "{tmp_path / "tracks.csv"}"; }};\n'
+                          f'  influx = {{ path = "{tmp_path / "lines.txt"}"; }};\n'
+                          f'  status = {{ path = "{tmp_path / "status"}"; interval = 0.5; }}; }};\n')
+    r = run_vibidd(["-c", str(cfg), "--pace", "--speed", "40"])
+    assert r.returncode == 0, r.stderr
+    tracks = pd.read_csv(tmp_path / "tracks.csv", comment="#")
+    # rows every 10 s from the first full window (30 s) to the end: 22; a live run skips a
+    # period when the thread is still busy (counted), which a test machine's load may cause
+    status = dict(ln.split("=", 1) for ln in (tmp_path / "status").read_text().splitlines() if "=" in ln)
+    done, skipped = int(status["oma_identifications"]), int(status["oma_skipped"])
+    print(f"{len(tracks)} rows, {done} identifications, {skipped} skipped, last took "
+          f"{status['oma_last_duration_s']} s")
+    assert done + skipped >= 22 and len(tracks) == done and len(tracks) >= 15
+    assert int(status["oma_lost_samples"]) == 0
+    for j in range(3):
+        f = tracks[f"f{j + 1}_hz"].dropna()
+        assert len(f) >= 0.8 * len(tracks) and np.all(np.abs(f / F0[j] - 1) < 0.02)
+    lines = (tmp_path / "lines.txt").read_text().splitlines()
+    assert len(lines) == len(tracks)
+    assert all(ln.startswith("vibid,stand=chain3 ") and " f1_hz=" in ln and ",f1_hz_se=" in ln for ln in lines
+               if "f1_hz" in ln)
+    assert sum(",zeta3=" in ln for ln in lines) >= 0.8 * len(lines)
