@@ -111,6 +111,14 @@ bool vd_worker_busy(const vd_worker *w)
 
 void vd_worker_wait(const vd_worker *w)
 {
+    /* the caller waits for the job: it is no longer work for idle time. On a busy machine a
+     * SCHED_IDLE thread gets almost no CPU (the end of a run would wait for it without end),
+     * so it runs at the normal policy from here (permitted to lower the priority it raised
+     * from; if refused it stays) */
+    if (w->started && vd_worker_busy(w)) {
+        struct sched_param sp = {.sched_priority = 0};
+        (void)pthread_setschedparam(w->thread, SCHED_OTHER, &sp);
+    }
     while (w->started && vd_worker_busy(w)) {
         struct timespec ts = {0, 100000};
         nanosleep(&ts, NULL);

@@ -57,7 +57,8 @@ bool vd_worker_done(const vd_worker *w);
 void vd_worker_release(vd_worker *w);
 /* Estimation thread: a job is requested or runs. */
 bool vd_worker_busy(const vd_worker *w);
-/* Estimation thread: waits (sleeping 100 us at a time) while a job runs. */
+/* Estimation thread: waits (sleeping 100 us at a time) while a job runs, the worker moved
+ * to SCHED_OTHER for it (a SCHED_IDLE thread starves on a busy machine); it stays there. */
 void vd_worker_wait(const vd_worker *w);
 
 typedef struct vd_sample_ring {
