@@ -261,3 +261,17 @@ def test_outputs_and_status_of_the_daemon(tmp_path):
     assert all(ln.startswith("vibid,stand=chain3 ") and " f1_hz=" in ln and ",f1_hz_se=" in ln for ln in lines
                if "f1_hz" in ln)
     assert sum(",zeta3=" in ln for ln in lines) >= 0.8 * len(lines)
+
+
+def test_monitor_events(capture):
+    """vibid.monitor on the oma configuration: vibidd's change test on the modes, its events:
+    f1 and f3 raised, the onset at the first disjoint window wholly after the change, the
+    estimated change within 3 of its standard errors of the true one (1.8 and 0.4 measured)."""
+    m = vibid.monitor(write_config(capture.parent, capture), [capture], log_level="error")
+    ev = m.events
+    print(ev.to_string())
+    assert list(ev["state"]) == ["raised", "raised"] and set(ev["parameter"]) == {"f1_hz", "f3_hz"}
+    for _, e in ev.iterrows():
+        j = int(e["parameter"][1]) - 1
+        assert T_CHANGE * FS <= e["onset_index"] <= (T_CHANGE + 2 * WINDOW) * FS
+        assert abs(e["change"] - (F1[j] - F0[j])) <= 3 * e["change_se"]
