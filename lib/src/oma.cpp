@@ -214,6 +214,9 @@ std::size_t max_order_bound(std::size_t i, std::size_t nch, std::size_t nref) {
 // forces: the first mode at n* = 20 had zeta +76 % with standard errors 1.5 times those
 // from order 26 on, where it is right). Coverage with this choice: tests/lib/test_oma.c.
 constexpr double kSeSlack = 1.2;
+// Stability of the damping ratio against the order below (step 5): within this many of the
+// two poles' combined standard errors passes too (oma.h point 5).
+constexpr double kStabDampingSe = 2.0;
 
 void choose_representatives(vibid_oma &o, Eigen::Index nmax) {
     const std::size_t nm = o.modes.size();
@@ -400,8 +403,20 @@ void identify(vibid_oma &o) {
         if (p.order < 4) continue;
         for (const Pole &q : o.poles) {
             if (q.order + 2 != p.order) continue;
-            if (std::abs(p.f - q.f) <= o.cfg.stab_freq * p.f &&
-                std::abs(p.zeta - q.zeta) <= o.cfg.stab_damping * std::abs(p.zeta) &&
+            // damping: within stab_damping of its value, or, for poles whose frequency is
+            // determined within stab_freq (standard error) but whose damping is not (a
+            // lightly damped mode over a short window: +-100 % and more), within
+            // kStabDampingSe of the two poles' combined standard errors, so that the relative
+            // test does not reject them (oma.h point 5; the DROPBEAR beam's first mode in
+            // 0.5 s windows: found in 21 of 165 without, 134 with). Noise poles, whose
+            // frequencies scatter by several percent, stay under the relative test (with it
+            // for every pole the 2-DOF chain of bench_oma_coverage.py got 129 extra modes in
+            // 100 captures, and the modes' orders rose into the noise floor)
+            const bool f_sharp = p.f_se <= o.cfg.stab_freq * p.f && q.f_se <= o.cfg.stab_freq * q.f;
+            const double dz_tol =
+                std::max(o.cfg.stab_damping * std::abs(p.zeta),
+                         f_sharp ? kStabDampingSe * std::hypot(p.zeta_se, q.zeta_se) : 0.0);
+            if (std::abs(p.f - q.f) <= o.cfg.stab_freq * p.f && std::abs(p.zeta - q.zeta) <= dz_tol &&
                 mac(p.shape, q.shape) >= o.cfg.stab_mac) {
                 p.stable = true;
                 break;

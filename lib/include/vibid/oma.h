@@ -32,8 +32,12 @@
  *    within it does not move the eigenvalues). Needs nb >= 2; more blocks give a better
  *    covariance (default 32 in the batch front ends; coverage measured in tests/lib/test_oma.c).
  * 5. Stabilisation diagram: a pole of order n is stable when a pole of order n - 2 has
- *    |df| / f <= stab_freq, |dzeta| / zeta <= stab_damping and MAC >= stab_mac; it is
- *    physical when 0 < zeta <= max_damping and f < 0.9 x Nyquist.
+ *    |df| / f <= stab_freq, |dzeta| <= stab_damping zeta and MAC >= stab_mac; where both
+ *    poles' frequencies are determined within stab_freq (their standard errors) the damping
+ *    may instead differ by up to twice the two poles' combined standard errors (a lightly
+ *    damped mode over a short window, whose damping is uncertain by 100 % and more, is not
+ *    lost to the relative test). It is physical when 0 < zeta <= max_damping and
+ *    f < 0.9 x Nyquist.
  * 6. Automatic mode selection: the stable physical poles are sorted by frequency and cut
  *    into clusters where neighbours are more than cluster_freq apart (relative); within a
  *    cluster the poles whose MAC with the cluster's medoid (the pole of median frequency)
