@@ -116,10 +116,14 @@ priority)
         [ "$p" = 0 ] && [ "$n" = 0 ] || fail "thread $t ($(cat /proc/$pid/task/$t/comm)): policy $p, nice $n (expected 0, 0)"
     done
     wait $tpid || fail "vibidd exit $? ($(cat log))"
+    # 4 windows due: each refined or skipped because the thread was still busy (counted); a
+    # SCHED_IDLE thread gets almost no CPU while other tests keep the cores busy
     n=$(refined_rows tracks.csv | wc -l)
-    [ "$n" -ge 3 ] || fail "$n rows flagged W in the paced replay (4 windows due; at most one skipped): $(grep -i refine log)"
+    skipped=$(status_val refine_skipped)
+    [ "$n" -ge 1 ] && [ "$((n + skipped))" -ge 4 ] ||
+        fail "$n rows flagged W in the paced replay, $skipped skipped (4 windows due): $(grep -i refine log)"
     [ "$(status_val refine_failed)" = 0 ] || fail "refine_failed=$(status_val refine_failed)"
-    note "vibidd-refine: policy $policy (5 = SCHED_IDLE), nice $nice; the other threads SCHED_OTHER, nice 0; $n refined rows paced"
+    note "vibidd-refine: policy $policy (5 = SCHED_IDLE), nice $nice; the other threads SCHED_OTHER, nice 0; $n refined rows paced, $skipped skipped"
     ;;
 *)
     fail "unknown case $CASE"
