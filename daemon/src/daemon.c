@@ -893,7 +893,7 @@ static void refine_sample(vd_daemon *d, const vibid_record *rec)
         vibid_model_param_info(d->est.model, k, &pi);
         start[k] = use_last && isfinite(d->est.last.theta[k]) ? d->est.last.theta[k] : pi.nominal;
     }
-    if (!vd_refine_request(r, start, index, vd_ns_to_us(rec->t_ns)) || !d->refine_waits)
+    if (!vd_refine_request(r, start, index, vd_ns_to_us(rec->t_ns)) || !d->unpaced_replay)
         return;
     vd_refine_wait(r);
     if (d->row_pending && d->row.index <= index) /* the rows stay in sample order */
@@ -915,8 +915,7 @@ static void take_oma(vd_daemon *d)
                    "there; %llu so far)",
                    (unsigned long long)res->lost_samples, (unsigned long long)res->end_index,
                    (unsigned long long)o->lost_samples);
-    const bool filling = !res->identified && !strncmp(res->reason, "the window is filling", 21);
-    if (!filling) {
+    if (!res->filling) {
         const uint64_t missing = d->est.missing - d->omat_missing_seen;
         d->omat_missing_seen = d->est.missing;
         vd_est_oma_row(&d->est, &d->oma_row, res, missing);
@@ -948,7 +947,7 @@ static void oma_sample(vd_daemon *d, const vibid_record *rec)
     const uint64_t index = rec->index - d->est.first_index;
     if (!vd_omat_due(o, index))
         return;
-    if (!d->refine_waits) { /* live: the oma thread; a busy one skips this period (counted) */
+    if (!d->unpaced_replay) { /* live: the oma thread; a busy one skips this period (counted) */
         vd_omat_request(o, index, vd_ns_to_us(rec->t_ns));
         return;
     }
@@ -1272,7 +1271,7 @@ int vd_daemon_init(vd_daemon *d, vd_config *cfg, const vd_options *opt, char *er
     if (vd_refine_resolve(cfg, d->est.resolved.estimator, err, cap))
         return -1;
     /* an unpaced replay: waits for each refinement, runs each identification inline */
-    d->refine_waits = d->file_source && !d->measure_latency;
+    d->unpaced_replay = d->file_source && !d->measure_latency;
     if (vd_refine_init(&d->refine, cfg, d->est.nch, d->est.p, err, cap))
         return -1;
     if (d->refine.on)

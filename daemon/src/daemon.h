@@ -92,7 +92,8 @@ typedef struct vd_daemon {
     vd_row row;                /* the due row, until finished (finish_row in daemon.c) */
     vd_refine refine;          /* the output-error refinement (refine.h) */
     vd_row refined_row;
-    bool refine_waits;         /* an unpaced replay waits for each refinement (reproducible rows) */
+    bool unpaced_replay;       /* waits for each refinement and runs each identification inline
+                                  (reproducible rows) */
     uint64_t refine_gaps_seen; /* est.gaps at the last look: a new gap ends the clean window */
     vd_omat omat;              /* output-only: the mode tracker (oma_track.h) */
     vd_row oma_row;

@@ -187,6 +187,16 @@ static void add_covariates(vd_omat *o, uint64_t n)
     }
 }
 
+/* Samples lost to the ring: one gap for the covariances (no product spans them). */
+static void push_gap(vd_omat *o)
+{
+    double nan_row[VIBID_DRV_MAX_CHANNELS];
+    for (size_t i = 0; i < o->nch; i++)
+        nan_row[i] = NAN;
+    vibid_oma_push(o->oma, nan_row); /* VIBID_E_NONFINITE by design */
+    o->pushed++;
+}
+
 /* Moves the ring's samples [consumed, end) into the covariance blocks. */
 static void consume(vd_omat *o, uint64_t end)
 {
@@ -195,11 +205,7 @@ static void consume(vd_omat *o, uint64_t end)
         const uint64_t from = end - (cap - o->block_n);
         o->lost_since += from - o->consumed;
         o->consumed = from;
-        double nan_row[VIBID_DRV_MAX_CHANNELS];
-        for (size_t i = 0; i < o->nch; i++)
-            nan_row[i] = NAN;
-        vibid_oma_push(o->oma, nan_row); /* no product spans the lost samples */
-        o->pushed++;
+        push_gap(o);
     }
     while (o->consumed < end) {
         const uint64_t n = end - o->consumed < o->chunk_n ? end - o->consumed : o->chunk_n;
@@ -210,11 +216,7 @@ static void consume(vd_omat *o, uint64_t end)
             const uint64_t skip = (from > o->consumed ? from : o->consumed + n) - o->consumed;
             o->lost_since += skip;
             o->consumed += skip;
-            double nan_row[VIBID_DRV_MAX_CHANNELS];
-            for (size_t i = 0; i < o->nch; i++)
-                nan_row[i] = NAN;
-            vibid_oma_push(o->oma, nan_row);
-            o->pushed++;
+            push_gap(o);
             continue;
         }
         add_covariates(o, n);
@@ -339,7 +341,7 @@ static void omat_job(void *arg)
     vd_omat *o = arg;
     vd_omat_result *res = &o->res;
     const double t0 = vd_mono_s();
-    res->identified = res->established = false;
+    res->filling = res->identified = res->established = false;
     res->reason[0] = '\0';
     res->end_index = o->req_end_index;
     res->end_t_us = o->req_end_t_us;
@@ -364,6 +366,7 @@ static void omat_job(void *arg)
     vibid_oma_get_stats(o->oma, &st);
     res->window_samples = (uint64_t)st.blocks_complete * o->block_n;
     if (st.blocks_complete < o->max_blocks) {
+        res->filling = true;
         snprintf(res->reason, sizeof res->reason, "the window is filling: %zu of %zu blocks of %.6g s",
                  st.blocks_complete, o->max_blocks, (double)o->block_n / o->cfg->sample_rate);
         res->duration_s = vd_mono_s() - t0;

@@ -31,6 +31,7 @@
 #ifndef VIBIDD_OMA_TRACK_H
 #define VIBIDD_OMA_TRACK_H
 
+#include <math.h>
 #include <stdbool.h>
 #include <stdint.h>
 
@@ -40,6 +41,7 @@
 #include "worker.h"
 
 typedef struct vd_omat_result {
+    bool filling;                 /* the window is not full yet: no identification, no row */
     bool identified;              /* an identification ran (the window was full) */
     bool established;             /* the tracked modes exist */
     char reason[512];             /* why no identification or no tracked mode, "" when fine */
@@ -121,8 +123,7 @@ void vd_omat_wait(vd_omat *o);
 /* Rows whose windows do not overlap: one in this many goes to the change test. */
 static inline uint64_t vd_omat_test_stride(const vd_config *cfg)
 {
-    const double r = cfg->oma.window_s / cfg->oma.every_s;
-    return (uint64_t)(r - 1e-9 > (double)(uint64_t)r ? (uint64_t)r + 1 : (uint64_t)r);
+    return (uint64_t)ceil(cfg->oma.window_s / cfg->oma.every_s - 1e-9);
 }
 
 #endif
