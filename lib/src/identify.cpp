@@ -86,6 +86,7 @@ struct vibid_ident {
     std::vector<std::size_t> offset_channels;
     std::vector<double> offsets, offsets_se;
     std::string oe_description;  // what OE is (description = the start estimator's account + this + the fit's outcome)
+    std::string ee_trouble;      // the start estimator's first divergence (OE keeps the samples; the fit goes on)
     std::size_t n = 0, p = 0, p_reg = 0, m = 0, q = 0, n_channels = 0;
     bool zoh = false;
     bool has_prior = false;  // RLS started from vibid_ident_set_prior
@@ -1395,9 +1396,15 @@ std::unique_ptr<vibid_ident> create_output_error(const vibid_model &model, const
     check_status(vibid_oe_dims(id->oe.get(), &ny, nullptr), "output error");
     id->offset_channels.resize(ny);
     check_status(vibid_oe_dims(id->oe.get(), &ny, id->offset_channels.data()), "output error");
-    id->oe_description = "estimator: output error on the stand's model (configured), started from the equation-error "
-                      "estimate above (and from the nominal values where the stand gives them); initial state and "
-                      "an offset per response channel estimated; sandwich error bars\n";
+    id->oe_description =
+        model.disturbances.empty()
+            ? "estimator: output error on the stand's model (configured), started from the equation-error "
+              "estimate above (and from the nominal values where the stand gives them); initial state and "
+              "an offset per response channel estimated; sandwich error bars\n"
+            : "estimator: prediction error of the stand's Kalman predictor (configured; the stand declares an "
+              "unmeasured random force), maximum likelihood, started from the estimate above (and from the "
+              "nominal values where the stand gives them); unknown disturbance and sensor noise intensities and "
+              "an offset per response channel estimated; sandwich error bars\n";
     id->description = id->ee->description + id->oe_description;
     return id;
 }
@@ -1439,6 +1446,29 @@ std::string input_path_check(vibid_ident &id, const vibid_oe_fit_info &fi, const
                      fi.interp_evidence);
 }
 
+// The prediction-error fit's noise intensities (vibid_oe_noise) as a description line; ""
+// for the output-error fit.
+std::string noise_line(const vibid_ident &id) {
+    const std::size_t nw = id.model.disturbances.size(), ny = id.offset_channels.size();
+    if (nw == 0) return std::string();
+    std::vector<double> wsd(nw), wse(nw), vsd(ny), vse(ny);
+    check_status(vibid_oe_noise(id.oe.get(), wsd.data(), wse.data(), vsd.data(), vse.data()), "prediction error");
+    auto item = [](const std::string &name, double v, double e, const char *unit) {
+        return e == 0.0 ? strprintf("%s %.4g %s (declared)", name.c_str(), v, unit)
+                        : strprintf("%s %.4g +- %.2g %s", name.c_str(), v, e, unit);
+    };
+    std::string line = "noise: ";
+    for (std::size_t l = 0; l < nw; ++l)
+        line += (l ? ", " : "") + item("disturbance " + id.model.disturbances[l].name + " std", wsd[l], wse[l], "N");
+    static const char *const kUnit[] = {"m", "m/s", "m/s^2"};
+    for (std::size_t j = 0; j < ny; ++j) {
+        const auto &ch = id.model.channels[id.offset_channels[j]];
+        const int q = ch.kind == VIBID_CHANNEL_VELOCITY ? 1 : ch.kind == VIBID_CHANNEL_ACCELERATION ? 2 : 0;
+        line += ", " + item(ch.name + " sensor noise std", vsd[j], vse[j], kUnit[q]);
+    }
+    return line + "\n";
+}
+
 // The fit at vibid_ident_estimate: the equation-error estimate first (its failure is this
 // estimate's failure: no start), then the output-error fit from it. A fit that fails leaves
 // the equation-error estimate, its quality plus VIBID_QUALITY_REFINE_FAILED, and the reason
@@ -1447,12 +1477,21 @@ vibid_status estimate_output_error(vibid_ident &id, double *theta, double *se, v
     const std::size_t p = id.p, nc = id.n_channels, ns = id.samples.size() / std::max<std::size_t>(nc, 1);
     std::vector<double> th_ee(p), se_ee(p);
     const vibid_status st = vibid_ident_estimate(id.ee.get(), th_ee.data(), se_ee.data(), info);
-    if (st != VIBID_OK) return st;
-    std::vector<double> starts(th_ee);
+    const std::string ee_why = st == VIBID_OK ? std::string() : vibid_last_error();
+    std::vector<double> starts;
+    if (st == VIBID_OK) starts = th_ee;
     std::vector<double> nominal(p);
     if (vibid_model_nominal(&id.model, nominal.data()) == VIBID_OK &&
         std::all_of(nominal.begin(), nominal.end(), [](double v) { return v != 0.0 && std::isfinite(v); }))
         starts.insert(starts.end(), nominal.begin(), nominal.end());
+    // no start estimate and no nominal values: nothing to start from
+    if (starts.empty()) return VIBID_FAIL(st, "%s", ee_why.c_str());
+    std::string start_note =
+        st == VIBID_OK ? std::string()
+                       : strprintf("the start estimator failed (%s): the fit starts from the nominal values\n", ee_why.c_str());
+    if (!id.ee_trouble.empty())
+        start_note = strprintf("the start estimator diverged (%s) and restarted; every sample stays in the fit\n",
+                               id.ee_trouble.c_str()) + start_note;
     std::vector<double> block(ns * nc);
     for (std::size_t k = 0; k < ns; ++k)
         for (std::size_t c = 0; c < nc; ++c) block[k + c * ns] = id.samples[k * nc + c];
@@ -1467,6 +1506,12 @@ vibid_status estimate_output_error(vibid_ident &id, double *theta, double *se, v
         check_status(vibid_oe_result(id.oe.get(), th.data(), sd.data(), cov.data(), id.offsets.data(),
                                      id.offsets_se.data(), nullptr, &fi),
                      "output error");
+    const char *const fit_name = id.model.disturbances.empty() ? "output-error" : "prediction-error";
+    if (fs != VIBID_OK && st != VIBID_OK) {
+        id.description = id.ee->description + id.oe_description + start_note;
+        return VIBID_FAIL(fs, "the start estimator failed (%s) and so did the %s fit from the nominal values (%s)",
+                          ee_why.c_str(), fit_name, why.c_str());
+    }
     if (fs != VIBID_OK) {
         id.offsets.clear();
         id.offsets_se.clear();
@@ -1477,7 +1522,9 @@ vibid_status estimate_output_error(vibid_ident &id, double *theta, double *se, v
         check_status(vibid_ident_get_quality(id.ee.get(), &id.quality, id.param_flags.data()), "equation error");
         id.quality.flags |= VIBID_QUALITY_REFINE_FAILED;
         for (auto &f : id.param_flags) f |= VIBID_QUALITY_REFINE_FAILED;
-        id.description = id.ee->description + id.oe_description + "output-error refinement failed (the equation-error estimate stands): " + why + "\n";
+        id.description = id.ee->description + id.oe_description +
+                         strprintf("%s refinement failed (the %s estimate stands): %s\n", fit_name,
+                                   id.model.disturbances.empty() ? "equation-error" : "start", why.c_str());
     } else {
         std::copy(th.begin(), th.end(), theta);
         if (se) std::copy(sd.begin(), sd.end(), se);
@@ -1487,10 +1534,13 @@ vibid_status estimate_output_error(vibid_ident &id, double *theta, double *se, v
         id.quality.n_blocks = fi.n_blocks;
         id.quality.rcond = fi.rcond;
         id.param_flags.assign(p, 0);
-        id.description = id.ee->description + id.oe_description + strprintf("output-error fit: %u iterations from start %zu (%s), %zu samples, %zu blocks\n",
-                                                       fi.iterations, fi.start, fi.start == 0 ? "the equation-error estimate" : "the nominal values",
-                                                       fi.n_samples, fi.n_blocks);
+        const bool from_ee = st == VIBID_OK && fi.start == 0;
+        id.description = id.ee->description + id.oe_description + start_note +
+                         strprintf("%s fit: %u iterations from start %zu (%s), %zu samples, %zu blocks\n", fit_name,
+                                   fi.iterations, fi.start, from_ee ? "the start estimate" : "the nominal values",
+                                   fi.n_samples, fi.n_blocks);
         id.description += input_path_check(id, fi, sd);
+        id.description += noise_line(id);
     }
     id.have_cov = true;
     if (info) {
@@ -1886,7 +1936,15 @@ std::unique_ptr<vibid_ident> create_oe(const vibid_model &model, const vibid_ide
 vibid_status push_output_error(vibid_ident &id, const double *channels) {
     id.samples.insert(id.samples.end(), channels, channels + id.n_channels);
     ++id.n_samples;
-    return vibid_ident_push(id.ee.get(), channels);
+    const vibid_status st = vibid_ident_push(id.ee.get(), channels);
+    // A start estimator that diverged (the EKF restarts itself) costs the fit only its start:
+    // every sample is kept, the fit falls back to the nominal values if it must, and the
+    // description says so.
+    if (st == VIBID_E_DIVERGED) {
+        if (id.ee_trouble.empty()) id.ee_trouble = strprintf("sample %zu: %s", static_cast<std::size_t>(id.n_samples - 1), vibid_last_error());
+        return VIBID_OK;
+    }
+    return st;
 }
 
 void refuse_prior_oe(vibid_ident &, const double *, const double *) {

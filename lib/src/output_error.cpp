@@ -14,7 +14,9 @@
 #include <vibid/output_error.h>
 
 #include "api_guard.hpp"
+#include "gauss_newton.hpp"
 #include "model_internal.hpp"
+#include "prediction_error.hpp"
 
 #include <Eigen/Dense>
 #include <unsupported/Eigen/MatrixFunctions>
@@ -22,6 +24,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -32,8 +35,6 @@ using MatX = Eigen::MatrixXd;
 using VecX = Eigen::VectorXd;
 using Index = Eigen::Index;
 
-constexpr double kPredictedDecreaseTol = 1e-8;  // weighted chi^2 units: within 1e-4 se of the optimum
-constexpr double kSingularRcond = 1e-12;        // of the Jacobi-scaled information
 constexpr double kRadPerSubstep = 0.08;         // first guess of the RK4 step for cubic stands, rad of the highest mode
 constexpr double kSubstepTol = 1e-6;            // doubling the RK4 steps moves the response by less (of its peak)
 constexpr Index kChunkRows = 256;               // Jacobian rows gathered before one rank update
@@ -63,7 +64,7 @@ struct Pass {
 
 class OutputError {
 public:
-    OutputError(const vibid_model &m, const vibid_oe_config &cfg) : model_(m), cfg_(cfg) {
+    OutputError(const vibid_model &m, const vibid_oe_config &cfg) : model_(m), cfg_(cfg), bounds_(model_) {
         require_finalized(&model_);
         vibid_model_dims d{};
         if (vibid_model_get_dims(&model_, &d) != VIBID_OK) throw_error(VIBID_E_STATE, "%s", vibid_last_error());
@@ -72,11 +73,6 @@ public:
         p_ = static_cast<Index>(d.n_params);
         nch_ = static_cast<Index>(d.n_channels);
         if (p_ == 0) throw_error(VIBID_E_OUT_OF_RANGE, "nothing unknown in the model");
-        if (!model_.disturbances.empty())
-            throw_error(VIBID_E_DIMENSION,
-                        "disturbance '%s': an unmeasured random force needs the Kalman predictor, not the "
-                        "simulation error (use the EKF)",
-                        model_.disturbances[0].name.c_str());
         nb_ = model_.has_base ? 1 : 0;
         if (nb_ && model_.base_channel[0] == kNoChannel)
             throw_error(VIBID_E_DIMENSION, "an element touches the base but the base displacement is not measured");
@@ -112,18 +108,6 @@ public:
         no_ = cfg_.offsets ? ny_ : 0;
         np_ = nd_ + no_;
         load_structure();
-        lower_.resize(p_);
-        for (Index i = 0; i < p_; ++i) {
-            const auto &t = model_.terms[model_.param_term[static_cast<std::size_t>(i)]];
-            switch (t.kind) {
-            case VIBID_PARAM_MASS: lower_(i) = 0.0; break;  // strict: see project()
-            case VIBID_PARAM_DAMPING:
-            case VIBID_PARAM_STIFFNESS: lower_(i) = model_.full_matrix ? -kInf : 0.0; break;
-            default: lower_(i) = -kInf; break;
-            }
-            names_.push_back(t.name);
-            is_mass_.push_back(t.kind == VIBID_PARAM_MASS);
-        }
     }
 
     Index n_response() const { return ny_; }
@@ -143,7 +127,7 @@ public:
         for (std::size_t s = 0; s < n_starts; ++s) {
             VecX theta = Eigen::Map<const VecX>(starts + s * static_cast<std::size_t>(p_), p_);
             for (Index i = 0; i < p_; ++i)
-                if (!std::isfinite(theta(i))) throw_error(VIBID_E_NONFINITE, "start %zu: '%s' is not finite", s, names_[static_cast<std::size_t>(i)].c_str());
+                if (!std::isfinite(theta(i))) throw_error(VIBID_E_NONFINITE, "start %zu: '%s' is not finite", s, bounds_.names[static_cast<std::size_t>(i)].c_str());
             Fit f = fit_from(theta, s);
             if (f.cost < best_.cost) best_ = f;
         }
@@ -239,14 +223,7 @@ public:
 private:
     static constexpr double kInf = std::numeric_limits<double>::infinity();
 
-    struct Fit {
-        VecX phi;
-        double cost = kInf;
-        unsigned failure = 0, iterations = 0;
-        std::size_t start = 0;
-        MatX cov;
-        double rcond = 0.0;
-        std::string weak;
+    struct Fit : FitState {
         VecX w;  // weights of the round
         VecX shift;  // p: interpolation_shift
         double path_evidence = 0.0;  // interpolation_shift: the data's preference for the parabola
@@ -563,12 +540,7 @@ private:
         return ps.cost;
     }
 
-    void project(VecX &phi) const {
-        for (Index i = 0; i < p_; ++i) {
-            if (is_mass_[static_cast<std::size_t>(i)]) phi(i) = std::max(phi(i), 1e-9 * std::fabs(start_(i)));
-            else phi(i) = std::max(phi(i), lower_(i));
-        }
-    }
+    void project(VecX &phi) const { bounds_.project(phi, start_); }
 
     // Levenberg-Marquardt from fit f (its phi and weights) for one round.
     Fit refine(Fit f, std::size_t start, int round) {
@@ -581,51 +553,15 @@ private:
         }
         weights_ = f.w;
         f.start = start;
-        Pass cur, trial;
+        Pass cur;
         f.cost = pass(f.phi, true, cur);
         if (!std::isfinite(f.cost)) return f;
-        double lambda = 1e-3;
-        bool converged = false;
-        unsigned it = 0;
-        for (; it < cfg_.max_iterations; ++it) {
-            VecX D = cur.H.diagonal().cwiseMax(0.0).cwiseSqrt();
-            for (Index i = 0; i < np_; ++i) D(i) = D(i) > 0 ? 1.0 / D(i) : 1.0;
-            const MatX Hs = D.asDiagonal() * cur.H * D.asDiagonal();
-            const VecX gs = D.asDiagonal() * cur.g;
-            Eigen::SelfAdjointEigenSolver<MatX> es(Hs);
-            const VecX lam = es.eigenvalues();
-            const double lmax = lam.maxCoeff();
-            const VecX c = es.eigenvectors().transpose() * gs;
-            double decrement = 0.0;
-            for (Index i = 0; i < np_; ++i)
-                if (lam(i) > kSingularRcond * lmax) decrement += 0.5 * c(i) * c(i) / lam(i);
-            if (decrement < kPredictedDecreaseTol) {
-                converged = true;
-                break;
-            }
-            VecX ds = VecX::Zero(np_);
-            for (Index i = 0; i < np_; ++i)
-                if (lam(i) > kSingularRcond * lmax) ds += es.eigenvectors().col(i) * (c(i) / (lam(i) + lambda));
-            VecX cand = f.phi + D.asDiagonal() * ds;
-            project(cand);
-            const double cost = pass(cand, false, trial);
-            if (std::isfinite(cost) && cost < f.cost) {
-                f.phi = cand;
-                f.cost = pass(cand, true, cur);
-                lambda = std::max(lambda / 3.0, 1e-12);
-            } else {
-                lambda *= 4.0;
-                if (lambda > 1e8) {
-                    // Not even a step of 1e-8 of the Gauss-Newton scale lowers the cost: a
-                    // minimum to the precision of the simulation (noise-free data end here,
-                    // their residuals being rounding).
-                    converged = true;
-                    break;
-                }
-            }
-        }
-        f.iterations += it;
-        if (!converged) f.failure |= VIBID_OE_NO_CONVERGENCE;
+        const LmOutcome lm = levenberg_marquardt(
+            f.phi, f.cost, cur, cfg_.max_iterations,
+            [this](const VecX &phi, bool with_sens, Pass &ps) { return pass(phi, with_sens, ps); },
+            [this](VecX &phi) { project(phi); });
+        f.iterations += lm.iterations;
+        if (!lm.converged) f.failure |= VIBID_OE_NO_CONVERGENCE;
         else f.failure &= ~VIBID_OE_NO_CONVERGENCE;
         return f;
     }
@@ -722,39 +658,17 @@ private:
         weights_ = f.w;
         Pass ps;
         f.cost = pass(f.phi, true, ps);
-        VecX D = ps.H.diagonal().cwiseMax(0.0).cwiseSqrt();
-        for (Index i = 0; i < np_; ++i) D(i) = D(i) > 0 ? 1.0 / D(i) : 1.0;
-        const MatX Hs = D.asDiagonal() * ps.H * D.asDiagonal();
-        Eigen::SelfAdjointEigenSolver<MatX> es(Hs);
-        const VecX lam = es.eigenvalues();
-        const double lmax = lam.maxCoeff();
-        f.rcond = lmax > 0 ? std::max(0.0, lam.minCoeff()) / lmax : 0.0;
+        const Sandwich sw = sandwich(ps.H, ps.scores);
+        f.rcond = sw.rcond;
         f.weak.clear();
-        if (f.rcond < kSingularRcond) {
+        if (sw.singular) {
             f.failure |= VIBID_OE_SINGULAR;
-            const VecX v = es.eigenvectors().col(0);
             for (Index i = 0; i < np_; ++i)
-                if (std::fabs(v(i)) > 0.3) f.weak += (f.weak.empty() ? "'" : ", '") + phi_name(i) + "'";
+                if (std::fabs(sw.weakest(i)) > 0.3) f.weak += (f.weak.empty() ? "'" : ", '") + phi_name(i) + "'";
         }
-        MatX Hinv = MatX::Zero(np_, np_);
-        for (Index i = 0; i < np_; ++i)
-            if (lam(i) > kSingularRcond * lmax) Hinv += es.eigenvectors().col(i) * es.eigenvectors().col(i).transpose() / lam(i);
-        Hinv = D.asDiagonal() * Hinv * D.asDiagonal();
-        const Index B = ps.scores.cols();
-        const VecX mean = ps.scores.rowwise().mean();
-        const MatX c = ps.scores.colwise() - mean;
-        const MatX G = (c * c.transpose()) * (static_cast<double>(B) / static_cast<double>(B - 1));
-        f.cov = Hinv * G * Hinv;
-        f.shift = interpolation_shift(f, Hinv, f.path_evidence);
-        if (f.failure & VIBID_OE_SINGULAR)
-            for (Index i = 0; i < np_; ++i)
-                if (std::fabs(es.eigenvectors()(i, 0)) > 0.3) f.cov(i, i) = kInf;
-        std::string bound;
-        for (Index i = 0; i < p_; ++i) {
-            const bool at = is_mass_[static_cast<std::size_t>(i)] ? f.phi(i) <= 1e-9 * std::fabs(start_(i)) * (1 + 1e-12)
-                                                                  : (std::isfinite(lower_(i)) && f.phi(i) <= lower_(i));
-            if (at) bound += (bound.empty() ? "'" : ", '") + names_[static_cast<std::size_t>(i)] + "'";
-        }
+        f.cov = sw.cov;
+        f.shift = interpolation_shift(f, sw.Hinv, f.path_evidence);
+        const std::string bound = bounds_.at_bound(f.phi, start_);
         if (!bound.empty()) {
             f.failure |= VIBID_OE_BOUND;
             if (!(f.failure & VIBID_OE_SINGULAR)) f.weak = bound;
@@ -848,7 +762,7 @@ private:
     }
 
     std::string phi_name(Index i) const {
-        if (i < p_) return names_[static_cast<std::size_t>(i)];
+        if (i < p_) return bounds_.names[static_cast<std::size_t>(i)];
         if (i < nd_) {
             const Index k = i - p_;
             return model_.nodes[static_cast<std::size_t>(k % n_)].name + (k < n_ ? " initial displacement" : " initial velocity");
@@ -865,9 +779,8 @@ private:
     bool kick_ = false, nonlinear_ = false, has_acc_ = false;
     std::vector<Cubic> cubics_;
     std::vector<double> cubic_eps_;
-    std::vector<std::string> names_;
-    std::vector<bool> is_mass_;
-    VecX lower_, start_;
+    PhysicalBounds bounds_;
+    VecX start_;
     MatX M0_, X0_;
     std::vector<MatX> Mi_, Xi_;
     MatX Minv_, Av_, MinvX_, MinvM_, Etop_, dEtop_, Kc_, Gc_, MK_;
@@ -885,9 +798,18 @@ private:
 }  // namespace
 }  // namespace vibid
 
+// A stand with a disturbance gets the prediction-error fit (prediction_error.hpp), any
+// other the output-error fit; both behind the same calls.
 struct vibid_oe {
-    vibid_oe(const vibid_model &m, const vibid_oe_config &c) : impl(m, c) {}
-    vibid::OutputError impl;
+    vibid_oe(const vibid_model &m, const vibid_oe_config &c) {
+        if (m.disturbances.empty()) oe = std::make_unique<vibid::OutputError>(m, c);
+        else pe = std::make_unique<vibid::PredictionError>(m, c);
+    }
+    vibid_oe(const vibid_oe &o)
+        : oe(o.oe ? std::make_unique<vibid::OutputError>(*o.oe) : nullptr),
+          pe(o.pe ? std::make_unique<vibid::PredictionError>(*o.pe) : nullptr) {}
+    std::unique_ptr<vibid::OutputError> oe;
+    std::unique_ptr<vibid::PredictionError> pe;
 };
 
 extern "C" {
@@ -919,10 +841,13 @@ VIBID_API void vibid_oe_destroy(vibid_oe *oe) { delete oe; }
 VIBID_API vibid_status vibid_oe_dims(const vibid_oe *oe, size_t *n_response, size_t *response_channels) {
     return vibid::guard("vibid_oe_dims", [&]() {
         if (!oe) vibid::throw_error(VIBID_E_NULL_ARGUMENT, "oe is required");
-        if (n_response) *n_response = static_cast<size_t>(oe->impl.n_response());
+        std::vector<long> ch;
+        if (oe->pe) ch = oe->pe->response_channels();
+        else
+            for (const auto &rs : oe->oe->responses()) ch.push_back(rs.channel);
+        if (n_response) *n_response = ch.size();
         if (response_channels)
-            for (std::size_t j = 0; j < oe->impl.responses().size(); ++j)
-                response_channels[j] = static_cast<size_t>(oe->impl.responses()[j].channel);
+            for (std::size_t j = 0; j < ch.size(); ++j) response_channels[j] = static_cast<size_t>(ch[j]);
         return VIBID_OK;
     });
 }
@@ -932,7 +857,8 @@ VIBID_API vibid_status vibid_oe_fit(vibid_oe *oe, size_t n_samples, const double
     return vibid::guard("vibid_oe_fit", [&]() {
         if (!oe || !channels || !theta_starts) vibid::throw_error(VIBID_E_NULL_ARGUMENT, "oe, channels and theta_starts are required");
         if (n_starts < 1) vibid::throw_error(VIBID_E_OUT_OF_RANGE, "n_starts = 0, need at least 1");
-        return oe->impl.fit(n_samples, channels, n_starts, theta_starts);
+        return oe->pe ? oe->pe->fit(n_samples, channels, n_starts, theta_starts)
+                      : oe->oe->fit(n_samples, channels, n_starts, theta_starts);
     });
 }
 
@@ -940,7 +866,8 @@ VIBID_API vibid_status vibid_oe_result(const vibid_oe *oe, double *theta, double
                                        double *offsets_se, double *x0, vibid_oe_fit_info *info) {
     return vibid::guard("vibid_oe_result", [&]() {
         if (!oe) vibid::throw_error(VIBID_E_NULL_ARGUMENT, "oe is required");
-        oe->impl.result(theta, se, cov, offsets, offsets_se, x0, info);
+        if (oe->pe) oe->pe->result(theta, se, cov, offsets, offsets_se, x0, info);
+        else oe->oe->result(theta, se, cov, offsets, offsets_se, x0, info);
         return VIBID_OK;
     });
 }
@@ -948,7 +875,40 @@ VIBID_API vibid_status vibid_oe_result(const vibid_oe *oe, double *theta, double
 VIBID_API vibid_status vibid_oe_interp_shift(const vibid_oe *oe, double *shift) {
     return vibid::guard("vibid_oe_interp_shift", [&]() {
         if (!oe || !shift) vibid::throw_error(VIBID_E_NULL_ARGUMENT, "oe and shift are required");
-        oe->impl.result(nullptr, nullptr, nullptr, nullptr, nullptr, nullptr, nullptr, shift);
+        if (oe->pe) {  // no smooth-input path check for the prediction-error fit (output_error.h)
+            oe->pe->result(nullptr, nullptr, nullptr, nullptr, nullptr, nullptr, nullptr);
+            std::fill(shift, shift + oe->pe->n_params(), 0.0);
+        } else {
+            oe->oe->result(nullptr, nullptr, nullptr, nullptr, nullptr, nullptr, nullptr, shift);
+        }
+        return VIBID_OK;
+    });
+}
+
+VIBID_API vibid_status vibid_oe_noise(const vibid_oe *oe, double *disturbance_std, double *disturbance_se,
+                                      double *noise_std, double *noise_se) {
+    return vibid::guard("vibid_oe_noise", [&]() {
+        if (!oe) vibid::throw_error(VIBID_E_NULL_ARGUMENT, "oe is required");
+        if (!oe->pe)
+            vibid::throw_error(VIBID_E_UNSUPPORTED,
+                               "the stand has no disturbance: the output-error fit has no noise model (its residuals "
+                               "are the model's misfit)");
+        oe->pe->noise(disturbance_std, disturbance_se, noise_std, noise_se);
+        return VIBID_OK;
+    });
+}
+
+VIBID_API vibid_status vibid_oe_predict(const vibid_oe *oe, size_t n_samples, const double *channels,
+                                        double *innovations, double *innovation_cov) {
+    return vibid::guard("vibid_oe_predict", [&]() {
+        if (!oe || !channels || !innovations)
+            vibid::throw_error(VIBID_E_NULL_ARGUMENT, "oe, channels and innovations are required");
+        if (!oe->pe)
+            vibid::throw_error(VIBID_E_UNSUPPORTED,
+                               "the stand has no disturbance: its one-step prediction is the simulation (vibid_oe_simulate)");
+        if (n_samples < 1) vibid::throw_error(VIBID_E_INSUFFICIENT_DATA, "no samples");
+        vibid_oe copy(*oe);  // the predictor reuses the fit's data buffers: a const handle predicts on a copy
+        copy.pe->predict(n_samples, channels, innovations, innovation_cov);
         return VIBID_OK;
     });
 }
@@ -961,7 +921,8 @@ VIBID_API vibid_status vibid_oe_simulate(const vibid_oe *oe, const double *theta
         if (n_samples < 1) vibid::throw_error(VIBID_E_INSUFFICIENT_DATA, "no samples");
         // simulation reuses the fit's scratch: a const handle is simulated on a copy
         vibid_oe copy(*oe);
-        copy.impl.simulate(theta, x0, offsets, n_samples, channels, out);
+        if (copy.pe) copy.pe->simulate(theta, x0, offsets, n_samples, channels, out);
+        else copy.oe->simulate(theta, x0, offsets, n_samples, channels, out);
         return VIBID_OK;
     });
 }

@@ -958,7 +958,34 @@ public:
         d["n_blocks"] = info.n_blocks;
         d["cost"] = info.cost;
         d["rcond"] = info.rcond;
+        if (dims_.n_disturbances) {  // the prediction-error fit's noise intensities
+            const size_t nw = dims_.n_disturbances;
+            std::vector<double> wsd(nw), wse(nw), vsd(ny), vse(ny);
+            rs = vibid_oe_noise(oe_.get(), wsd.data(), wse.data(), vsd.data(), vse.data());
+            if (rs != VIBID_OK) raise_status("vibid_oe_noise", rs);
+            d["disturbance_std"] = to_numpy(std::move(wsd)).cast();
+            d["disturbance_se"] = to_numpy(std::move(wse)).cast();
+            d["noise_std"] = to_numpy(std::move(vsd)).cast();
+            d["noise_se"] = to_numpy(std::move(vse)).cast();
+        }
         return d;
+    }
+
+    // The last prediction-error fit's one-step predictor over data (vibid_oe_predict):
+    // (innovations n_samples x n_response, their covariance n_response x n_response).
+    nb::tuple predict(const AnyArray2 &data) {
+        const size_t n = data.shape(0), ny = resp_.size();
+        if (data.shape(1) != dims_.n_channels)
+            throw std::invalid_argument("predict: data has " + std::to_string(data.shape(1)) + " columns for " +
+                                        std::to_string(dims_.n_channels) + " channels");
+        std::vector<double> innov(n * ny), S(ny * ny), buf;
+        vibid_status s;
+        {
+            Unlocked u(mutex_);
+            s = vibid_oe_predict(oe_.get(), n, column_major(data, buf), innov.data(), S.data());
+        }
+        if (s != VIBID_OK) raise_status("vibid_oe_predict", s);
+        return nb::make_tuple(to_numpy(std::move(innov), n, ny), to_numpy(std::move(S), ny, ny));
     }
 
 private:
@@ -1528,6 +1555,7 @@ NB_MODULE(_core, m) {
         .def_prop_ro("length_unit", [](const Stand &s) { return std::string(vibid_stand_length_unit(s.raw())); })
         .def_prop_ro("length_si", [](const Stand &s) { return vibid_stand_length_si(s.raw()); })
         .def_prop_ro("n_dof", [](const Stand &s) { return s.dims().n_dof; })
+        .def_prop_ro("n_disturbances", [](const Stand &s) { return s.dims().n_disturbances; })
         .def_prop_ro("nonlinear", [](const Stand &s) { return s.dims().nonlinear != 0; });
 
     nb::class_<Ident>(m, "Ident")
@@ -1676,7 +1704,8 @@ NB_MODULE(_core, m) {
         .def(nb::init<const Stand &, bool>(), "stand"_a, "offsets"_a = true)
         .def("response_channels", &Oe::response_channels)
         .def("simulate", &Oe::simulate, "theta"_a, "x0"_a.none(), "offsets"_a.none(), "data"_a)
-        .def("fit", &Oe::fit, "data"_a, "starts"_a);
+        .def("fit", &Oe::fit, "data"_a, "starts"_a)
+        .def("predict", &Oe::predict, "data"_a);
 
     m.attr("RLS_FORM_BIERMAN_UD") = static_cast<int>(VIBID_RLS_FORM_BIERMAN_UD);
     m.attr("RLS_FORM_COVARIANCE") = static_cast<int>(VIBID_RLS_FORM_COVARIANCE);

@@ -15,6 +15,10 @@ Validation of parameters theta on a segment of a capture (``validate``):
   ``compare`` convention (initial condition estimated): the segment's start state is not
   known to any estimator that did not see the segment, and a sensor's zero error is not
   the model's business. It costs 2 n + ny numbers against thousands of samples.
+A stand with disturbances (``validate_predictor``): the response is mostly the
+  disturbances', which no simulation reproduces; the model is judged by its steady-state
+  Kalman predictor instead (the prediction-error fit on the first part, run over the
+  held-out part): the innovations must be white, with the variance the predictor expects.
 Figures per response channel: NRMSE = RMS(residual) / RMS(measured - its mean) (1 is the
   model that predicts the mean), the residual RMS, the Ljung-Box statistic of the residual's
   autocorrelation over LJUNG_BOX_LAGS lags with its p-value (chi-square, one degree of
@@ -348,6 +352,74 @@ def validate_block(stand, theta, block: np.ndarray, omega: float) -> dict:
     return {"nrmse": nrmse, "ljung_box_q": q, "ljung_box_dof": dof, "ljung_box_p": p, "structured": structured,
             "flag": "M" if why else "", "why": "; ".join(why), "channels": ch,
             "simulated": pd.DataFrame(sim, columns=names), "x0": x0}
+
+
+# A stand with disturbances (docs/python.md "Stands with disturbances"): its held-out
+# innovations must be white with the covariance the predictor expects. Above this ratio of
+# their mean square to that variance, the predictor is over-confident.
+VARIANCE_RATIO_LIMIT = 1.5
+
+
+def validate_predictor(stand, theta, first: np.ndarray, held: np.ndarray) -> dict:
+    """Validation figures of a stand with disturbances (module docstring, second part): the
+    prediction-error fit on ``first`` started at theta (it converges at once from its own
+    estimate) gives the steady-state Kalman predictor (parameters, noise intensities and
+    offsets), which runs over ``first`` and on over ``held`` (``vibid_oe_predict``). Per
+    response channel: the one-step prediction's NRMSE (innovation RMS over the measured RMS
+    about the mean; not flagged by size: an accelerometer on a node a disturbance acts on
+    sees that force directly, which no predictor can know), the Ljung-Box statistic and
+    predictable fraction of the innovations, and their mean square over the variance the
+    predictor expects (``variance_ratio``, 1 where the model explains the data). Flag "M"
+    where the innovations are not white and more than STRUCTURED_LIMIT^2 of their variance
+    is predictable from their past, or where a variance ratio exceeds VARIANCE_RATIO_LIMIT.
+    The same keys as :func:`validate_block`, ``simulated`` holding the one-step predictions."""
+    n = held.shape[0]
+    if n < MIN_SEGMENT:
+        raise ValueError(f"{n} samples to validate on: at least {MIN_SEGMENT} are needed (Ljung-Box over "
+                         f"{LJUNG_BOX_LAGS} lags)")
+    oe = _core.Oe(stand._core, True)
+    fit = oe.fit(first, np.asarray(theta, dtype=float).reshape(-1, 1))
+    if fit["status"] != 0:
+        raise ValueError(f"the prediction-error fit on the first part failed: {fit['message']}")
+    # through the first part into the held-out one: a one-step prediction knows the past, and
+    # the predictor's start-up transient (from the stationary mean) stays out of the figures
+    innov, S = oe.predict(np.vstack([first, held]))
+    innov, S = np.asarray(innov)[first.shape[0]:], np.asarray(S)
+    resp = list(oe.response_channels())
+    names = [stand.channels[c] for c in resp]
+    rows = []
+    for j, c in enumerate(resp):
+        z = held[:, c]
+        e = innov[:, j]
+        ok = np.isfinite(e)
+        z, e = z[ok], e[ok]
+        rms_z = float(np.sqrt(np.mean((z - z.mean()) ** 2)))
+        rms_e = float(np.sqrt(np.mean(e * e)))
+        q, p, pred = ljung_box(e)
+        rows.append({"channel": names[j], "rms_measured": rms_z, "rms_residual": rms_e,
+                     "nrmse": rms_e / rms_z if rms_z > 0 else math.nan, "offset": float(fit["offsets"][j]),
+                     "ljung_box_q": q, "ljung_box_p": p, "predictable": pred,
+                     "variance_ratio": rms_e * rms_e / S[j, j] if S[j, j] > 0 else math.nan})
+    ch = pd.DataFrame(rows).set_index("channel")
+    nrmse = float(np.sqrt(np.mean(ch["nrmse"] ** 2)))
+    q = float(ch["ljung_box_q"].sum())
+    dof = LJUNG_BOX_LAGS * len(ch)
+    p = chi2_sf(q, dof)
+    structured = float(np.sqrt(np.mean(ch["predictable"].clip(lower=0.0))))
+    worst = float(ch["variance_ratio"].max())
+    why = []
+    if p < WHITENESS_P and structured > STRUCTURED_LIMIT:
+        why.append(f"the held-out innovations are not white (Ljung-Box p = {p:.2g} < {WHITENESS_P:g}) and "
+                   f"{100 * structured ** 2:.2g} % of their variance is predictable from their past (above "
+                   f"{100 * STRUCTURED_LIMIT ** 2:g} %): structure the model does not have")
+    if not worst <= VARIANCE_RATIO_LIMIT:
+        why.append(f"the held-out innovations' mean square is {worst:.3g} times what the predictor expects "
+                   f"(above {VARIANCE_RATIO_LIMIT:g}): the model or its noise intensities do not explain the data")
+    predicted = held[:, resp] - np.where(np.isfinite(innov), innov, np.nan)
+    return {"nrmse": nrmse, "ljung_box_q": q, "ljung_box_dof": dof, "ljung_box_p": p, "structured": structured,
+            "flag": "M" if why else "", "why": "; ".join(why), "channels": ch,
+            "simulated": pd.DataFrame(predicted, columns=names), "x0": np.array([]),
+            "kind": "one-step prediction"}
 
 
 def omega_of(freq_hz, sample_rate: float) -> float:

@@ -413,10 +413,24 @@ def _config(ident: Any, requested: str) -> dict:
             "iv_lag": lag, "forgetting": gamma, "difference_order": order}
 
 
-def _validate(stand: Stand, est: dict, block: np.ndarray, segment: tuple[int, int]) -> dict:
-    """The held-out figures of an estimate (the adequacy), or why there are none."""
+def _validate(stand: Stand, est: dict, block: np.ndarray, segment: tuple[int, int],
+              predictor: bool = False) -> dict:
+    """The held-out figures of an estimate (the adequacy), or why there are none. A stand
+    with disturbances is validated by the prediction-error fit's predictor (predictor: the
+    estimate is that fit's), never by a simulation."""
     if est["status"] != 0:
         return _adequacy.unavailable(f"no estimate on the first part: {est['message']}", segment)
+    if stand._core.n_disturbances:
+        if not predictor:
+            return _adequacy.unavailable("a stand with disturbances is validated by the one-step prediction of the "
+                                         "prediction-error fit (method 'oe' or 'auto'), not by a simulation", segment)
+        try:
+            v = _adequacy.validate_predictor(stand, est["theta"], block[:segment[0]], block[segment[0]:segment[1]])
+        except (VibidError, ValueError, np.linalg.LinAlgError) as e:
+            return _adequacy.unavailable(f"the predictor cannot be validated on the held-out part: {e}", segment)
+        v["segment"] = segment
+        v["unavailable"] = ""
+        return v
     try:
         v = _adequacy.validate_block(stand, est["theta"], block[segment[0]:segment[1]],
                                      _adequacy.omega_of(est["freq_hz"], stand.sample_rate))
@@ -478,7 +492,7 @@ def _disagrees(est: dict, ee: dict, lib: str, instruments: Optional[dict]) -> st
 def _oe_failure(ident: Any) -> str:
     """The reason of a failed output-error refinement (vibid_ident_describe's line)."""
     for line in ident.describe().splitlines():
-        if line.startswith("output-error refinement failed"):
+        if line.startswith(("output-error refinement failed", "prediction-error refinement failed")):
             return line.split(": ", 1)[-1]
     return "the output-error refinement failed"
 
@@ -554,8 +568,11 @@ def identify(stand: Stand | str | os.PathLike, data: Any, method: str = "auto",
     def result(est, description, cfg, offsets=None, adequacy=None, instruments=None, unsure=""):
         return Result(stand, est, description, cfg, tracks, n, run.diverged, offsets, adequacy, instruments, unsure)
 
-    def held(est):
-        return _adequacy.unavailable(no_segment, None) if no_segment else _validate(stand, est, block, segment)
+    def held(est, predictor=False):
+        return (_adequacy.unavailable(no_segment, None) if no_segment
+                else _validate(stand, est, block, segment, predictor))
+
+    disturbed = stand._core.n_disturbances > 0
 
     if method == "oe":
         oe = _core.Ident(stand._core, _core.ESTIMATOR_OE, *settings)
@@ -563,7 +580,7 @@ def identify(stand: Stand | str | os.PathLike, data: Any, method: str = "auto",
         adequacy = None
         if not no_segment:
             oe.push(block, 0, split)
-            adequacy = held(oe.estimate())
+            adequacy = held(oe.estimate(), predictor=True)
             oe.push(block, split, n)
         else:
             oe.push(block, 0, n)
@@ -615,9 +632,20 @@ def identify(stand: Stand | str | os.PathLike, data: Any, method: str = "auto",
                f"estimator ({lib}) stands, {fig}")
         ee_cfg["choice"] = why
         return result(final, why + "\n" + run.ident.describe(), ee_cfg, None, v_ee, instruments)
-    v_oe = held(oe80)
+    v_oe = held(oe80, predictor=True)
     nr_ee, nr_oe = v_ee["nrmse"], v_oe["nrmse"]
-    if v_oe.get("unavailable"):
+    if disturbed:
+        # no simulation compares them (the response is mostly the disturbances'); the
+        # prediction-error fit is the maximum-likelihood estimate, the EKF is biased where its
+        # gain's dependence on the parameters matters (docs/python.md "Stands with disturbances")
+        oe_wins = True
+        because = ("the stand declares a disturbance: the prediction-error fit is the maximum-likelihood estimate "
+                   f"(the EKF ignores how its gain depends on the parameters); held-out one-step prediction NRMSE "
+                   f"{nr_oe:.4g}" + (f", flagged {v_oe['flag']}" if v_oe.get("flag") else "")
+                   if not v_oe.get("unavailable") else
+                   "the stand declares a disturbance: the prediction-error fit is the maximum-likelihood estimate "
+                   f"(the EKF ignores how its gain depends on the parameters); not validated ({v_oe['unavailable']})")
+    elif v_oe.get("unavailable"):
         oe_wins, because = False, f"the output-error estimate could not be validated ({v_oe['unavailable']})"
     elif weak:
         oe_wins, because = True, (f"the instruments of the IV are weak (first-stage F {instruments['f_stat']:.3g} "
@@ -643,7 +671,7 @@ def identify(stand: Stand | str | os.PathLike, data: Any, method: str = "auto",
     if est["status"] != 0:
         raise VibidError(f"vibid_ident_estimate after {n} samples: {est['message']}")
     cfg = dict(_config(oe, "auto"), method="oe")
-    why = f"{head}; kept output error: {because}"
+    why = f"{head}; kept {'the prediction-error fit' if disturbed else 'output error'}: {because}"
     if est["quality"] & _core.QUALITY_REFINE_FAILED:
         why += (f"; but its fit on the whole capture failed ({_oe_failure(oe)}): the equation-error estimate "
                 "stands, flagged R")

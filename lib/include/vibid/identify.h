@@ -148,8 +148,13 @@ VIBID_API vibid_status vibid_estimator_from_name(const char *name, vibid_estimat
  * unknown, from those too. Its standard errors are the fit's sandwich ones; its offsets
  * come from vibid_ident_offsets. A fit that fails leaves the AUTO estimate with its own
  * quality plus VIBID_QUALITY_REFINE_FAILED, and the reason in vibid_ident_describe.
- * No prior (vibid_ident_set_prior: VIBID_E_STATE), no twin. Refused at create for a stand
- * with a disturbance or an unmeasured base displacement (output_error.h). */
+ * On a stand with a disturbance the fit is the prediction-error fit of the stand's Kalman
+ * predictor (output_error.h, "Stands with disturbances"), started from the EKF's estimate;
+ * an EKF that diverges on the way (it restarts itself) does not stop the samples being kept,
+ * and where it gives no estimate the fit starts from the nominal values; the description
+ * ends with the estimated noise intensities. No prior (vibid_ident_set_prior:
+ * VIBID_E_STATE), no twin. Refused at create for a stand with an unmeasured base
+ * displacement, or with a disturbance and a cubic spring or a base (output_error.h). */
 /* The state-space estimator (VIBID_ESTIMATOR_EKF; AUTO chooses it when some signal the
  * regression needs cannot be formed from the measured channels, or when the stand
  * declares a disturbance):

@@ -28,8 +28,8 @@
  * Measured response channels: displacements, velocities and accelerations of nodes (an
  * acceleration is the model's y'' at the sample). A base velocity or acceleration channel
  * is not used (the base enters through its displacement, which must be measured when an
- * element touches the base). A disturbance (vibid_model_add_disturbance) is refused: an
- * unmeasured random force needs the Kalman predictor's error, not the simulation error.
+ * element touches the base). A stand with a disturbance gets the prediction-error fit
+ * below instead (same calls).
  *
  * Estimated: the p unknowns of the model, the initial state x0 = [y(t_0); y'(t_0)] (2n),
  * and (config.offsets, the default) one constant offset per measured response channel
@@ -76,7 +76,35 @@
  *
  * Cost per iteration: O(N (4n^2 (p + 2n) + 2n N_a p)) for N samples, N_a = 2n + 2 (r + 1)
  * (linear), times 4 substeps for cubic stands; a fit allocates (not for real-time paths:
- * vibidd runs it in a low-priority thread on a copy of its samples). */
+ * vibidd runs it in a low-priority thread on a copy of its samples).
+ *
+ * Stands with disturbances (vibid_model_add_disturbance: unmeasured random forces, e.g. a
+ * machine in service): the simulation error is no measure there (the response is mostly
+ * the disturbances'), so the fit is the maximum-likelihood prediction-error fit of the
+ * stand's steady-state Kalman predictor (lib/src/prediction_error.cpp). The stand is
+ * discretised exactly with the disturbances as held white samples (model.h) and the
+ * measured inputs smooth or held as declared; an accelerometer on a node a disturbance
+ * acts on feels it directly (process and measurement noise correlated, taken into
+ * account). Estimated: the p unknowns, the standard deviation of every disturbance whose
+ * std is unknown (0) and of every response channel's sensor noise that is not declared
+ * (vibid_model_set_noise), and (config.offsets) one offset per response channel. Cost: the
+ * innovations' negative log-likelihood 1/2 sum_k (eps_k' S^-1 eps_k + log det S), S their
+ * covariance; the predictor starts at the stationary mean (x = 0) and its start-up
+ * transient (7 time constants of its slowest pole at the start values, at most a tenth of
+ * the record) is left out of the cost. The predictor's gain is a function of the
+ * parameters and its derivative is part of the gradient: unlike the EKF, which treats the
+ * parameters as states and so ignores it (Ljung 1979), the estimate is consistent. A
+ * sample with a non-finite response channel gets no measurement update and is left out
+ * of the cost. Fisher scoring with Levenberg-Marquardt and physical bounds; the
+ * derivatives of the predictor's matrices (exponential, Riccati solution) are central
+ * differences of those small matrices (relative step 1e-5), the sensitivities along the
+ * record are propagated exactly. Standard errors: the sandwich over blocks, as above. A
+ * sensor noise that the data do not determine (far below what the disturbances put on its
+ * channel) is not a failure; its standard error is infinite. Not taken: cubic springs and
+ * a moving base (vibid_oe_create refuses them: the EKF takes those). No input-path check
+ * (interp_z 0). The initial state is not estimated (x0 reads as zeros). Cost per
+ * iteration: O(N (2n)^2 (p + q + ny)) plus 2 (p + q) exponentials and Riccati solutions, q
+ * the unknown noise intensities. */
 #ifndef VIBID_OUTPUT_ERROR_H
 #define VIBID_OUTPUT_ERROR_H
 
@@ -131,9 +159,10 @@ typedef struct vibid_oe_fit_info {
 /* Defaults for sample time h: offsets on, 100 iterations, automatic substeps and blocks. */
 VIBID_API void vibid_oe_config_init(vibid_oe_config *cfg, double sample_time);
 
-/* Creates an output-error fit for a finalized model (copied). NULL with the reason
- * (vibid_last_error) when the model has nothing unknown, has a disturbance, or touches the
- * base without a measured base displacement, or when the configuration is out of range. */
+/* Creates an output-error fit (a prediction-error fit for a stand with disturbances) for a
+ * finalized model (copied). NULL with the reason (vibid_last_error) when the model has
+ * nothing unknown, touches the base without a measured base displacement, has a
+ * disturbance and a cubic spring or a base, or when the configuration is out of range. */
 VIBID_API vibid_oe *vibid_oe_create(const vibid_model *model, const vibid_oe_config *cfg);
 VIBID_API void vibid_oe_destroy(vibid_oe *oe);
 
@@ -165,7 +194,29 @@ VIBID_API vibid_status vibid_oe_result(const vibid_oe *oe, double *theta, double
  * VIBID_E_STATE before a fit. */
 VIBID_API vibid_status vibid_oe_interp_shift(const vibid_oe *oe, double *shift);
 
-/* Simulates the model with parameters theta (p), initial state x0 (2 n, NULL = at rest)
+/* The noise intensities of the last prediction-error fit (a stand with disturbances):
+ * each disturbance's standard deviation (n_disturbances, N) and each response channel's
+ * sensor noise standard deviation (n_response, the channel's units), with their standard
+ * errors (0 for a declared value; inf where the data do not determine it). Any pointer may
+ * be NULL. VIBID_E_UNSUPPORTED for a stand without disturbance, VIBID_E_STATE before a fit. */
+VIBID_API vibid_status vibid_oe_noise(const vibid_oe *oe, double *disturbance_std, double *disturbance_se,
+                                      double *noise_std, double *noise_se);
+
+/* The last prediction-error fit's steady-state predictor (a stand with disturbances: its
+ * parameters, noise intensities and offsets) run over other samples (channels: n_samples x
+ * n_channels, column-major, model.h), from the stationary mean: innovations receives the
+ * one-step prediction errors (n_samples x n_response, column-major; NaN where the sample
+ * has a non-finite response channel, which gets no update), innovation_cov (may be NULL)
+ * their covariance S (n_response x n_response, column-major). The model adequacy of a
+ * stand with disturbances: on a held-out part the innovations are white with covariance S
+ * where the model explains the data (docs/python.md). VIBID_E_UNSUPPORTED for a stand
+ * without disturbance, VIBID_E_STATE before a fit, VIBID_E_NONFINITE for a non-finite
+ * input sample. Allocates. */
+VIBID_API vibid_status vibid_oe_predict(const vibid_oe *oe, size_t n_samples, const double *channels,
+                                        double *innovations, double *innovation_cov);
+
+/* Simulates the model (with disturbances: its deterministic part, the disturbances zero)
+ * with parameters theta (p), initial state x0 (2 n, NULL = at rest)
  * and offsets (n_response, NULL = none) driven by the inputs of channels (n_samples x
  * n_channels, column-major): out receives n_samples x n_response simulated response
  * channels (column-major, offsets added). The response columns are read only for their
