@@ -345,10 +345,13 @@ int vd_metrics_render(char *buf, size_t cap, const vd_snapshot *s)
               (double)s->last_index);
         gauge(&o, "vibid_last_row_timestamp_seconds", "Sample time of the latest row, seconds since the epoch.",
               (double)s->last_t_us / 1e6);
+        /* an output-only configuration's "parameters" are its tracked modes' f<j>_hz and zeta<j> */
         per_param(&o, s, "vibid_estimate",
-                  "Latest estimate of the parameter, in the stand's units: kg for masses, N s/m for dampers, N/m "
-                  "for springs, N/m^3 for cubic springs, the input's gain for gains (m replaced by the stand's "
-                  "length unit).",
+                  s->oma_on ? "Latest estimate of the tracked mode's quantity: f<j>_hz its natural frequency in Hz, "
+                              "zeta<j> its damping ratio (dimensionless); NaN where the mode was not found in the row."
+                            : "Latest estimate of the parameter, in the stand's units: kg for masses, N s/m for "
+                              "dampers, N/m for springs, N/m^3 for cubic springs, the input's gain for gains (m "
+                              "replaced by the stand's length unit).",
                   s->theta);
         per_param(&o, s, "vibid_estimate_standard_error",
                   "Standard error of vibid_estimate, in the parameter's unit (+Inf: the data hardly inform it).",

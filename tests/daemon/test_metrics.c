@@ -231,6 +231,15 @@ static void test_render_lines(void **state)
     }
     free(copy);
     assert_true(samples > 80);
+    /* the estimates' units: the stand's, or for an output-only configuration (oma) the
+     * tracked modes' frequency in Hz and dimensionless damping ratio */
+    assert_non_null(strstr(text, "# HELP vibid_estimate Latest estimate of the parameter, in the stand's units"));
+    snap.oma_on = true;
+    render();
+    assert_non_null(strstr(text, "# HELP vibid_estimate Latest estimate of the tracked mode's quantity: f<j>_hz its "
+                                 "natural frequency in Hz, zeta<j> its damping ratio (dimensionless)"));
+    assert_null(strstr(text, "in the stand's units"));
+    snap.oma_on = false;
     /* no row yet: no estimate families at all (not NaN series) */
     snap.have_last = false;
     snap.metrics_on = false;
