@@ -833,13 +833,18 @@ static int load_start_values(vd_cfg_ctx *c, const config_setting_t *sv)
 }
 
 /* Whether the output-error fit (output_error.h) can refine this stand's estimates: NULL, or
- * why not (written to why). It refuses a stand with a disturbance or an unmeasured base
- * displacement at create; the EKF, KF+RLS and OE methods are not the equation-error
- * estimates a refinement starts from. */
+ * why not (written to why). It refuses an unmeasured base displacement, or a disturbance
+ * beside a cubic spring or a base, at create; the KF+RLS and OE methods, and the EKF on a
+ * stand without disturbance, are not estimates a refinement starts from. A stand with a
+ * disturbance is refined by the prediction-error fit, from the EKF's estimate. */
 static const char *refine_refusal(const vd_config *cfg, char *why, size_t cap)
 {
-    if (cfg->method != VIBID_ESTIMATOR_LS && cfg->method != VIBID_ESTIMATOR_IV && cfg->method != VIBID_ESTIMATOR_RLS &&
-        cfg->method != VIBID_ESTIMATOR_AUTO) {
+    vibid_model_dims dims;
+    const bool disturbed = vibid_model_get_dims(vibid_stand_model(cfg->stand), &dims) == VIBID_OK && dims.n_disturbances;
+    /* a stand with a disturbance: the prediction-error fit, from the EKF's estimate */
+    if (disturbed && cfg->method == VIBID_ESTIMATOR_EKF) {
+    } else if (cfg->method != VIBID_ESTIMATOR_LS && cfg->method != VIBID_ESTIMATOR_IV &&
+               cfg->method != VIBID_ESTIMATOR_RLS && cfg->method != VIBID_ESTIMATOR_AUTO) {
         snprintf(why, cap, "estimator.method \"%s\" is not an equation-error estimator (ls, iv, rls or auto)",
                  vd_estimator_name(cfg->method));
         return why;

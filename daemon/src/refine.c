@@ -35,7 +35,13 @@ int vd_refine_init(vd_refine *r, const vd_config *cfg, size_t nch, size_t p, cha
     }
     vibid_oe_config oc;
     vibid_oe_config_init(&oc, r->sample_time);
-    r->oe = vibid_oe_create(vibid_stand_model(cfg->stand), &oc);
+    const vibid_model *model = vibid_stand_model(cfg->stand);
+    vibid_model_dims dims;
+    r->disturbed = vibid_model_get_dims(model, &dims) == VIBID_OK && dims.n_disturbances;
+    r->have_nominal = vibid_model_nominal(model, r->nominal) == VIBID_OK;
+    for (size_t i = 0; r->have_nominal && i < p; i++)
+        r->have_nominal = r->nominal[i] != 0.0 && isfinite(r->nominal[i]);
+    r->oe = vibid_oe_create(model, &oc);
     if (!r->oe) {
         snprintf(err, cap, "estimator.refine_every: the output-error fit refuses the stand: %s", vibid_last_error());
         vd_refine_fini(r);
@@ -69,7 +75,22 @@ static void refine_once(void *arg)
         return;
     }
     const double t0 = vd_mono_s();
-    vibid_status st = vibid_oe_fit(r->oe, (size_t)n, r->buf, 1, r->req_theta);
+    /* Starts: the recursive estimate; on a stand with a disturbance also the last refined
+     * estimate and the stand's nominal values (the EKF's estimate may be far off there:
+     * README "Stands with disturbances"). The fit keeps the best. */
+    size_t n_starts = 1;
+    memcpy(r->starts, r->req_theta, r->p * sizeof *r->starts);
+    if (r->disturbed) {
+        if (r->have_last) {
+            memcpy(r->starts + n_starts * r->p, r->last_theta, r->p * sizeof *r->starts);
+            n_starts++;
+        }
+        if (r->have_nominal) {
+            memcpy(r->starts + n_starts * r->p, r->nominal, r->p * sizeof *r->starts);
+            n_starts++;
+        }
+    }
+    vibid_status st = vibid_oe_fit(r->oe, (size_t)n, r->buf, n_starts, r->starts);
     vibid_oe_fit_info info = {0};
     if (st == VIBID_OK)
         st = vibid_oe_result(r->oe, res->theta, res->se, res->cov, NULL, NULL, NULL, &info);
@@ -85,6 +106,8 @@ static void refine_once(void *arg)
         return;
     }
     res->ok = true;
+    memcpy(r->last_theta, res->theta, r->p * sizeof *res->theta);
+    r->have_last = true;
 }
 
 int vd_refine_start(vd_refine *r, char *err, size_t cap)
@@ -154,7 +177,11 @@ void vd_refine_wait(vd_refine *r)
 
 int vd_refine_resolve(vd_config *cfg, vibid_estimator resolved, char *err, size_t cap)
 {
+    vibid_model_dims dims;
     if (!(cfg->refine_every_s > 0) || resolved != VIBID_ESTIMATOR_EKF)
+        return 0;
+    /* a stand with a disturbance: the prediction-error fit refines the EKF's estimate */
+    if (vibid_model_get_dims(vibid_stand_model(cfg->stand), &dims) == VIBID_OK && dims.n_disturbances)
         return 0;
     /* auto chose the EKF: not an equation-error estimate to refine */
     if (cfg->refine_explicit) {

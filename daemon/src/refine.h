@@ -54,6 +54,10 @@ typedef struct vd_refine {
     vd_refine_result res;          /* written by the refine thread before it is done */
     vd_worker worker;              /* the refine thread (vibidd-refine) */
     /* the refine thread's own */
+    bool disturbed;                /* the stand has a disturbance: the prediction-error fit, more starts */
+    bool have_nominal, have_last;  /* nominal: every unknown has a start value in the stand */
+    double nominal[VD_MAX_PARAMS], last_theta[VD_MAX_PARAMS];  /* last_theta: the last sound fit's */
+    double starts[3 * VD_MAX_PARAMS];                          /* p x n_starts, column-major */
     vibid_oe *oe;
     double *buf;                   /* window_n x nch, column-major */
     double sample_time;
@@ -67,7 +71,9 @@ typedef struct vd_refine {
  * 0, or -1 with err. */
 int vd_refine_init(vd_refine *r, const vd_config *cfg, size_t nch, size_t p, char *err, size_t cap);
 /* After the estimator is made (its method resolved): a refinement on by default is turned
- * off (refine_why says so) when `auto` chose the EKF; an explicit one is an error then.
+ * off (refine_why says so) when `auto` chose the EKF on a stand without disturbance; an
+ * explicit one is an error then. A stand with a disturbance keeps it (the prediction-error
+ * fit refines the EKF's estimate).
  * 0, or -1 with err. Called by the daemon's start and by --check. */
 int vd_refine_resolve(vd_config *cfg, vibid_estimator resolved, char *err, size_t cap);
 /* Starts the refine thread (SCHED_IDLE, else nice 19). 0, or -1 with err. */

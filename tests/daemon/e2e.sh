@@ -52,19 +52,8 @@ outputs = { tracks = { path = "tracks.csv"; }; record = { path = "raw.csv"; };
 EOF
 }
 
-# start_sim ARGS...: vibid-sim serving Modbus TCP on a free port of 127.0.0.1; sets SIMPID, PORT
-start_sim() {
-    [ -x "$SIM" ] || fail "vibid-sim not built ($SIM)"
-    "$SIM" -c "$STAND" -s "$SIMCFG" --modbus 127.0.0.1:0 "$@" > sim.out 2> sim.err &
-    SIMPID=$!
-    PORT=
-    for _ in $(seq 50); do
-        PORT=$(sed -n 's/.*listening on 127.0.0.1:\([0-9]*\).*/\1/p' sim.out)
-        [ -n "$PORT" ] && break
-        sleep 0.1
-    done
-    [ -n "$PORT" ] || fail "vibid-sim did not start: $(cat sim.err)"
-}
+# start_sim ARGS...: vibid-sim serving the stand over Modbus TCP (start_sim_modbus); sets SIMPID, PORT
+start_sim() { start_sim_modbus -c "$STAND" -s "$SIMCFG" "$@"; }
 
 config_candump() {
     cat > "$1" <<EOF

@@ -2,7 +2,8 @@
 # e2e_ekf.sh), sourced with their arguments CASE BUILD_DIR SOURCE_DIR and a name for the
 # scratch directory. Sets CASE, BUILD, SRC, VIBIDD, SIM and W (a fresh directory, removed
 # on exit, made the working directory) and defines fail, note, column, free_port,
-# status_val, wait_status and make_ca.
+# status_val, wait_status, start_sim_modbus, find_thread, thread_sched, wait_log, start_peer,
+# term_and_wait and make_ca.
 # usage: . e2e_common.sh NAME CASE BUILD_DIR SOURCE_DIR
 set -u
 CASE=$2
@@ -36,6 +37,38 @@ wait_status() {
     done
     return 1
 }
+
+# start_sim_modbus ARGS...: vibid-sim (its arguments ARGS, which name the stand) serving Modbus
+# TCP on a free port of 127.0.0.1; returns once it listens. Sets SIMPID and PORT.
+start_sim_modbus() {
+    [ -x "$SIM" ] || fail "vibid-sim not built ($SIM)"
+    "$SIM" "$@" --modbus 127.0.0.1:0 > sim.out 2> sim.err &
+    SIMPID=$!
+    PORT=
+    for _ in $(seq 50); do
+        PORT=$(sed -n 's/.*listening on 127.0.0.1:\([0-9]*\).*/\1/p' sim.out)
+        [ -n "$PORT" ] && break
+        sleep 0.1
+    done
+    [ -n "$PORT" ] || fail "vibid-sim did not start: $(cat sim.err)"
+}
+
+# find_thread TPID NAME: vibidd's thread NAME, vibidd being the child of TPID (a timeout
+# command started with &) or TPID itself; waits up to 5 s for it. Sets PID (vibidd's) and TID.
+find_thread() {
+    PID= TID=
+    for _ in $(seq 50); do
+        [ -n "$PID" ] || PID=$(cat "/proc/$1/task/$1/children" 2> /dev/null | awk '{ print $1 }')
+        [ -n "$PID" ] && TID=$(grep -lx "$2" /proc/"$PID"/task/*/comm 2> /dev/null | head -1 | cut -d/ -f5)
+        [ -n "$TID" ] && return 0
+        sleep 0.1
+    done
+    fail "no thread named $2 in vibidd ($(cat /proc/"$PID"/task/*/comm 2> /dev/null | tr '\n' ' '))"
+}
+
+# thread_sched TID: "POLICY NICE" of vibidd's thread TID (PID as find_thread set it): the stat
+# fields after the ")" that ends the name, 41 policy (5 = SCHED_IDLE) and 19 nice (proc(5))
+thread_sched() { sed 's/.*) //' "/proc/$PID/task/$1/stat" | awk '{ print $(41 - 2), $(19 - 2) }'; }
 
 # wait_log FILE PATTERN SECONDS: until FILE has a line matching PATTERN (grep -E); 1 if not
 wait_log() {

@@ -88,15 +88,8 @@ thread)
     config cap.csv
     timeout 60 "$VIBIDD" -c v.cfg --pace --speed 20 2> log &
     tpid=$!
-    pid= tid=
-    for _ in $(seq 100); do
-        [ -n "$pid" ] || pid=$(cat /proc/$tpid/task/$tpid/children 2> /dev/null | awk '{ print $1 }')
-        [ -n "$pid" ] && tid=$(grep -lx vibidd-oma /proc/$pid/task/*/comm 2> /dev/null | head -1 | cut -d/ -f5)
-        [ -n "$tid" ] && break
-        sleep 0.1
-    done
-    [ -n "$tid" ] || fail "no thread named vibidd-oma in vibidd ($(cat /proc/$pid/task/*/comm 2> /dev/null | tr '\n' ' '))"
-    read -r policy nice < <(sed 's/.*) //' "/proc/$pid/task/$tid/stat" | awk '{ print $(41 - 2), $(19 - 2) }')
+    find_thread $tpid vibidd-oma
+    read -r policy nice < <(thread_sched "$TID")
     [ "$policy" = 5 ] || [ "$nice" = 19 ] || fail "vibidd-oma: policy $policy, nice $nice (expected SCHED_IDLE = 5, or nice 19)"
     wait $tpid || fail "vibidd exit $? ($(cat log))"
     # 15 requests (every 20 s): at most 2 of them while the window fills, every other one
@@ -119,15 +112,8 @@ modbus)
     # made (from 10 s on), no sample lost on the way (gaps 0; the thread may lose some when
     # starved: counted and logged), the mode (6.25 Hz, the best excited) within 5 of its
     # standard errors in every row that has it.
-    "$SIM" -c "$SRC/examples/oma/chain5.cfg" --modbus 127.0.0.1:0 --duration 60 > sim.out 2> sim.err &
-    simpid=$!
-    port=
-    for _ in $(seq 50); do
-        port=$(sed -n 's/.*listening on 127.0.0.1:\([0-9]*\).*/\1/p' sim.out)
-        [ -n "$port" ] && break
-        sleep 0.1
-    done
-    [ -n "$port" ] || fail "vibid-sim did not start: $(cat sim.err)"
+    start_sim_modbus -c "$SRC/examples/oma/chain5.cfg" --duration 60
+    simpid=$SIMPID port=$PORT
     {
         echo 'oma = { name = "chain5"; sample_rate = 200.0; modes = [6.25]; window = 10.0; every = 5.0; block = 0.5; max_order = 30; };'
         echo "source = { kind = \"modbus\"; url = \"tcp://127.0.0.1:$port\"; mode = \"fifo\"; poll_period = 0.02;"
