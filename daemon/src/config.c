@@ -105,7 +105,61 @@ int vd_cfg_path(vd_cfg_ctx *c, const config_setting_t *g, const char *section, c
 
 static const char *const oma_known[] = {"name",       "sample_rate", "channels",    "refs",       "modes",
                                         "window",     "every",       "block",       "block_rows", "max_order",
-                                        "max_damping", "match_freq", "match_mac",   "outlier_threshold", NULL};
+                                        "max_damping", "match_freq", "match_mac",   "outlier_threshold",
+                                        "stand",      NULL};
+
+/* oma.stand: a stand file without inputs whose nodes name the response channels (issue 34
+ * item 3); its sample rate is the default of oma.sample_rate. 0, or -1 with the error. */
+static int load_oma_stand(vd_cfg_ctx *c, config_setting_t *g)
+{
+    vd_oma_config *o = &c->cfg->oma;
+    const config_setting_t *s = config_setting_get_member(g, "stand");
+    if (!s)
+        return 0;
+    if (config_setting_type(s) != CONFIG_TYPE_STRING)
+        return vibid_cfg_fail(&c->r, s, "oma.stand", "must be the name of a stand file (a string)");
+    if (vibid_cfg_path_of(&c->r, s, "oma.stand", config_setting_get_string(s), o->stand_file, sizeof o->stand_file))
+        return -1;
+    vibid_stand_error se;
+    o->stand = vibid_stand_load(o->stand_file, &se);
+    if (!o->stand) {
+        *c->r.err = se;
+        snprintf(c->r.err->text, sizeof c->r.err->text, "%.1250s (stand file referenced at %.1000s:%d)", se.text,
+                 c->r.file, config_setting_source_line(s));
+        return -1;
+    }
+    const vibid_model *m = vibid_stand_model(o->stand);
+    vibid_model_dims d;
+    vibid_model_get_dims(m, &d);
+    for (size_t i = 0; i < d.n_channels; i++) {
+        vibid_channel_info ci;
+        vibid_model_channel_info(m, i, &ci);
+        if (ci.kind == VIBID_CHANNEL_INPUT || ci.index == VIBID_BASE)
+            return vibid_cfg_fail(&c->r, s, "oma.stand",
+                                  "'%s' measures an input ('%s'): a stand with measured inputs is identified (stand = "
+                                  "...;), not tracked output-only",
+                                  o->stand_file, vibid_stand_channel_name(o->stand, i));
+    }
+    return 0;
+}
+
+/* The node and quantity of response channel i (model order) in oma.stand, as "m1
+ * acceleration"; NULL without oma.stand or where the stand does not measure that channel. */
+static const char *oma_node_of(const vd_config *cfg, size_t i, char *buf, size_t cap)
+{
+    const vibid_stand *st = cfg->oma.stand;
+    if (!st)
+        return NULL;
+    const size_t k = vibid_stand_find_channel(st, cfg->chanmap.ch[cfg->model_to_chan[i]].name);
+    vibid_channel_info ci;
+    const char *node = NULL;
+    if (k == (size_t)-1 || vibid_model_channel_info(vibid_stand_model(st), k, &ci) != VIBID_OK ||
+        vibid_model_node_name(vibid_stand_model(st), ci.index, &node) != VIBID_OK)
+        return NULL;
+    static const char *const q[] = {"displacement", "velocity", "acceleration"};
+    snprintf(buf, cap, "%s %s", node, (unsigned)ci.kind < 3 ? q[ci.kind] : "?");
+    return buf;
+}
 
 const char *vd_param_name(const vd_config *cfg, size_t k)
 {
@@ -133,11 +187,19 @@ static int load_oma(vd_cfg_ctx *c, config_setting_t *g)
     if (vd_cfg_known(c, g, "oma", oma_known))
         return -1;
     o->on = true;
-    if (!config_setting_get_member(g, "sample_rate"))
-        return vibid_cfg_fail(&c->r, g, "oma.sample_rate", "missing: the channels' sample rate in Hz");
-    if (vd_cfg_name(c, g, "oma", "name", "machine", false, o->name, sizeof o->name) ||
-        vd_cfg_double(c, g, "oma", "sample_rate", 0.0, 1e-3, 1e7, &cfg->sample_rate))
+    if (load_oma_stand(c, g))
         return -1;
+    if (!o->stand && !config_setting_get_member(g, "sample_rate"))
+        return vibid_cfg_fail(&c->r, g, "oma.sample_rate", "missing: the channels' sample rate in Hz");
+    if (vd_cfg_name(c, g, "oma", "name", o->stand ? vibid_stand_name(o->stand) : "machine", false, o->name,
+                    sizeof o->name) ||
+        vd_cfg_double(c, g, "oma", "sample_rate", o->stand ? vibid_stand_sample_rate(o->stand) : 0.0, 1e-3, 1e7,
+                      &cfg->sample_rate))
+        return -1;
+    if (o->stand && fabs(cfg->sample_rate - vibid_stand_sample_rate(o->stand)) > 1e-9 * cfg->sample_rate)
+        return vibid_cfg_fail(&c->r, config_setting_get_member(g, "sample_rate"), "oma.sample_rate",
+                              "%g Hz, but oma.stand '%s' says %g Hz", cfg->sample_rate, o->stand_file,
+                              vibid_stand_sample_rate(o->stand));
     const double fa = cfg->sample_rate;
     /* modes: how many (the lowest of the first identification that finds that many) or their
      * expected frequencies */
@@ -222,7 +284,22 @@ static int resolve_oma_channels(vd_cfg_ctx *c, const config_setting_t *src)
     const config_setting_t *g = config_lookup(src->config, "oma");
     const config_setting_t *ch = config_setting_get_member(g, "channels");
     cfg->n_channels = 0;
-    if (!ch) {
+    if (!ch && o->stand) { /* the stand's measured channels, in its order */
+        vibid_model_dims d;
+        vibid_model_get_dims(vibid_stand_model(o->stand), &d);
+        for (size_t i = 0; i < d.n_channels; i++) {
+            const char *name = vibid_stand_channel_name(o->stand, i);
+            size_t k = cfg->chanmap.n;
+            for (size_t q = 0; q < cfg->chanmap.n; q++)
+                if (!strcmp(cfg->chanmap.ch[q].name, name))
+                    k = q;
+            if (k == cfg->chanmap.n)
+                return vibid_cfg_fail(&c->r, src, "source.channels",
+                                      "no channel '%s': oma.stand '%s' measures it (oma.channels may name fewer)",
+                                      name, o->stand_file);
+            cfg->model_to_chan[cfg->n_channels++] = k;
+        }
+    } else if (!ch) {
         for (size_t k = 0; k < cfg->chanmap.n; k++)
             if (cfg->chanmap.ch[k].quantity != VIBID_Q_COVARIATE)
                 cfg->model_to_chan[cfg->n_channels++] = k;
@@ -1171,6 +1248,8 @@ void vd_config_free(vd_config *cfg)
 {
     vibid_stand_destroy(cfg->stand);
     cfg->stand = NULL;
+    vibid_stand_destroy(cfg->oma.stand);
+    cfg->oma.stand = NULL;
     vibid_dbc_destroy(cfg->dbc);
     cfg->dbc = NULL;
     vibid_regmap_destroy(cfg->regmap);
@@ -1342,6 +1421,8 @@ static void print_oma(const vd_config *cfg, FILE *o)
     const vd_oma_config *a = &cfg->oma;
     fprintf(o, "oma = {\n  name = \"%s\";\n  sample_rate = %s;  # Hz\n", vd_cfg_esc(a->name),
             vd_cfg_num(cfg->sample_rate));
+    if (a->stand)
+        fprintf(o, "  stand = \"%s\";  # names the nodes\n", vd_cfg_esc(a->stand_file));
     if (a->nominal_hz[0] > 0.0) {
         fprintf(o, "  modes = [");
         for (size_t j = 0; j < a->n_modes; j++)
@@ -1354,6 +1435,12 @@ static void print_oma(const vd_config *cfg, FILE *o)
     for (size_t i = 0; i < cfg->n_channels; i++)
         fprintf(o, "%s\"%s\"", i ? ", " : "", cfg->chanmap.ch[cfg->model_to_chan[i]].name);
     fprintf(o, "];\n");
+    char node[160];
+    for (size_t i = 0; i < cfg->n_channels && a->stand; i++) {
+        const char *at = oma_node_of(cfg, i, node, sizeof node);
+        fprintf(o, "  #   %s: %s\n", cfg->chanmap.ch[cfg->model_to_chan[i]].name,
+                at ? at : "not measured by oma.stand");
+    }
     if (a->n_refs) {
         fprintf(o, "  refs = [");
         for (size_t i = 0; i < a->n_refs; i++)

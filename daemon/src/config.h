@@ -67,6 +67,10 @@ typedef struct vd_oma_config {
     double match_freq, match_mac;/* a mode of a window continues a tracked mode when its frequency
                                     is within match_freq (relative) and its shape's MAC >= match_mac */
     char param_name[VD_MAX_PARAMS][16];
+    /* oma.stand: a stand without inputs that names the nodes of the response channels (its
+     * measured channels, by name); "" / NULL: none */
+    char stand_file[VD_PATH_MAX];
+    vibid_stand *stand;          /* owned */
 } vd_oma_config;
 
 /* The settings of the network outputs (output.h), one struct each: the output reads its own

@@ -215,6 +215,58 @@ def test_check_prints_a_configuration_that_reads_back(capture, tmp_path):
     assert strip(second.stdout) == strip(out)
 
 
+STAND_NAMES = """stand = {{ name = "chain3-named"; sample_rate = {fs};
+  nodes = ( {{ name = "base_plate"; mass = 1.0; measure = {{ displacement = "x1"; }}; }},
+            {{ name = "column"; mass = 1.5; measure = {{ displacement = "x2"; }}; }},
+            {{ name = "top"; mass = 1.0; measure = {{ displacement = "x3"; }}; }} );
+  elements = ( {{ name = "k1"; kind = "spring"; between = ["base_plate", "ground"]; value = 1.0e4; }},
+               {{ name = "k2"; kind = "spring"; between = ["column", "base_plate"]; value = 8.0e3; }},
+               {{ name = "k3"; kind = "spring"; between = ["top", "column"]; value = 6.0e3; }} ){inputs} }};
+"""
+
+
+@pytest.mark.parametrize("case", ["names", "input", "rate"])
+def test_stand_names_the_nodes(capture, tmp_path, case):
+    """oma.stand (issue 34 item 3): a stand without inputs names the nodes of the response
+    channels; its sample rate is the default and must agree; its measured channels are the
+    default response channels; a stand that measures an input is refused."""
+    import subprocess
+
+    from conftest import vibidd_path
+    inputs = ';\n  inputs = ( { name = "f"; node = "top"; gain = 1.0; channel = "x3"; } )' if case == "input" else ""
+    (tmp_path / "named.cfg").write_text(STAND_NAMES.format(fs=FS, inputs=inputs))
+    text = CONFIG.format(fs=FS, modes=3, window=WINDOW, every=EVERY, capture=capture, extra="", learn=LEARN)
+    rate = "sample_rate = 200.0; " if case == "rate" else ""
+    text = text.replace(f"  sample_rate = {FS};\n", f'  stand = "named.cfg"; {rate}\n')
+    cfg = tmp_path / "oma.cfg"
+    cfg.write_text(text)
+    if case == "input":
+        with pytest.raises(ValueError, match="measures an input .* not tracked output-only"):
+            vibid.replay(cfg)
+        return
+    if case == "rate":
+        with pytest.raises(ValueError, match="oma.sample_rate: 200 Hz, but oma.stand .* says 100 Hz"):
+            vibid.replay(cfg)
+        return
+    out = subprocess.run([str(vibidd_path()), "-c", str(cfg), "--check"], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    lines = out.stdout.splitlines()
+    assert "  sample_rate = 100.0;  # Hz" in lines
+    assert any(ln.startswith('  stand = "') and ln.endswith('named.cfg";  # names the nodes') for ln in lines)
+    # the stand's measured channels are the response channels (the covariate is not one)
+    assert '  channels = ["x1", "x2", "x3"];' in lines
+    for ch, node in (("x1", "base_plate"), ("x2", "column"), ("x3", "top")):
+        assert f"  #   {ch}: {node} displacement" in lines
+    again = tmp_path / "again.cfg"
+    again.write_text(out.stdout)
+    second = subprocess.run([str(vibidd_path()), "-c", str(again), "--check"], capture_output=True, text=True,
+                            timeout=60)
+    assert second.returncode == 0, second.stderr
+    strip = lambda s: [ln for ln in s.splitlines()
+                       if not ln.startswith("# vibidd effective configuration") and "oma.sample_rate in" not in ln]
+    assert strip(second.stdout) == strip(out.stdout)
+
+
 def run_vibidd(args, timeout=120):
     import subprocess
 
