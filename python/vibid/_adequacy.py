@@ -191,8 +191,8 @@ def simulator_inputs(stand) -> list[str]:
 
 def simulator(stand):
     """The stand's output-error simulator (_core.Oe), made once per stand. Raises VibidError
-    with the library's reason where the stand cannot be simulated (a disturbance, a moving
-    base whose displacement is not measured)."""
+    with the library's reason where the stand cannot be simulated (a moving base whose
+    displacement is not measured; a disturbance beside a cubic spring or a base)."""
     oe = getattr(stand, "_oe", None)
     if oe is None:
         oe = _core.Oe(stand._core, True)

@@ -296,9 +296,10 @@ class Result:
         ``result.offsets["value"]``). Returns the simulated response channels (the stand's
         measured displacements, velocities and accelerations of nodes), one column each, by
         the library's output-error simulator (``vibid_oe_simulate``: linear stands exactly,
-        cubic springs by RK4). Raises VibidError where the stand cannot be simulated (a
-        disturbance; a moving base whose displacement is not measured) or the simulation
-        diverges."""
+        cubic springs by RK4; a stand with disturbances: its deterministic part, the
+        disturbances zero). Raises VibidError where the stand cannot be simulated (a moving
+        base whose displacement is not measured; a disturbance beside a cubic spring or a
+        base) or the simulation diverges."""
         block = _adequacy.input_block(self.stand, inputs)
         oe = _adequacy.simulator(self.stand)
         resp = list(oe.response_channels())
