@@ -14,6 +14,21 @@
 #include "sim_engine.h"
 #include "sim_test_util.h"
 
+/* SANITIZED: 1 in the AddressSanitizer build (-O1, about 10x slower), where the Monte
+ * Carlo studies run a few realisations for the code paths and leave the statistics to the
+ * -Werror build. */
+#if defined(__SANITIZE_ADDRESS__)
+#define SANITIZED 1
+#elif defined(__has_feature)
+#if __has_feature(address_sanitizer)
+#define SANITIZED 1
+#else
+#define SANITIZED 0
+#endif
+#else
+#define SANITIZED 0
+#endif
+
 typedef struct capture {
     vibid_stand *stand;
     size_t n, nch, p;

@@ -25,8 +25,9 @@
  *    pooled; the cubic stand's RK4 fits are too slow for the sanitizer build: its coverage,
  *    92.0 % over 25 x 4 at 2 s, was measured by hand) lies in [88 %, 99 %]: binomial sd about 2 % at the nominal
  *    95.4 %, so the band is 3.5 sd below it and the issue's [90, 98] widened by one sd.
- *    Kept small so that the sanitizer build (-O1) runs it well inside ctest's time-out;
- *    longer studies belong in benchmarks. */
+ *    Kept small so that the sanitizer build (-O1) runs it well inside ctest's time-out
+ *    (there 3 realisations run the code paths, unchecked: capture.h); longer studies
+ *    belong in benchmarks. */
 #include <math.h>
 #include <setjmp.h>
 #include <stdarg.h>
@@ -333,14 +334,15 @@ static void coverage(const char *name, const char *text, size_t n, int runs, dou
     }
     const double cov = (double)in / total;
     printf("%s: coverage of 2 se %.1f %% (%d of %d)\n", name, 100.0 * cov, in, total);
-    assert_true(cov >= 0.88 && cov <= 0.99);
+    if (!SANITIZED) /* there a few realisations run the code paths (capture.h) */
+        assert_true(cov >= 0.88 && cov <= 0.99);
     capture_free(&c);
 }
 
 static void test_coverage(void **state)
 {
     (void)state;
-    coverage("oe_chain.cfg", chain_stand, 4000, 20, 0.005);
+    coverage("oe_chain.cfg", chain_stand, 4000, SANITIZED ? 3 : 20, 0.005);
 }
 
 /* The estimator kind VIBID_ESTIMATOR_OE of identify.h: the fit from the AUTO estimate; an

@@ -41,18 +41,6 @@
 
 #include "capture.h"
 
-#if defined(__SANITIZE_ADDRESS__)
-#define SANITIZED 1
-#elif defined(__has_feature)
-#if __has_feature(address_sanitizer)
-#define SANITIZED 1
-#else
-#define SANITIZED 0
-#endif
-#else
-#define SANITIZED 0
-#endif
-
 /* @0, @1, ...: the start values of the unknowns in the order below; @S the seed. */
 static const char *ambient_fmt =
     "stand = { name = \"pe-ambient\"; sample_rate = 300.0;\n"
