@@ -281,11 +281,15 @@ struct PredictionError::Impl {
     bool deterministic(const VecX &phi, const double *x0, MatX &out) const {
         Predictor s;
         if (!discretise(phi, s)) return false;
-        VecX x = x0 ? VecX(Eigen::Map<const VecX>(x0, 2 * n)) : VecX::Zero(2 * n);
+        VecX x = x0 ? VecX(Eigen::Map<const VecX>(x0, 2 * n)) : VecX::Zero(2 * n), xn(2 * n);
         out.resize(ny, ns);
         for (Index k = 0; k < ns; ++k) {
-            out.col(k) = s.Cm * x + s.Dm * E.col(k);
-            x = (s.Phi * x + s.G0 * E.col(k) + s.G1 * Ed.col(k)).eval();
+            out.col(k).noalias() = s.Cm * x;
+            out.col(k).noalias() += s.Dm * E.col(k);
+            xn.noalias() = s.Phi * x;
+            xn.noalias() += s.G0 * E.col(k);
+            xn.noalias() += s.G1 * Ed.col(k);
+            x.swap(xn);
             if (!x.allFinite()) return false;
         }
         return true;
@@ -304,7 +308,7 @@ struct PredictionError::Impl {
         if (!build(phi, s)) return kInf;
         const Index nx = 2 * n;
         // the matrices' derivatives, stacked parameter by parameter
-        MatX dPhi, dG0, dG1, dK, dCm, dDm, SidS;  // SidS: S^-1 dS_i side by side (ny x ny nd)
+        MatX dPhi, dG0, dG1, dK, dCm, dDm, dS, SidS;  // dS: dS_i side by side (ny x ny nd); SidS: S^-1 dS_i
         VecX trSidS;
         if (with_sens) {
             dPhi.resize(nx * nd, nx);
@@ -313,6 +317,7 @@ struct PredictionError::Impl {
             dK.resize(nx * nd, ny);
             dCm.resize(ny * nd, nx);
             dDm.resize(ny * nd, r);
+            dS.resize(ny, ny * nd);
             SidS.resize(ny, ny * nd);
             trSidS.resize(nd);
             Eigen::LLT<MatX> sl(s.S);
@@ -330,7 +335,8 @@ struct PredictionError::Impl {
                 dK.middleRows(i * nx, nx) = (sa.K - sb.K) * c;
                 dCm.middleRows(i * ny, ny) = (sa.Cm - sb.Cm) * c;
                 dDm.middleRows(i * ny, ny) = (sa.Dm - sb.Dm) * c;
-                SidS.middleCols(i * ny, ny) = sl.solve(MatX((sa.S - sb.S) * c));
+                dS.middleCols(i * ny, ny) = (sa.S - sb.S) * c;
+                SidS.middleCols(i * ny, ny) = sl.solve(dS.middleCols(i * ny, ny));
                 trSidS(i) = SidS.middleCols(i * ny, ny).trace();
             }
             ps.H = MatX::Zero(np, np);
@@ -338,8 +344,11 @@ struct PredictionError::Impl {
             ps.scores = MatX::Zero(np, static_cast<Index>(n_blocks));
         }
         const auto Lv = s.L.triangularView<Eigen::Lower>();
-        VecX xh = VecX::Zero(nx), eps(ny), wr(ny), a(ny), stack;
-        MatX X = MatX::Zero(nx, with_sens ? np : 0), Xn, dE, Jr(ny, np);
+        // every buffer sized here: nothing on the per-sample path below allocates
+        VecX xh = VecX::Zero(nx), xn(nx), eps(ny), wr(ny), a(ny), dSa(with_sens ? ny * nd : 0);
+        VecX stack(with_sens ? std::max(nx, ny) * nd : 0);
+        MatX X = MatX::Zero(nx, with_sens ? np : 0), Xn(nx, with_sens ? np : 0), dE(ny, with_sens ? np : 0),
+             Jr(ny, np);
         MatX J(kChunkRows, np);
         VecX rr(kChunkRows);
         Index nrow = 0;
@@ -361,7 +370,9 @@ struct PredictionError::Impl {
             const bool ok = finite[static_cast<std::size_t>(k)] != 0;
             const auto e = E.col(k), ed = Ed.col(k);
             if (ok) {
-                eps = Z.col(k) - s.Cm * xh - s.Dm * e;
+                eps = Z.col(k);
+                eps.noalias() -= s.Cm * xh;
+                if (r) eps.noalias() -= s.Dm * e;
                 if (no) eps -= phi.tail(no);
             } else {
                 eps.setZero();
@@ -369,17 +380,19 @@ struct PredictionError::Impl {
             if (with_sens) {
                 if (ok) {
                     dE.noalias() = -s.Cm * X;
-                    stack.noalias() = dCm * xh;
-                    if (r) stack.noalias() += dDm * e;
-                    dE.leftCols(nd) -= Eigen::Map<const MatX>(stack.data(), ny, nd);
+                    auto sy = stack.head(ny * nd);
+                    sy.noalias() = dCm * xh;
+                    if (r) sy.noalias() += dDm * e;
+                    dE.leftCols(nd) -= Eigen::Map<const MatX>(sy.data(), ny, nd);
                     for (Index j = 0; j < no; ++j) dE(j, nd + j) -= 1.0;
                 } else {
-                    dE.setZero(ny, np);
+                    dE.setZero();
                 }
             }
             const bool count = ok && k >= burn;
             if (count) {
-                wr = Lv.solve(eps);
+                wr = eps;
+                Lv.solveInPlace(wr);
                 quad += wr.squaredNorm();
                 ++used;
                 if (with_sens) {
@@ -387,16 +400,19 @@ struct PredictionError::Impl {
                         flush();
                         ++block;
                     }
-                    Jr = -Lv.solve(dE);  // residual sensitivity, whitened (J = -d(L^-1 eps))
+                    Jr = dE;
+                    Lv.solveInPlace(Jr);  // L^-1 d eps: the residual sensitivity is its negative
                     for (Index j = 0; j < ny; ++j) {
-                        J.row(nrow) = Jr.row(j);
+                        J.row(nrow) = -Jr.row(j);
                         rr(nrow) = wr(j);
                         if (++nrow == kChunkRows) flush();
                     }
                     // the covariance's part of the score: 1/2 (a' dS_i a - tr S^-1 dS_i), a = S^-1 eps
-                    a = s.L.transpose().triangularView<Eigen::Upper>().solve(wr);
+                    a = wr;
+                    s.L.transpose().triangularView<Eigen::Upper>().solveInPlace(a);
+                    dSa.noalias() = dS.transpose() * a;  // block i: dS_i a (dS_i symmetric)
                     for (Index i = 0; i < nd; ++i) {
-                        const double q = a.dot(s.S * (SidS.middleCols(i * ny, ny) * a));
+                        const double q = a.dot(dSa.segment(i * ny, ny));
                         const double si = 0.5 * (q - trSidS(i));
                         ps.g(i) += si;
                         ps.scores(i, block) += si;
@@ -404,16 +420,23 @@ struct PredictionError::Impl {
                 }
             }
             // advance
-            VecX xn = s.Phi * xh;
-            if (r) xn.noalias() += s.G0 * e + s.G1 * ed;
+            xn.noalias() = s.Phi * xh;
+            if (r) {
+                xn.noalias() += s.G0 * e;
+                xn.noalias() += s.G1 * ed;
+            }
             if (ok) xn.noalias() += s.K * eps;
             if (with_sens) {
                 Xn.noalias() = s.Phi * X;
                 if (ok) Xn.noalias() += s.K * dE;
-                stack.noalias() = dPhi * xh;
-                if (r) stack.noalias() += dG0 * e + dG1 * ed;
-                if (ok) stack.noalias() += dK * eps;
-                Xn.leftCols(nd) += Eigen::Map<const MatX>(stack.data(), nx, nd);
+                auto sx = stack.head(nx * nd);
+                sx.noalias() = dPhi * xh;
+                if (r) {
+                    sx.noalias() += dG0 * e;
+                    sx.noalias() += dG1 * ed;
+                }
+                if (ok) sx.noalias() += dK * eps;
+                Xn.leftCols(nd) += Eigen::Map<const MatX>(sx.data(), nx, nd);
                 X.swap(Xn);
             }
             xh.swap(xn);
@@ -706,20 +729,26 @@ void PredictionError::predict(std::size_t n_samples, const double *channels, dou
     m.load(n_samples, channels);
     Predictor s;
     if (!m.build(m.best.phi, s)) throw_error(VIBID_E_NUMERICAL, "the fitted predictor does not exist");
-    VecX xh = VecX::Zero(2 * m.n), eps(m.ny);
+    VecX xh = VecX::Zero(2 * m.n), xn(2 * m.n), eps(m.ny);
     for (Index k = 0; k < m.ns; ++k) {
         const bool ok = m.finite[static_cast<std::size_t>(k)] != 0;
         const auto e = m.E.col(k), ed = m.Ed.col(k);
         if (ok) {
-            eps = m.Z.col(k) - s.Cm * xh - s.Dm * e;
+            eps = m.Z.col(k);
+            eps.noalias() -= s.Cm * xh;
+            if (m.r) eps.noalias() -= s.Dm * e;
             if (m.no) eps -= m.best.phi.tail(m.no);
         } else {
             eps.setZero();
         }
         for (Index j = 0; j < m.ny; ++j)
             innovations[static_cast<std::size_t>(k + j * m.ns)] = ok ? eps(j) : std::nan("");
-        VecX xn = s.Phi * xh + s.K * eps;
-        if (m.r) xn.noalias() += s.G0 * e + s.G1 * ed;
+        xn.noalias() = s.Phi * xh;
+        xn.noalias() += s.K * eps;
+        if (m.r) {
+            xn.noalias() += s.G0 * e;
+            xn.noalias() += s.G1 * ed;
+        }
         xh.swap(xn);
         if (!xh.allFinite()) throw_error(VIBID_E_NUMERICAL, "the predictor diverged at sample %ld", static_cast<long>(k));
     }
